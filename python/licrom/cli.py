@@ -1,0 +1,105 @@
+"""The ``licrom`` command line.
+
+Each subcommand is a thin wrapper over the Python API; errors of the
+:class:`~licrom.errors.LicromError` family are printed as one line and exit
+with status 2 instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from .errors import LicromError
+
+__all__ = ["main", "cli"]
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="licrom")
+def cli() -> None:
+    """licrom: reduced-order simulation of elastic solids in frictional contact."""
+
+
+def _print_mesh_summary(mesh, seconds: float | None = None) -> None:
+    q = mesh.quality()
+    lo, hi = mesh.bounds
+    click.echo(f"vertices          {mesh.n_vertices}")
+    click.echo(f"tets              {mesh.n_tets}")
+    click.echo(f"boundary faces    {len(mesh.boundary_faces)}")
+    click.echo(f"boundary vertices {len(mesh.boundary_vertices)}")
+    click.echo(f"bounds (m)        [{lo[0]:.4g}, {lo[1]:.4g}, {lo[2]:.4g}] .. [{hi[0]:.4g}, {hi[1]:.4g}, {hi[2]:.4g}]")
+    click.echo(f"volume (m^3)      {mesh.volume:.6g}")
+    click.echo(f"surface (m^2)     {mesh.surface_area:.6g}")
+    click.echo(f"dihedral (deg)    min {q.min_dihedral_deg:.2f}  max {q.max_dihedral_deg:.2f}")
+    click.echo(f"tet volume (m^3)  min {q.min_volume:.3e}  max {q.max_volume:.3e}")
+    if seconds is not None:
+        click.echo(f"time (s)          {seconds:.2f}")
+
+
+@cli.command("mesh")
+@click.argument("source")
+@click.option("--resolution", "-r", type=int, default=None, help="Cells along the longest side (procedural meshes).")
+@click.option("--size", type=float, nargs=3, default=None, help="Box or cheese edge lengths in m.")
+@click.option("--radius", type=float, default=None, help="Sphere radius in m.")
+@click.option("--holes", type=int, default=None, help="Cheese: number of holes.")
+@click.option("--seed", type=int, default=None, help="Cheese: hole layout seed.")
+@click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the mesh here (.mesh, .msh, .vtu, ...).")
+def mesh_command(source, resolution, size, radius, holes, seed, output) -> None:
+    """Generate a procedural mesh (box, sphere, cheese) or inspect/convert a mesh file.
+
+    SOURCE is 'box', 'sphere', 'cheese', or the path of a tet mesh file.
+    Prints counts and tet quality; with --output, writes the mesh.
+    """
+    from . import meshes
+    from .mesh import Mesh
+
+    start = time.perf_counter()
+    if source in meshes.PROCEDURAL:
+        kwargs: dict = {}
+        if resolution is not None:
+            kwargs["resolution"] = resolution
+        if size is not None and source in ("box", "cheese"):
+            kwargs["size"] = tuple(size)
+        if radius is not None and source == "sphere":
+            kwargs["radius"] = radius
+        if source == "cheese" and (holes is not None or seed is not None):
+            base = meshes.CheeseHoles()
+            kwargs["holes"] = meshes.CheeseHoles(
+                count=base.count if holes is None else holes, min_radius=base.min_radius,
+                max_radius=base.max_radius, seed=base.seed if seed is None else seed,
+            )
+        mesh = meshes.PROCEDURAL[source](**kwargs)
+        click.echo(f"{source} mesh")
+    else:
+        mesh = Mesh.load(source)
+        click.echo(f"mesh file {source}")
+    elapsed = time.perf_counter() - start
+    _print_mesh_summary(mesh, elapsed)
+    if output is not None:
+        mesh.save(output)
+        click.echo(f"wrote {output}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``licrom`` script."""
+    try:
+        cli.main(args=argv, prog_name="licrom", standalone_mode=False)
+    except LicromError as exc:
+        click.echo(f"licrom: error: {exc}", err=True)
+        return 2
+    except click.exceptions.Abort:
+        click.echo("licrom: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,136 @@
+"""Trajectories: the recorded motion of one simulation, full-space or reduced, as one file."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._io import check_version, load_npz, save_npz
+from .errors import FileFormatError, ShapeError, SolverError
+from .mesh import Mesh
+from .scene import Scene
+
+__all__ = ["Trajectory", "TRAJECTORY_FORMAT_VERSION"]
+
+TRAJECTORY_FORMAT_VERSION = 1
+
+
+@dataclass
+class Trajectory:
+    """Recorded frames of a simulation of one mesh in one scene.
+
+    Attributes:
+        rest_positions: (n, 3) rest positions in m.
+        tets: (m, 4) tets.
+        displacements: (f, n, 3) displacement from rest at each frame, m.
+        velocities: (f, n, 3) velocity at each frame, m/s.
+        times: (f,) time of each frame, s.
+        scene: the scene simulated (material, planes, stiffnesses, dt, gravity, initial state).
+        iterations: (s,) Newton iterations of each step taken.
+        residuals: (s,) final convergence measure of each step (m/s).
+        converged: (s,) whether each step met the tolerance.
+        step_seconds: (s,) wall time of each step, s.
+        info: free-form JSON-ready metadata (source, mesh name, sweep parameters, ...).
+    """
+
+    rest_positions: np.ndarray
+    tets: np.ndarray
+    displacements: np.ndarray
+    velocities: np.ndarray
+    times: np.ndarray
+    scene: Scene
+    iterations: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    converged: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.rest_positions = np.asarray(self.rest_positions, dtype=np.float64)
+        self.tets = np.asarray(self.tets, dtype=np.int64)
+        self.displacements = np.asarray(self.displacements, dtype=np.float64)
+        self.velocities = np.asarray(self.velocities, dtype=np.float64)
+        self.times = np.asarray(self.times, dtype=np.float64)
+        n = len(self.rest_positions)
+        f = len(self.times)
+        for name in ("displacements", "velocities"):
+            a = getattr(self, name)
+            if a.shape != (f, n, 3):
+                raise ShapeError(f"Trajectory.{name} must have shape (frames, vertices, 3) = {(f, n, 3)}, got {a.shape}")
+        for name in ("displacements", "velocities", "times"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise SolverError(f"Trajectory.{name} holds NaN or inf; refusing to keep a diverged simulation")
+        self.iterations = np.asarray(self.iterations, dtype=np.int32)
+        self.residuals = np.asarray(self.residuals, dtype=np.float64)
+        self.converged = np.asarray(self.converged, dtype=bool)
+        self.step_seconds = np.asarray(self.step_seconds, dtype=np.float64)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.times)
+
+    @property
+    def mesh(self) -> Mesh:
+        """The rest mesh (rebuilt from the stored arrays)."""
+        return Mesh(self.rest_positions, self.tets, fix_orientation=False)
+
+    def positions(self, frame: int) -> np.ndarray:
+        """(n, 3) positions at ``frame``, m."""
+        return self.rest_positions + self.displacements[frame]
+
+    def centers_of_mass(self) -> np.ndarray:
+        """(f, 3) mass-weighted centre of each frame, m."""
+        masses = self.mesh.vertex_masses(self.scene.material.density)
+        w = masses / masses.sum()
+        return self.rest_positions @ w + np.einsum("fnk,n->fk", self.displacements, w)
+
+    def save(self, path: str | os.PathLike, precision: str = "float32") -> Path:
+        """Write the trajectory to one ``.npz`` file atomically; return the path.
+
+        Args:
+            path: destination, ``.npz`` is appended if missing.
+            precision: ``"float32"`` (default, half the size) or ``"float64"`` for the frames;
+                rest positions are always float64.
+        """
+        if precision not in ("float32", "float64"):
+            raise ShapeError(f"precision must be 'float32' or 'float64', got {precision!r}")
+        p = Path(path)
+        if p.suffix != ".npz":
+            p = p.with_name(p.name + ".npz")
+        header = {
+            "kind": "trajectory",
+            "version": TRAJECTORY_FORMAT_VERSION,
+            "scene": self.scene.to_dict(),
+            "info": self.info,
+        }
+        arrays = {
+            "rest_positions": self.rest_positions,
+            "tets": self.tets,
+            "displacements": self.displacements.astype(precision),
+            "velocities": self.velocities.astype(precision),
+            "times": self.times,
+            "iterations": self.iterations,
+            "residuals": self.residuals,
+            "converged": self.converged,
+            "step_seconds": self.step_seconds,
+        }
+        save_npz(p, arrays, header)
+        return p
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Trajectory:
+        """Read a file written by :meth:`save`.
+
+        Raises:
+            FileFormatError: missing, truncated or foreign file, or unknown format version.
+        """
+        header, arrays = load_npz(path, "trajectory")
+        check_version(header.get("version"), TRAJECTORY_FORMAT_VERSION, f"trajectory '{path}'")
+        try:
+            return cls(scene=Scene.from_dict(header["scene"]), info=header.get("info", {}), **arrays)
+        except (KeyError, TypeError) as exc:
+            raise FileFormatError(f"trajectory '{path}' is missing data: {exc}") from exc
