@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -232,6 +234,40 @@ class Mesh:
         ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
         return ds @ self.shape_matrix_inverses
 
+    def locate(self, points: np.ndarray, candidates: int = 12) -> tuple[np.ndarray, np.ndarray]:
+        """Find the tet holding each point and its barycentric coordinates.
+
+        Points outside the mesh (or within round-off of a face) get the nearest
+        candidate tet, with barycentric coordinates clamped to it and renormalised.
+
+        Args:
+            points: (p, 3) positions in m in the rest configuration.
+            candidates: nearest tet centroids examined per point.
+
+        Returns:
+            ``(tets, bary)``: (p,) tet indices and (p, 4) barycentric coordinates.
+        """
+        from scipy.spatial import cKDTree
+
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ShapeError(f"points must have shape (p, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ShapeError("points hold NaN or inf")
+        if "_centroid_tree" not in self.__dict__:
+            self.__dict__["_centroid_tree"] = cKDTree(self.centroids)
+        k = min(candidates, self.n_tets)
+        _, cand = self.__dict__["_centroid_tree"].query(pts, k=k)
+        cand = cand.reshape(len(pts), k)
+        x0 = self._vertices[self._tets[cand, 0]]  # (p, k, 3)
+        b123 = np.einsum("pkij,pkj->pki", self.shape_matrix_inverses[cand], pts[:, None, :] - x0)
+        bary = np.concatenate([1.0 - b123.sum(axis=2, keepdims=True), b123], axis=2)  # (p, k, 4)
+        worst = bary.min(axis=2)
+        pick = np.argmax(worst, axis=1)  # the candidate the point is most inside of
+        rows = np.arange(len(pts))
+        b = np.clip(bary[rows, pick], 0.0, None)
+        return cand[rows, pick], b / b.sum(axis=1, keepdims=True)
+
     def quality(self) -> MeshQuality:
         """Dihedral angles, volumes and edge length of the tets."""
         x = self._vertices[self._tets]
@@ -272,12 +308,16 @@ class Mesh:
         p = Path(path)
         if not p.is_file():
             raise FileFormatError(f"mesh file not found: '{p}'")
+        chatter = io.StringIO()
         try:
-            m = meshio.read(p)
+            # meshio prints and calls sys.exit() on some corrupt files; keep both away from the user.
+            with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+                m = meshio.read(p)
         except meshio.ReadError as exc:
             raise FileFormatError(f"cannot read mesh '{p}': {exc}. Accepted formats: {_TET_FORMATS}") from exc
-        except Exception as exc:  # meshio raises many types on truncated or corrupt files
-            raise FileFormatError(f"cannot read mesh '{p}' (truncated or corrupt?): {type(exc).__name__}: {exc}") from exc
+        except (Exception, SystemExit) as exc:  # meshio raises many types on truncated or corrupt files
+            detail = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
+            raise FileFormatError(f"cannot read mesh '{p}' (truncated or corrupt?): {detail}") from None
         blocks = [c.data for c in m.cells if c.type == "tetra"]
         if not blocks:
             kinds = sorted({c.type for c in m.cells}) or ["none"]
@@ -307,7 +347,7 @@ class Mesh:
         with atomic_path(p) as tmp:  # same suffix as ``p``, so meshio picks the format from it
             try:
                 meshio.write(tmp, mesh)
-            except (KeyError, ValueError, meshio.WriteError) as exc:
+            except (KeyError, ValueError, meshio.ReadError, meshio.WriteError) as exc:
                 raise FileFormatError(f"cannot write a mesh to '{p}': {exc}. Accepted formats: {_TET_FORMATS}") from exc
 
     # --- comparison --------------------------------------------------------------------

@@ -1,0 +1,254 @@
+"""Subspace bases: displacement fields ``u(X) = W(X) q`` evaluated at any rest point.
+
+A *basis* is any object with
+
+- ``n_modes``: the number k of columns of W;
+- ``values(points)``: (p, 3) rest points -> (p, 3, k) values of W;
+- ``jacobians(points)``: (p, 3) -> (p, 3, 3, k) with ``J[p, i, j, c] = dW_ic/dX_j``,
+  so the deformation gradient is ``F = I + sum_c J[..., c] q_c``.
+
+:class:`AffineBasis` holds the 12 affine modes (rigid motion is exact),
+:class:`MeshBasis` interpolates per-vertex modes linearly in each tet (POD bases,
+the identity basis of a small mesh) and :class:`StackedBasis` concatenates bases,
+e.g. affine + learned. A trained :class:`licrom.Model` is one more basis.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .errors import ShapeError
+from .mesh import Mesh
+
+__all__ = [
+    "Basis",
+    "AffineBasis",
+    "MeshBasis",
+    "StackedBasis",
+    "affine_values",
+    "affine_jacobians",
+    "check_basis_output",
+    "SubspaceProjector",
+]
+
+
+@runtime_checkable
+class Basis(Protocol):
+    """What the reduced simulation needs of a subspace."""
+
+    n_modes: int
+
+    def values(self, points: np.ndarray) -> np.ndarray: ...
+
+    def jacobians(self, points: np.ndarray) -> np.ndarray: ...
+
+
+def _points(points: np.ndarray) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
+    return p
+
+
+def affine_values(points: np.ndarray) -> np.ndarray:
+    """(p, 3, 12) values of the affine modes.
+
+    Mode ``c < 9`` is ``X_j e_i`` with ``(i, j) = divmod(c, 3)`` (entry ``A_ij`` of a
+    linear map ``A X``); modes 9, 10, 11 are the translations ``e_0, e_1, e_2``.
+    """
+    p = _points(points)
+    out = np.zeros((len(p), 3, 12))
+    for i in range(3):
+        out[:, i, 3 * i : 3 * i + 3] = p
+        out[:, i, 9 + i] = 1.0
+    return out
+
+
+def affine_jacobians(points: np.ndarray) -> np.ndarray:
+    """(p, 3, 3, 12) spatial derivatives of :func:`affine_values` (constant)."""
+    p = _points(points)
+    out = np.zeros((len(p), 3, 3, 12))
+    for c in range(9):
+        i, j = divmod(c, 3)
+        out[:, i, j, c] = 1.0
+    return out
+
+
+def check_basis_output(name: str, array: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Return ``array`` as float64 after checking its shape and finiteness.
+
+    Raises:
+        ShapeError: wrong shape, or NaN/inf values.
+    """
+    a = np.asarray(array, dtype=np.float64)
+    if a.shape != shape:
+        raise ShapeError(f"basis {name} must have shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ShapeError(f"basis {name} hold NaN or inf ({int((~np.isfinite(a)).sum())} entries)")
+    return a
+
+
+class SubspaceProjector:
+    """Mass-weighted projection onto a basis sampled at the vertices of a mesh.
+
+    ``q = M_r^-1 W^T M u`` with ``M_r = W^T M W``: the subspace displacement closest
+    to ``u`` in the kinetic-energy norm.
+
+    Args:
+        values: (n, 3, k) basis values at the vertices.
+        masses: (n,) lumped vertex masses in kg.
+
+    Raises:
+        ConfigError: ``M_r`` is singular (modes linearly dependent on this mesh).
+    """
+
+    def __init__(self, values: np.ndarray, masses: np.ndarray) -> None:
+        from scipy.linalg import LinAlgError, cho_factor
+
+        from .errors import ConfigError
+
+        w = np.asarray(values, dtype=np.float64)
+        self._w = w.reshape(-1, w.shape[2])  # (3n, k)
+        self._m3 = np.repeat(np.asarray(masses, dtype=np.float64), 3)
+        self.reduced_mass = self._w.T @ (self._m3[:, None] * self._w)
+        scale = float(np.abs(np.diag(self.reduced_mass)).max())
+        try:
+            self._factor = cho_factor(self.reduced_mass)
+            ok = bool(np.all(np.abs(np.diag(self._factor[0])) > 1e-7 * np.sqrt(scale)))
+        except LinAlgError:
+            ok = False
+        if not ok:
+            raise ConfigError(
+                "the reduced mass matrix W^T M W is singular: some basis modes are linearly dependent "
+                "(or zero) on this mesh; remove duplicate modes or use fewer modes"
+            )
+
+    def _flat(self, name: str, field: np.ndarray) -> np.ndarray:
+        a = np.asarray(field, dtype=np.float64)
+        n = len(self._m3) // 3
+        if a.shape[-2:] != (n, 3):
+            raise ShapeError(f"{name} must have shape (..., {n}, 3), got {a.shape}")
+        return a.reshape(-1, 3 * n)
+
+    def reduce(self, forces: np.ndarray) -> np.ndarray:
+        """(..., n, 3) vertex forces -> (..., k) generalized forces ``W^T f``."""
+        f = np.asarray(forces)
+        return (self._flat("forces", f) @ self._w).reshape(*f.shape[:-2], -1)
+
+    def project(self, displacements: np.ndarray) -> np.ndarray:
+        """(..., n, 3) displacements -> (..., k) subspace coordinates."""
+        from scipy.linalg import cho_solve
+
+        u = np.asarray(displacements)
+        rhs = self._w.T @ (self._m3[:, None] * self._flat("displacements", u).T)
+        return cho_solve(self._factor, rhs).T.reshape(*u.shape[:-2], -1)
+
+
+class AffineBasis:
+    """The 12 affine modes ``u(X) = A X + t``; reproduces any rigid motion exactly."""
+
+    n_modes = 12
+
+    def values(self, points: np.ndarray) -> np.ndarray:
+        return affine_values(points)
+
+    def jacobians(self, points: np.ndarray) -> np.ndarray:
+        return affine_jacobians(points)
+
+    def __repr__(self) -> str:
+        return "AffineBasis()"
+
+
+class MeshBasis:
+    """Per-vertex modes of a mesh, interpolated linearly inside each tet.
+
+    Args:
+        mesh: the mesh the modes live on.
+        modes: (n_vertices, 3, k) mode values at the vertices.
+    """
+
+    def __init__(self, mesh: Mesh, modes: np.ndarray) -> None:
+        m = np.asarray(modes, dtype=np.float64)
+        if m.ndim != 3 or m.shape[:2] != (mesh.n_vertices, 3) or m.shape[2] < 1:
+            raise ShapeError(f"MeshBasis modes must have shape ({mesh.n_vertices}, 3, k) with k >= 1, got {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise ShapeError("MeshBasis modes hold NaN or inf")
+        self.mesh = mesh
+        self.modes = m
+        self.n_modes = m.shape[2]
+
+    @classmethod
+    def identity(cls, mesh: Mesh) -> MeshBasis:
+        """The full-space basis: one mode per vertex coordinate (q is the displacement vector).
+
+        Its size grows as ``9 n^2``: meant for small meshes (tests, reference runs).
+        """
+        n = mesh.n_vertices
+        modes = np.zeros((n, 3, 3 * n))
+        idx = np.arange(n)
+        for i in range(3):
+            modes[idx, i, 3 * idx + i] = 1.0
+        return cls(mesh, modes)
+
+    @classmethod
+    def pod(cls, mesh: Mesh, displacements: np.ndarray, count: int, density: float = 1.0) -> tuple[MeshBasis, np.ndarray]:
+        """Mass-orthonormal POD modes of displacement snapshots (numpy SVD).
+
+        Args:
+            mesh: the mesh of the snapshots.
+            displacements: (f, n, 3) snapshots.
+            count: number of modes kept.
+            density: only scales the mass weighting (the subspace does not depend on it).
+
+        Returns:
+            ``(basis, singular_values)``.
+        """
+        u = np.asarray(displacements, dtype=np.float64)
+        if u.ndim != 3 or u.shape[1:] != (mesh.n_vertices, 3):
+            raise ShapeError(f"displacements must have shape (f, {mesh.n_vertices}, 3), got {u.shape}")
+        if not 1 <= count <= min(u.shape[0], 3 * mesh.n_vertices):
+            raise ShapeError(f"POD count must be in [1, {min(u.shape[0], 3 * mesh.n_vertices)}], got {count}")
+        sqrt_m = np.sqrt(np.repeat(mesh.vertex_masses(density), 3))
+        snapshots = (u.reshape(len(u), -1) * sqrt_m).T  # (3n, f), mass-weighted
+        left, sigma, _ = np.linalg.svd(snapshots, full_matrices=False)
+        modes = (left[:, :count] / sqrt_m[:, None]).reshape(mesh.n_vertices, 3, count)
+        return cls(mesh, modes), sigma
+
+    def values(self, points: np.ndarray) -> np.ndarray:
+        p = _points(points)
+        if p.shape == self.mesh.vertices.shape and np.array_equal(p, self.mesh.vertices):
+            return self.modes.copy()
+        tets, bary = self.mesh.locate(p)
+        return np.einsum("pa,paic->pic", bary, self.modes[self.mesh.tets[tets]])
+
+    def jacobians(self, points: np.ndarray) -> np.ndarray:
+        tets, _ = self.mesh.locate(_points(points))
+        grads = self.mesh.shape_gradients[tets]  # (p, 4, 3)
+        return np.einsum("paic,paj->pijc", self.modes[self.mesh.tets[tets]], grads)
+
+    def __repr__(self) -> str:
+        return f"MeshBasis(n_vertices={self.mesh.n_vertices}, n_modes={self.n_modes})"
+
+
+class StackedBasis:
+    """Bases side by side: ``W = [W_1 | W_2 | ...]`` (e.g. affine + learned modes)."""
+
+    def __init__(self, *bases: Basis) -> None:
+        if not bases:
+            raise ShapeError("StackedBasis needs at least one basis")
+        for b in bases:
+            if not isinstance(b, Basis):
+                raise ShapeError(f"{type(b).__name__} is not a basis: it needs n_modes, values(points) and jacobians(points)")
+        self.bases = tuple(bases)
+        self.n_modes = sum(b.n_modes for b in bases)
+
+    def values(self, points: np.ndarray) -> np.ndarray:
+        return np.concatenate([b.values(points) for b in self.bases], axis=2)
+
+    def jacobians(self, points: np.ndarray) -> np.ndarray:
+        return np.concatenate([b.jacobians(points) for b in self.bases], axis=3)
+
+    def __repr__(self) -> str:
+        return f"StackedBasis({', '.join(map(repr, self.bases))})"

@@ -1,0 +1,213 @@
+"""Where the reduced model samples elasticity (cubature tets) and contact (contact points).
+
+Elastic energy is approximated as ``sum_k w_k Psi(F(X_k))`` over K cubature points,
+the tet centroids of selected tets, with weights ``w_k`` in m^3 (a tet's own volume
+gives the exact full-mesh energy). Contact acts at contact points, boundary
+vertices carrying a share ``a_j`` of the boundary area in m^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ConfigError, ShapeError
+from .mesh import Mesh
+from .scene import Material
+
+__all__ = ["Cubature", "ContactPoints"]
+
+
+def _count(name: str, value: int, upper: int) -> int:
+    if not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(min(value, upper))
+
+
+@dataclass(frozen=True)
+class Cubature:
+    """Cubature tets and weights on a mesh.
+
+    Attributes:
+        tets: (K,) indices of the cubature tets.
+        weights: (K,) non-negative weights in m^3.
+        points: (K, 3) cubature points (tet centroids) in m.
+        scheme: ``"full"``, ``"naive"`` or ``"optimized"``.
+        fit_error: relative error of the fitted reduced forces on the training
+            samples (``optimized`` only, else None).
+    """
+
+    tets: np.ndarray
+    weights: np.ndarray
+    points: np.ndarray
+    scheme: str
+    fit_error: float | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        if len(self.tets) != len(self.weights) or len(self.tets) != len(self.points):
+            raise ShapeError("Cubature tets, weights and points must have the same length")
+        if np.any(~np.isfinite(self.weights)) or np.any(self.weights < 0):
+            raise ConfigError("Cubature weights must be finite and >= 0")
+
+    @property
+    def count(self) -> int:
+        return len(self.tets)
+
+    @classmethod
+    def full(cls, mesh: Mesh) -> Cubature:
+        """Every tet with its own volume: the exact elastic energy of the mesh."""
+        idx = np.arange(mesh.n_tets)
+        return cls(idx, mesh.rest_volumes.copy(), mesh.centroids[idx], "full")
+
+    @classmethod
+    def naive(cls, mesh: Mesh, count: int = 1000, seed: int = 0) -> Cubature:
+        """The report's scheme: ``count`` random tets, volume-scaled so the weights sum to the volume.
+
+        Args:
+            mesh: the mesh.
+            count: number of cubature tets (all tets if the mesh has fewer).
+            seed: random seed.
+        """
+        k = _count("Cubature count", count, mesh.n_tets)
+        if k == mesh.n_tets:
+            return cls.full(mesh)
+        idx = np.sort(np.random.default_rng(seed).choice(mesh.n_tets, size=k, replace=False))
+        vol = mesh.rest_volumes[idx]
+        return cls(idx, vol * (mesh.volume / vol.sum()), mesh.centroids[idx], "naive")
+
+    @classmethod
+    def optimized(
+        cls,
+        mesh: Mesh,
+        basis,
+        material: Material,
+        samples: np.ndarray,
+        count: int = 1000,
+        candidates: int = 20000,
+        tolerance: float = 1e-3,
+        seed: int = 0,
+    ) -> Cubature:
+        """Non-negative weights fitted to reduced elastic forces (An et al. 2008).
+
+        Greedy selection: repeatedly add the tets whose force contributions best match the
+        remaining residual, then solve a non-negative least-squares problem on the chosen
+        tets; stop at ``count`` tets or when the relative residual is below ``tolerance``.
+
+        Args:
+            mesh: the mesh.
+            basis: the subspace basis (see :mod:`licrom.basis`).
+            material: material of the forces.
+            samples: (S, n_modes) reduced coordinates of training poses.
+            count: maximum number of cubature tets.
+            candidates: tets considered (a random subset on large meshes).
+            tolerance: stop when the relative force residual falls below this.
+            seed: random seed for the candidate subset.
+        """
+        from scipy.optimize import nnls
+
+        from . import _core
+
+        q = np.asarray(samples, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != basis.n_modes or len(q) < 1:
+            raise ShapeError(f"samples must have shape (S, {basis.n_modes}) with S >= 1, got {q.shape}")
+        k = _count("Cubature count", count, mesh.n_tets)
+        pool = np.arange(mesh.n_tets)
+        if mesh.n_tets > candidates:
+            pool = np.sort(np.random.default_rng(seed).choice(mesh.n_tets, size=candidates, replace=False))
+        mu, lam = material.snh_parameters
+        # Per-tet reduced forces per unit volume for every sample: columns of A.
+        g = basis.jacobians(mesh.centroids[pool]).reshape(len(pool), 9, -1)  # (P, 9, n)
+        eye = np.eye(3).reshape(9)
+        cols = np.empty((len(q), basis.n_modes, len(pool)))
+        for s, qs in enumerate(q):
+            f = (eye + g @ qs).reshape(-1, 3, 3)
+            stress = _core.snh_pk1(np.ascontiguousarray(f), mu, lam).reshape(-1, 9)
+            cols[s] = np.einsum("pkn,pk->np", g, stress)
+        # Target: the forces of all tets in the pool with their own volumes, rescaled to the
+        # whole mesh volume when the pool is a subset.
+        vol = mesh.rest_volumes[pool] * (mesh.volume / mesh.rest_volumes[pool].sum())
+        target = cols @ vol  # (S, n)
+        norms = np.linalg.norm(target, axis=1)
+        keep = norms > 1e-12 * max(norms.max(), 1e-300)
+        if not keep.any():
+            raise ConfigError("optimized cubature needs samples with non-zero elastic forces (all samples are at rest)")
+        a = (cols[keep] / norms[keep, None, None]).reshape(-1, len(pool))
+        b = (target[keep] / norms[keep, None]).ravel()
+        col_norm = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
+        chosen: list[int] = []
+        weights = np.zeros(0)
+        residual = b.copy()
+        batch = max(1, k // 20)
+        b_norm = float(np.linalg.norm(b))
+        error = 1.0
+        while len(chosen) < k:
+            score = (a.T @ residual) / col_norm
+            score[chosen] = -np.inf
+            new = [int(i) for i in np.argsort(score)[::-1][:batch] if score[i] > 0]
+            if not new:
+                break
+            chosen.extend(new[: k - len(chosen)])
+            weights, rnorm = nnls(a[:, chosen], b, maxiter=50 * len(chosen))
+            residual = b - a[:, chosen] @ weights
+            error = rnorm / b_norm
+            if error < tolerance:
+                break
+        sel = np.array(chosen)
+        nz = weights > 0
+        tets = pool[sel[nz]]
+        order = np.argsort(tets)
+        return cls(tets[order], weights[nz][order], mesh.centroids[tets[order]], "optimized", float(error))
+
+
+@dataclass(frozen=True)
+class ContactPoints:
+    """Boundary vertices where contact is evaluated, each with its share of boundary area.
+
+    Attributes:
+        indices: (C,) vertex indices.
+        areas: (C,) area carried by each point in m^2 (sums to the surface area).
+    """
+
+    indices: np.ndarray
+    areas: np.ndarray
+
+    def __post_init__(self) -> None:
+        if len(self.indices) != len(self.areas):
+            raise ShapeError("ContactPoints indices and areas must have the same length")
+        if np.any(~np.isfinite(self.areas)) or np.any(self.areas < 0):
+            raise ConfigError("ContactPoints areas must be finite and >= 0")
+
+    @property
+    def count(self) -> int:
+        return len(self.indices)
+
+    @classmethod
+    def all(cls, mesh: Mesh) -> ContactPoints:
+        """Every boundary vertex with its own area."""
+        return cls(mesh.boundary_vertices.copy(), mesh.boundary_vertex_areas.copy())
+
+    @classmethod
+    def subset(cls, mesh: Mesh, count: int, seed: int = 0) -> ContactPoints:
+        """About ``count`` well-spread boundary vertices (farthest-point sampling).
+
+        Every boundary vertex gives its area to the nearest chosen point, so the total
+        area and its distribution over the surface are kept.
+        """
+        from scipy.spatial import cKDTree
+
+        everyone = cls.all(mesh)
+        k = _count("ContactPoints count", count, everyone.count)
+        if k == everyone.count:
+            return everyone
+        pts = mesh.vertices[everyone.indices]
+        chosen = [int(np.random.default_rng(seed).integers(len(pts)))]
+        dist = np.linalg.norm(pts - pts[chosen[0]], axis=1)
+        for _ in range(k - 1):
+            nxt = int(np.argmax(dist))
+            chosen.append(nxt)
+            dist = np.minimum(dist, np.linalg.norm(pts - pts[nxt], axis=1))
+        chosen_arr = np.sort(np.array(chosen))
+        _, owner = cKDTree(pts[chosen_arr]).query(pts)
+        areas = np.bincount(owner, weights=everyone.areas, minlength=k)
+        return cls(everyone.indices[chosen_arr], areas)

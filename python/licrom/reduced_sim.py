@@ -1,0 +1,265 @@
+"""Reduced-space simulation: ``x = X + W(X) q`` stepped by the Rust core.
+
+Python prepares, once, everything the subspace needs on the mesh — the exact
+reduced mass matrix and gravity force over all vertices, the basis Jacobians at the
+cubature points, the basis values at the contact points — and hands it to
+``licrom._core.ReducedCore``, which runs the Newton solve of the reduced
+incremental potential without the GIL.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .basis import SubspaceProjector, check_basis_output
+from .cubature import ContactPoints, Cubature
+from .errors import ConfigError, ShapeError
+from .mesh import Mesh
+from .scene import Scene
+from .trajectory import Trajectory
+
+__all__ = ["ReducedSim", "SOLVERS"]
+
+SOLVERS = ("newton", "prefactored")
+_DEFAULT_CUBATURE_POINTS = 1000
+
+
+class ReducedSim:
+    """Simulate a solid in a subspace of displacement fields.
+
+    ``ReducedSim(model)`` runs a trained model on the mesh and default scene stored
+    in it; ``ReducedSim(basis, mesh, scene)`` runs any basis on any mesh of the object.
+
+    Args:
+        basis: a basis (``n_modes``, ``values``, ``jacobians``) or a trained ``licrom.Model``.
+        mesh: the mesh to simulate (default: the model's mesh).
+        scene: the scene (default: the model's default scene).
+        cubature: cubature tets and weights (default: the naive scheme with 1000 tets,
+            or every tet on smaller meshes).
+        contact_points: where contact acts (default: every boundary vertex).
+        solver: ``"newton"`` (dense Newton, Cholesky, line search) or ``"prefactored"``
+            (the report's scheme: factor ``M_r/h^2 + K_r(rest)`` once, iterate gradients).
+
+    Raises:
+        ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
+        ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
+    """
+
+    def __init__(
+        self,
+        basis: Any,
+        mesh: Mesh | None = None,
+        scene: Scene | None = None,
+        cubature: Cubature | None = None,
+        contact_points: ContactPoints | None = None,
+        solver: str = "newton",
+    ) -> None:
+        if mesh is None:
+            mesh = getattr(basis, "mesh", None)
+            if mesh is None:
+                raise ConfigError("ReducedSim needs a mesh: pass mesh=... or a trained model that stores one")
+        if scene is None:
+            scene = getattr(basis, "default_scene", None)
+            if scene is None:
+                raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
+        if solver not in SOLVERS:
+            raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        for name in ("n_modes", "values", "jacobians"):
+            if not hasattr(basis, name):
+                raise ConfigError(f"{type(basis).__name__} is not a basis: it lacks '{name}' (see licrom.basis)")
+        self.basis = basis
+        self.mesh = mesh
+        self.scene = scene
+        self.solver = solver
+        self.cubature = cubature if cubature is not None else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
+        self.contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
+        if self.cubature.count and int(self.cubature.tets.max()) >= mesh.n_tets:
+            raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
+        if self.contact_points.count and int(self.contact_points.indices.max()) >= mesh.n_vertices:
+            raise ConfigError("contact points do not belong to this mesh (index out of range)")
+
+        k = int(basis.n_modes)
+        n = mesh.n_vertices
+        self._values = check_basis_output("values", basis.values(mesh.vertices), (n, 3, k))
+        jac = check_basis_output("jacobians", basis.jacobians(self.cubature.points), (self.cubature.count, 3, 3, k))
+        self._masses = mesh.vertex_masses(scene.material.density)
+        self._projector = SubspaceProjector(self._values, self._masses)
+        gravity_force = self._projector.reduce(self._masses[:, None] * np.asarray(scene.gravity))
+        mu, lam = scene.material.snh_parameters
+        idx = self.contact_points.indices
+        self._core = _core.ReducedCore(
+            mass=self._projector.reduced_mass,
+            gravity_force=gravity_force,
+            cubature_jacobians=np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k)),
+            cubature_weights=np.ascontiguousarray(self.cubature.weights, dtype=np.float64),
+            mu=mu,
+            lam=lam,
+            contact_basis=np.ascontiguousarray(self._values[idx]),
+            contact_rest=np.ascontiguousarray(mesh.vertices[idx]),
+            contact_areas=np.ascontiguousarray(self.contact_points.areas, dtype=np.float64),
+            planes=scene.plane_array(),
+            normal_stiffness=scene.contact.normal_stiffness,
+            normal_damping=scene.contact.normal_damping,
+            friction_stiffness=scene.contact.friction_stiffness,
+            dt=scene.dt,
+            total_mass=float(self._masses.sum()),
+            tolerance=scene.solver.tolerance,
+            max_iterations=scene.solver.max_iterations,
+            solver=solver,
+        )
+        self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
+        self.time = 0.0
+        positions, velocities = scene.initial.apply(mesh.vertices, self._masses)
+        self.set_state(positions, velocities)
+
+    # --- state -------------------------------------------------------------------------
+    @property
+    def n_modes(self) -> int:
+        return self._core.n_dofs
+
+    @property
+    def q(self) -> np.ndarray:
+        """(k,) reduced coordinates."""
+        return self._core.q
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """(k,) reduced velocities."""
+        return self._core.qdot
+
+    @property
+    def reduced_mass(self) -> np.ndarray:
+        """(k, k) exact reduced mass matrix ``W^T M W``."""
+        return self._projector.reduced_mass
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(n, 3) vertex positions ``X + W q`` in m."""
+        return self._reconstruction.positions(self._core.q)
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(n, 3) vertex velocities ``W q_dot`` in m/s."""
+        return self._reconstruction.positions(self._core.qdot) - self.mesh.vertices
+
+    def project(self, displacements: np.ndarray) -> np.ndarray:
+        """Mass-weighted projection ``q = M_r^-1 W^T M u`` of (..., n, 3) displacements."""
+        return self._projector.project(displacements)
+
+    def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
+        """Set the state from full-space positions/velocities, projected onto the subspace.
+
+        Either may be omitted to keep its current value.
+        """
+        q = self.q if positions is None else self.project(self._check_field("positions", positions) - self.mesh.vertices)
+        qdot = self.qdot if velocities is None else self.project(self._check_field("velocities", velocities))
+        self._core.set_state(q, qdot)
+
+    def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
+        arr = np.asarray(a, dtype=np.float64)
+        if arr.shape != (self.mesh.n_vertices, 3):
+            raise ShapeError(f"{name} must have shape ({self.mesh.n_vertices}, 3), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ShapeError(f"{name} hold NaN or inf")
+        return arr
+
+    # --- stepping ----------------------------------------------------------------------
+    def step(self) -> tuple[int, float]:
+        """Advance one time step; return (Newton iterations, final residual in m/s).
+
+        Raises:
+            SolverError: no convergence within ``scene.solver.max_iterations`` (the state
+                is left at the start of the step).
+        """
+        result = self._core.step()
+        self.time += self.scene.dt
+        return result
+
+    def contact_forces(self) -> np.ndarray:
+        """(C, 3) contact + friction force at each contact point over the last step, N."""
+        return self._core.contact_forces()
+
+    def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
+        """Step ``steps`` times and record every ``record_every``-th state (frame 0 is now).
+
+        With ``scene.solver.on_failure == "record"``, a step that does not converge is
+        recorded as unconverged and the run continues from the last iterate.
+        """
+        from .errors import SolverError
+
+        if not isinstance(steps, (int, np.integer)) or steps < 0:
+            raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
+        if not isinstance(record_every, (int, np.integer)) or record_every < 1:
+            raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
+        qs, qdots, times = [self.q], [self.qdot], [self.time]
+        iterations, residuals, converged, seconds = [], [], [], []
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=steps, desc="reduced", unit="step")
+        for s in range(1, steps + 1):
+            start = time.perf_counter()
+            try:
+                its, res = self.step()
+                ok = True
+            except SolverError as exc:
+                if self.scene.solver.on_failure == "raise":
+                    raise
+                its, res, ok = self.scene.solver.max_iterations, float(getattr(exc, "residual", np.nan)), False
+                self._core.accept_last_iterate()
+                self.time += self.scene.dt
+            seconds.append(time.perf_counter() - start)
+            iterations.append(its)
+            residuals.append(res)
+            converged.append(ok)
+            if s % record_every == 0:
+                qs.append(self.q)
+                qdots.append(self.qdot)
+                times.append(self.time)
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+        w = self._values.reshape(-1, self._values.shape[2])
+        n = self.mesh.n_vertices
+        return Trajectory(
+            rest_positions=self.mesh.vertices,
+            tets=self.mesh.tets,
+            displacements=(np.array(qs) @ w.T).reshape(-1, n, 3),
+            velocities=(np.array(qdots) @ w.T).reshape(-1, n, 3),
+            times=np.array(times),
+            scene=self.scene,
+            iterations=np.array(iterations),
+            residuals=np.array(residuals),
+            converged=np.array(converged),
+            step_seconds=np.array(seconds),
+            info={
+                "source": "reduced",
+                "solver": self.solver,
+                "n_modes": int(self.n_modes),
+                "cubature": self.cubature.scheme,
+                "cubature_points": int(self.cubature.count),
+                "contact_points": int(self.contact_points.count),
+                "q": np.array(qs).tolist() if len(qs) * self.n_modes <= 200_000 else None,
+            },
+        )
+
+    # --- other meshes ------------------------------------------------------------------
+    def transfer(self, mesh: Mesh, cubature: Cubature | None = None, contact_points: ContactPoints | None = None) -> ReducedSim:
+        """The same state (q, q_dot) on another mesh of the same object.
+
+        The subspace is continuous, so the reduced state carries over unchanged; the
+        new simulation samples the basis on ``mesh`` (cubature: the naive scheme with as
+        many points as this one, unless given).
+        """
+        if cubature is None:
+            cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
+        other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver)
+        other._core.set_state(self.q, self.qdot)
+        other.time = self.time
+        return other

@@ -1,0 +1,87 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from licrom import ConfigError, ContactParams, FileFormatError, InitialState, Material, Plane, Scene, SolverParams
+
+
+def test_snh_parameters_match_linear_elasticity():
+    m = Material(youngs_modulus=1e6, poisson_ratio=0.3)
+    mu, lam = m.lame
+    assert mu == pytest.approx(1e6 / 2.6)
+    smu, slam = m.snh_parameters
+    assert smu == pytest.approx(4 / 3 * mu)
+    assert slam == pytest.approx(lam + 5 / 6 * mu)
+
+
+def test_plane_is_normalised_with_offset():
+    p = Plane(normal=(0, 0, 2), offset=-1.0, friction=0.3)
+    assert p.normal == (0.0, 0.0, 1.0)
+    assert p.offset == pytest.approx(-0.5)  # same half-space: 2z - 1 >= 0  <=>  z - 0.5 >= 0
+    inc = Plane.incline(30.0, 0.4)
+    assert inc.slope_deg == pytest.approx(30.0)
+    assert np.linalg.norm(inc.normal) == pytest.approx(1.0)
+
+
+def test_scene_json_round_trip():
+    s = Scene(
+        material=Material(3e5, 0.25, 1100.0),
+        planes=(Plane.incline(20, 0.3), Plane((1, 0, 0), 0.5, 0.1)),
+        gravity=(0, 0, -9.8),
+        dt=0.005,
+        contact=ContactParams(1e7, 10.0, 3e6),
+        solver=SolverParams(1e-7, 30, "record"),
+        initial=InitialState(translation=(0, 0, 0.1), rotation=(0.1, 0.2, 0.3), velocity=(1, 0, 0)),
+    )
+    back = Scene.from_json(s.to_json())
+    assert back == s
+
+
+def test_initial_state_is_rigid():
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((20, 3))
+    m = rng.uniform(1, 2, 20)
+    st = InitialState(translation=(1, 2, 3), rotation=(0.3, -0.2, 0.5), angular_velocity=(0, 0, 2.0))
+    pos, vel = st.apply(x, m)
+    d0 = np.linalg.norm(x[:, None] - x[None], axis=2)
+    d1 = np.linalg.norm(pos[:, None] - pos[None], axis=2)
+    np.testing.assert_allclose(d1, d0, atol=1e-12)
+    com0 = (m[:, None] * x).sum(0) / m.sum()
+    com1 = (m[:, None] * pos).sum(0) / m.sum()
+    np.testing.assert_allclose(com1 - com0, [1, 2, 3], atol=1e-12)
+    np.testing.assert_allclose((m[:, None] * vel).sum(0), 0.0, atol=1e-12)  # pure spin
+    r = st.rotation_matrix()
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: Material(youngs_modulus=-1.0), r"youngs_modulus .* must be > 0"),
+        (lambda: Material(poisson_ratio=0.5), r"poisson_ratio must be in \(-1, 0.5\)"),
+        (lambda: Material(density=float("nan")), "must be finite"),
+        (lambda: Plane(normal=(0, 0, 0)), "non-zero vector"),
+        (lambda: Plane(friction=-0.1), "friction must be >= 0"),
+        (lambda: ContactParams(normal_stiffness=0), "normal_stiffness .* must be > 0"),
+        (lambda: SolverParams(on_failure="ignore"), "'raise' or 'record'"),
+        (lambda: Scene(dt=0.0), r"dt \(s\) must be > 0"),
+        (lambda: Scene(gravity=(0, 0)), "3 real numbers"),
+    ],
+)
+def test_bad_parameters(make, match):
+    with pytest.raises(ConfigError, match=match):
+        make()
+
+
+def test_unknown_scene_version():
+    d = Scene().to_dict()
+    d["version"] = 99
+    with pytest.raises(FileFormatError, match="version 99; this licrom reads version 1"):
+        Scene.from_json(json.dumps(d))
+    with pytest.raises(FileFormatError, match="not a licrom scene"):
+        Scene.from_json('{"planes": []}')
+    with pytest.raises(FileFormatError, match="not valid JSON"):
+        Scene.from_json('{"format": "licrom.scene", ')
+    assert math.isclose(Scene().dt, 0.01)

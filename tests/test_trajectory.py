@@ -1,0 +1,50 @@
+import numpy as np
+import pytest
+
+from licrom import FileFormatError, Scene, SolverError, Trajectory, meshes
+
+
+def _traj(frames=3):
+    m = meshes.box(0.1, 2)
+    rng = np.random.default_rng(0)
+    u = 1e-3 * rng.standard_normal((frames, m.n_vertices, 3))
+    return Trajectory(m.vertices, m.tets, u, u * 10, np.arange(frames) * 0.01, Scene(), info={"source": "test"})
+
+
+def test_round_trip(tmp_path):
+    t = _traj()
+    p = t.save(tmp_path / "t", precision="float64")
+    assert p.suffix == ".npz"
+    back = Trajectory.load(p)
+    np.testing.assert_array_equal(back.displacements, t.displacements)
+    assert back.scene == t.scene
+    assert back.info == {"source": "test"}
+    assert not [f for f in tmp_path.iterdir() if f.name.startswith(".")]
+
+
+def test_float32_storage_is_close(tmp_path):
+    t = _traj()
+    back = Trajectory.load(t.save(tmp_path / "t.npz"))
+    np.testing.assert_allclose(back.displacements, t.displacements, rtol=1e-6, atol=1e-12)
+
+
+def test_refuses_nan():
+    t = _traj()
+    u = t.displacements.copy()
+    u[1, 2, 0] = np.nan
+    with pytest.raises(SolverError, match="NaN"):
+        Trajectory(t.rest_positions, t.tets, u, t.velocities, t.times, t.scene)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(FileFormatError, match="not found"):
+        Trajectory.load(tmp_path / "missing.npz")
+    p = _traj().save(tmp_path / "t.npz")
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(p.read_bytes()[:200])
+    with pytest.raises(FileFormatError, match="truncated or corrupt"):
+        Trajectory.load(cut)
+    other = tmp_path / "other.npz"
+    np.savez(other, a=np.zeros(3))
+    with pytest.raises(FileFormatError, match="not a licrom trajectory"):
+        Trajectory.load(other)
