@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -73,9 +74,9 @@ class Trajectory:
     def n_frames(self) -> int:
         return len(self.times)
 
-    @property
+    @cached_property
     def mesh(self) -> Mesh:
-        """The rest mesh (rebuilt from the stored arrays)."""
+        """The rest mesh (built once from the stored arrays)."""
         return Mesh(self.rest_positions, self.tets, fix_orientation=False)
 
     def positions(self, frame: int) -> np.ndarray:
