@@ -87,7 +87,7 @@ class Trajectory:
         """(f, 3) mass-weighted centre of each frame, m."""
         masses = self.mesh.vertex_masses(self.scene.material.density)
         w = masses / masses.sum()
-        return self.rest_positions @ w + np.einsum("fnk,n->fk", self.displacements, w)
+        return w @ self.rest_positions + np.einsum("fnk,n->fk", self.displacements, w)
 
     def save(self, path: str | os.PathLike, precision: str = "float32") -> Path:
         """Write the trajectory to one ``.npz`` file atomically; return the path.

@@ -1,0 +1,38 @@
+import numpy as np
+import pytest
+
+from licrom import ConfigError, meshes
+from licrom.cubature import ContactPoints, Cubature
+
+
+def test_full_and_naive_weights_sum_to_volume():
+    m = meshes.cheese(resolution=8)
+    full = Cubature.full(m)
+    assert full.weights.sum() == pytest.approx(m.volume)
+    naive = Cubature.naive(m, 100, seed=1)
+    assert naive.count == 100
+    assert naive.weights.sum() == pytest.approx(m.volume)
+    assert len(np.unique(naive.tets)) == 100
+    np.testing.assert_allclose(naive.points, m.centroids[naive.tets])
+    assert Cubature.naive(m, 100, seed=1).tets.tolist() == naive.tets.tolist()
+    assert Cubature.naive(m, 10 * m.n_tets).scheme == "full"
+
+
+def test_contact_subset_keeps_area():
+    m = meshes.sphere(0.05, 10)
+    everyone = ContactPoints.all(m)
+    assert everyone.areas.sum() == pytest.approx(m.surface_area)
+    sub = ContactPoints.subset(m, 60)
+    assert sub.count == 60
+    assert sub.areas.sum() == pytest.approx(m.surface_area)
+    # well spread: each hemisphere carries about half the area
+    up = m.vertices[sub.indices][:, 2] > 0
+    assert 0.35 < sub.areas[up].sum() / m.surface_area < 0.65
+
+
+def test_bad_counts():
+    m = meshes.box(0.1, 2)
+    with pytest.raises(ConfigError, match="count must be an integer >= 1"):
+        Cubature.naive(m, 0)
+    with pytest.raises(ConfigError, match="count must be an integer >= 1"):
+        ContactPoints.subset(m, -1)
