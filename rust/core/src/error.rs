@@ -1,0 +1,101 @@
+//! Errors of the numerics.
+//!
+//! Every fallible entry point returns [`Result`]; nothing in this crate panics on
+//! bad input. The variants fall in three families that bindings map to their own
+//! exception types: shape/finiteness problems of arrays, out-of-range parameters
+//! (including a mass matrix that is not SPD), and solver failures.
+
+use thiserror::Error;
+
+/// What can go wrong in the numerics.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum LicromError {
+    /// An array does not have the size the other inputs imply.
+    #[error("{name} must have shape {expected}, got {got}")]
+    ShapeMismatch {
+        /// Name of the offending argument.
+        name: String,
+        /// Expected shape, human readable (e.g. "(100, 9, 32)").
+        expected: String,
+        /// Shape (or length) actually given.
+        got: String,
+    },
+    /// An input holds NaN or infinite values.
+    #[error("{name} holds NaN or inf values")]
+    NonFinite {
+        /// Name of the offending argument.
+        name: String,
+    },
+    /// A scalar parameter or a value inside an array is outside its accepted range.
+    #[error("{name} {reason}")]
+    InvalidParameter {
+        /// Name of the offending argument.
+        name: String,
+        /// What is wrong, completing the sentence "<name> ...".
+        reason: String,
+    },
+    /// The reduced mass matrix is not symmetric positive definite.
+    #[error("the reduced mass matrix is not symmetric positive definite ({reason})")]
+    SingularMass {
+        /// Why: asymmetry or the failing Cholesky pivot.
+        reason: String,
+    },
+    /// The step did not reach the tolerance within the iteration budget.
+    #[error("the reduced step did not converge in {iterations} iterations (residual {residual:.3e} m/s)")]
+    NotConverged {
+        /// Number of search directions computed.
+        iterations: usize,
+        /// Last convergence measure, m/s.
+        residual: f64,
+    },
+    /// NaN or inf appeared during the solve (energy, gradient, Hessian or iterate).
+    #[error("the reduced step diverged: non-finite {what} at iteration {iteration}")]
+    Diverged {
+        /// Iteration (1-based) at which it was detected.
+        iteration: usize,
+        /// Which quantity went non-finite.
+        what: &'static str,
+    },
+}
+
+/// Result type of the crate.
+pub type Result<T> = std::result::Result<T, LicromError>;
+
+impl LicromError {
+    /// Shorthand for [`LicromError::ShapeMismatch`].
+    pub fn shape(name: &str, expected: impl Into<String>, got: impl Into<String>) -> Self {
+        Self::ShapeMismatch { name: name.to_owned(), expected: expected.into(), got: got.into() }
+    }
+
+    /// Shorthand for [`LicromError::InvalidParameter`].
+    pub fn invalid(name: &str, reason: impl Into<String>) -> Self {
+        Self::InvalidParameter { name: name.to_owned(), reason: reason.into() }
+    }
+}
+
+/// Checks that every value of `values` is finite.
+pub fn check_finite(name: &str, values: &[f64]) -> Result<()> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(LicromError::NonFinite { name: name.to_owned() })
+    }
+}
+
+/// Checks that a scalar is finite and strictly positive.
+pub fn check_positive(name: &str, value: f64) -> Result<()> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(LicromError::invalid(name, format!("must be a finite number > 0, got {value}")))
+    }
+}
+
+/// Checks that a scalar is finite and non-negative.
+pub fn check_non_negative(name: &str, value: f64) -> Result<()> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(LicromError::invalid(name, format!("must be a finite number >= 0, got {value}")))
+    }
+}

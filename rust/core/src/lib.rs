@@ -1,0 +1,15 @@
+//! Numerics of licrom: stable Neo-Hookean elasticity, penalty contact with implicit
+//! Coulomb friction, and the reduced (subspace) implicit time step.
+//!
+//! Units are SI throughout. No Python types live here; the bindings validate
+//! arrays and map [`LicromError`] to exceptions.
+
+pub mod error;
+pub mod material;
+pub mod svd3;
+
+#[cfg(test)]
+mod testing;
+
+pub use error::{LicromError, Result};
+pub use material::StableNeoHookean;

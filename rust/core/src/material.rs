@@ -1,0 +1,352 @@
+//! Stable Neo-Hookean elasticity (Smith, de Goes, Kim 2018) with its analytic
+//! Hessian eigensystem (Smith, de Goes, Kim 2019) for PSD projection.
+//!
+//! Conventions: `vec(F)` is row-major, index `3*i + j` holds `F[i][j]`; stress and
+//! Hessians use the same ordering. Energies are densities (J/m^3 = Pa), the first
+//! Piola-Kirchhoff stress is in Pa and the Hessian in Pa. The energy has no `log J`
+//! term, so everything stays finite for inverted elements (J <= 0).
+
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+
+use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::svd3::{svd3, sym_eigen3};
+
+/// A row-major `vec(F)` or stress vector.
+pub type Vec9 = SVector<f64, 9>;
+/// A 9x9 Hessian in row-major `vec(F)` ordering.
+pub type Mat9 = SMatrix<f64, 9, 9>;
+
+/// Row-major `vec` of a 3x3 matrix.
+#[inline]
+pub fn vec9(m: &Matrix3<f64>) -> Vec9 {
+    Vec9::from_fn(|r, _| m[(r / 3, r % 3)])
+}
+
+/// 3x3 matrix from 9 row-major values.
+#[inline]
+pub fn mat3_row_major(v: &[f64]) -> Matrix3<f64> {
+    Matrix3::new(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8])
+}
+
+/// Cofactor matrix `dJ/dF` (= J F^-T when F is invertible), valid for any F.
+#[inline]
+pub fn cofactor(f: &Matrix3<f64>) -> Matrix3<f64> {
+    let (c0, c1, c2) = (f.column(0), f.column(1), f.column(2));
+    Matrix3::from_columns(&[c1.cross(&c2), c2.cross(&c0), c0.cross(&c1)])
+}
+
+/// Eigen-decomposition `H = sum_i values[i] vectors[i] vectors[i]^T` of the 9x9
+/// energy-density Hessian; vectors are orthonormal in row-major `vec(F)` space.
+#[derive(Debug, Clone, Copy)]
+pub struct HessianEigensystem {
+    /// Eigenvalues, Pa: three scaling modes, then three twists, then three flips.
+    pub values: [f64; 9],
+    /// Unit eigenvectors, same order as `values`.
+    pub vectors: [Vec9; 9],
+}
+
+impl HessianEigensystem {
+    /// `sum_i max(values[i], 0) v_i v_i^T` when `clamp`, the exact Hessian otherwise.
+    pub fn reconstruct(&self, clamp: bool) -> Mat9 {
+        let mut h = Mat9::zeros();
+        for (&lambda, v) in self.values.iter().zip(&self.vectors) {
+            let l = if clamp { lambda.max(0.0) } else { lambda };
+            if l != 0.0 {
+                h.ger(l, v, v, 1.0);
+            }
+        }
+        h
+    }
+}
+
+/// Stable Neo-Hookean material
+/// `Psi(F) = mu/2 (I_C - 3) + lam/2 (J - alpha)^2 - mu/2 log(I_C + 1)`,
+/// `alpha = 1 + 3 mu / (4 lam)`, with `mu`, `lam` the SNH parameters in Pa.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StableNeoHookean {
+    mu: f64,
+    lam: f64,
+    alpha: f64,
+}
+
+impl StableNeoHookean {
+    /// Material with SNH parameters `mu > 0`, `lam > 0` (Pa).
+    pub fn new(mu: f64, lam: f64) -> Result<Self> {
+        check_positive("mu", mu)?;
+        check_positive("lam", lam)?;
+        Ok(Self { mu, lam, alpha: 1.0 + 0.75 * mu / lam })
+    }
+
+    /// Shear parameter, Pa.
+    pub fn mu(&self) -> f64 {
+        self.mu
+    }
+
+    /// Volume parameter, Pa.
+    pub fn lam(&self) -> f64 {
+        self.lam
+    }
+
+    /// Rest-volume shift `1 + 3 mu / (4 lam)` that makes F = I stress free.
+    pub fn alpha(&self) -> f64 {
+        self.alpha
+    }
+
+    /// Energy density Psi(F), J/m^3.
+    #[inline]
+    pub fn energy(&self, f: &Matrix3<f64>) -> f64 {
+        let ic = f.norm_squared();
+        let dj = f.determinant() - self.alpha;
+        0.5 * self.mu * (ic - 3.0) + 0.5 * self.lam * dj * dj - 0.5 * self.mu * (ic + 1.0).ln()
+    }
+
+    /// First Piola-Kirchhoff stress `P = dPsi/dF`, Pa.
+    #[inline]
+    pub fn pk1(&self, f: &Matrix3<f64>) -> Matrix3<f64> {
+        let ic = f.norm_squared();
+        let dj = f.determinant() - self.alpha;
+        f * (self.mu * (1.0 - 1.0 / (ic + 1.0))) + cofactor(f) * (self.lam * dj)
+    }
+
+    /// Exact Hessian `d^2 Psi / d vec(F)^2` (may be indefinite), Pa.
+    ///
+    /// Closed form in the invariants, independent of the eigensystem:
+    /// `mu (1 - 1/(I_C+1)) I + 2 mu/(I_C+1)^2 f f^T + lam g g^T + lam (J - alpha) H_J`
+    /// with `f = vec(F)`, `g = vec(cof F)`, `H_J = d^2 J / dF^2`.
+    pub fn hessian(&self, f: &Matrix3<f64>) -> Mat9 {
+        let ic = f.norm_squared();
+        let dj = f.determinant() - self.alpha;
+        let fv = vec9(f);
+        let gv = vec9(&cofactor(f));
+        let mut h = Mat9::identity() * (self.mu * (1.0 - 1.0 / (ic + 1.0)));
+        h.ger(2.0 * self.mu / ((ic + 1.0) * (ic + 1.0)), &fv, &fv, 1.0);
+        h.ger(self.lam, &gv, &gv, 1.0);
+        // H_J[(i,j),(k,l)] = eps_ikm eps_jln F_mn.
+        let s = self.lam * dj;
+        for (i, k, m, e1) in LEVI_CIVITA {
+            for (j, l, n, e2) in LEVI_CIVITA {
+                h[(3 * i + j, 3 * k + l)] += s * e1 * e2 * f[(m, n)];
+            }
+        }
+        h
+    }
+
+    /// Analytic eigensystem of the Hessian at `f`, from the rotation-variant SVD
+    /// `F = U diag(s) V^T`: three scaling modes `U diag(w) V^T` (w eigenvectors
+    /// of the 3x3 Hessian of psi(s0, s1, s2)) and, for each pair (a, b) with third
+    /// index k, a twist `(u_a v_b^T - u_b v_a^T)/sqrt 2` with eigenvalue
+    /// `2 dPsi/dI_C + dPsi/dJ s_k` and a flip `(u_a v_b^T + u_b v_a^T)/sqrt 2` with
+    /// eigenvalue `2 dPsi/dI_C - dPsi/dJ s_k`.
+    pub fn eigensystem(&self, f: &Matrix3<f64>) -> HessianEigensystem {
+        let d = svd3(f);
+        let s = d.s;
+        let ic = s.norm_squared();
+        let j = s[0] * s[1] * s[2];
+        let two_psi_i = self.mu * (1.0 - 1.0 / (ic + 1.0));
+        let four_psi_ii = 2.0 * self.mu / ((ic + 1.0) * (ic + 1.0));
+        let psi_j = self.lam * (j - self.alpha);
+        // Hessian of psi w.r.t. the signed singular values.
+        let c = Vector3::new(s[1] * s[2], s[0] * s[2], s[0] * s[1]);
+        let mut a = s * s.transpose() * four_psi_ii + c * c.transpose() * self.lam;
+        for i in 0..3 {
+            a[(i, i)] += two_psi_i;
+            for k in 0..3 {
+                if k != i {
+                    a[(i, k)] += psi_j * s[3 - i - k];
+                }
+            }
+        }
+        let scaling = sym_eigen3(&a);
+
+        let (u, v) = (d.u, d.v);
+        // vec(u_a v_b^T) in row-major order.
+        let outer = |a: usize, b: usize| Vec9::from_fn(|r, _| u[(r / 3, a)] * v[(r % 3, b)]);
+        let diag = [outer(0, 0), outer(1, 1), outer(2, 2)];
+        let mut values = [0.0; 9];
+        let mut vectors = [Vec9::zeros(); 9];
+        for m in 0..3 {
+            values[m] = scaling.values[m];
+            let w = scaling.vectors.column(m);
+            vectors[m] = diag[0] * w[0] + diag[1] * w[1] + diag[2] * w[2];
+        }
+        let inv_sqrt2 = std::f64::consts::FRAC_1_SQRT_2;
+        for (m, (a, b, k)) in [(1, 2, 0), (0, 2, 1), (0, 1, 2)].into_iter().enumerate() {
+            let (ab, ba) = (outer(a, b), outer(b, a));
+            values[3 + m] = two_psi_i + psi_j * s[k];
+            vectors[3 + m] = (ab - ba) * inv_sqrt2;
+            values[6 + m] = two_psi_i - psi_j * s[k];
+            vectors[6 + m] = (ab + ba) * inv_sqrt2;
+        }
+        HessianEigensystem { values, vectors }
+    }
+
+    /// Hessian with negative eigenvalues clamped to zero (PSD), Pa.
+    pub fn projected_hessian(&self, f: &Matrix3<f64>) -> Mat9 {
+        self.eigensystem(f).reconstruct(true)
+    }
+
+    /// Energy densities of a batch: `fs` holds `p` row-major 3x3 matrices.
+    pub fn energy_batch(&self, fs: &[f64], out: &mut [f64]) -> Result<()> {
+        check_batch(fs, out.len(), 1)?;
+        for (f, o) in fs.chunks_exact(9).zip(out.iter_mut()) {
+            *o = self.energy(&mat3_row_major(f));
+        }
+        Ok(())
+    }
+
+    /// First Piola-Kirchhoff stresses of a batch, row-major 3x3 each.
+    pub fn pk1_batch(&self, fs: &[f64], out: &mut [f64]) -> Result<()> {
+        check_batch(fs, out.len(), 9)?;
+        for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(9)) {
+            o.copy_from_slice(vec9(&self.pk1(&mat3_row_major(f))).as_slice());
+        }
+        Ok(())
+    }
+
+    /// Hessians of a batch, row-major 9x9 each; PSD-projected when `project`.
+    pub fn hessian_batch(&self, fs: &[f64], project: bool, out: &mut [f64]) -> Result<()> {
+        check_batch(fs, out.len(), 81)?;
+        for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(81)) {
+            let f = mat3_row_major(f);
+            let h = if project { self.projected_hessian(&f) } else { self.hessian(&f) };
+            // The Hessian is symmetric, so nalgebra's column-major storage is row-major too.
+            o.copy_from_slice(h.as_slice());
+        }
+        Ok(())
+    }
+}
+
+/// Non-zero entries (i, k, m, sign) of the Levi-Civita symbol.
+const LEVI_CIVITA: [(usize, usize, usize, f64); 6] =
+    [(0, 1, 2, 1.0), (1, 2, 0, 1.0), (2, 0, 1, 1.0), (0, 2, 1, -1.0), (2, 1, 0, -1.0), (1, 0, 2, -1.0)];
+
+fn check_batch(fs: &[f64], out_len: usize, per_point: usize) -> Result<()> {
+    if fs.len() % 9 != 0 {
+        return Err(LicromError::shape("F", "(p, 3, 3)", format!("{} values", fs.len())));
+    }
+    let p = fs.len() / 9;
+    if out_len != p * per_point {
+        return Err(LicromError::shape("output", format!("{} values", p * per_point), format!("{out_len} values")));
+    }
+    check_finite("F", fs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::{fd_gradient, fd_jacobian, rel_err, Rng};
+
+    fn material() -> StableNeoHookean {
+        StableNeoHookean::new(3.0e5, 1.2e6).unwrap()
+    }
+
+    fn samples() -> Vec<Matrix3<f64>> {
+        let mut rng = Rng::new(11);
+        let mut fs: Vec<_> = (0..60).map(|_| rng.deformation(0.4)).collect();
+        // Inverted and strongly compressed/stretched states.
+        for _ in 0..20 {
+            let mut f = rng.deformation(0.3);
+            f.row_mut(2).neg_mut();
+            fs.push(f);
+        }
+        fs.push(Matrix3::from_diagonal(&Vector3::new(0.3, 0.5, 2.0)));
+        fs.push(Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -0.5)));
+        fs.push(Matrix3::identity() * 0.5);
+        fs
+    }
+
+    #[test]
+    fn energy_gradient_matches_finite_differences() {
+        let mat = material();
+        for f in samples() {
+            let fd = fd_gradient(|x| mat.energy(&mat3_row_major(x)), vec9(&f).as_slice(), 1e-6);
+            let p = vec9(&mat.pk1(&f));
+            assert!(rel_err(p.as_slice(), &fd, 1.0) < 1e-6, "P vs FD: {}", rel_err(p.as_slice(), &fd, 1.0));
+        }
+    }
+
+    #[test]
+    fn hessian_matches_finite_differences_of_stress() {
+        let mat = material();
+        for f in samples() {
+            let fd = fd_jacobian(|x| vec9(&mat.pk1(&mat3_row_major(x))).as_slice().to_vec(), vec9(&f).as_slice(), 1e-6);
+            let h = mat.hessian(&f);
+            let fd: Vec<f64> = fd.into_iter().flatten().collect();
+            // Row r of fd is dP/dvec(F)_r, i.e. column r of H (H is symmetric anyway).
+            assert!(rel_err(h.as_slice(), &fd, 1.0) < 1e-6, "H vs FD: {}", rel_err(h.as_slice(), &fd, 1.0));
+            assert!((h - h.transpose()).norm() <= 1e-9 * h.norm());
+        }
+    }
+
+    #[test]
+    fn eigensystem_reconstructs_exact_hessian() {
+        let mat = material();
+        for f in samples() {
+            let e = mat.eigensystem(&f);
+            let exact = mat.hessian(&f);
+            let recon = e.reconstruct(false);
+            assert!((recon - exact).norm() <= 1e-9 * exact.norm(), "eigensystem error {}", (recon - exact).norm());
+            let gram = Mat9::from_fn(|a, b| e.vectors[a].dot(&e.vectors[b]));
+            assert!((gram - Mat9::identity()).norm() < 1e-10);
+        }
+    }
+
+    #[test]
+    fn projection_is_exact_when_psd_and_psd_always() {
+        let mat = material();
+        let mut psd_cases = 0;
+        for f in samples() {
+            let exact = mat.hessian(&f);
+            let proj = mat.projected_hessian(&f);
+            let min_exact = exact.symmetric_eigen().eigenvalues.min();
+            let min_proj = proj.symmetric_eigen().eigenvalues.min();
+            assert!(min_proj >= -1e-9 * exact.norm(), "projected Hessian has eigenvalue {min_proj}");
+            if min_exact >= 0.0 {
+                psd_cases += 1;
+                assert!((proj - exact).norm() <= 1e-9 * exact.norm());
+            } else {
+                // Projection removes exactly the negative part: the difference is PSD.
+                let diff_min = (proj - exact).symmetric_eigen().eigenvalues.min();
+                assert!(diff_min >= -1e-9 * exact.norm());
+            }
+        }
+        assert!(psd_cases > 0);
+    }
+
+    #[test]
+    fn rest_state_is_stress_free_and_hessian_psd() {
+        let mat = material();
+        let i = Matrix3::identity();
+        assert!(mat.pk1(&i).norm() < 1e-9 * mat.mu());
+        let e = mat.eigensystem(&i);
+        assert!(e.values.iter().all(|&l| l >= -1e-9 * mat.mu()));
+    }
+
+    #[test]
+    fn rigid_rotation_has_zero_energy_and_stress() {
+        let mat = material();
+        let mut rng = Rng::new(5);
+        for _ in 0..20 {
+            let r = nalgebra::Rotation3::from_scaled_axis(Vector3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 3.0)
+                .into_inner();
+            // The energy at rest is not zero in absolute terms (the log term) but equal to Psi(I).
+            assert!((mat.energy(&r) - mat.energy(&Matrix3::identity())).abs() < 1e-9 * mat.mu());
+            assert!(mat.pk1(&r).norm() < 1e-9 * mat.mu());
+        }
+    }
+
+    #[test]
+    fn batch_helpers_check_sizes_and_finiteness() {
+        let mat = material();
+        let fs = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let mut out = [0.0; 2];
+        assert!(matches!(mat.energy_batch(&fs, &mut out), Err(LicromError::ShapeMismatch { .. })));
+        let mut bad = fs;
+        bad[4] = f64::NAN;
+        assert!(matches!(mat.energy_batch(&bad, &mut out[..1]), Err(LicromError::NonFinite { .. })));
+        let mut h = [0.0; 81];
+        mat.hessian_batch(&fs, true, &mut h).unwrap();
+        assert!(StableNeoHookean::new(-1.0, 1.0).is_err());
+        assert!(StableNeoHookean::new(1.0, 0.0).is_err());
+    }
+}
