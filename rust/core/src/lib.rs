@@ -4,9 +4,16 @@
 //! Units are SI throughout. No Python types live here; the bindings validate
 //! arrays and map [`LicromError`] to exceptions.
 
+pub mod cholesky;
+pub mod contact;
+mod dense;
 pub mod error;
 pub mod material;
+pub mod reduced;
+mod simd;
+pub mod solver;
 pub mod svd3;
+pub mod synthetic;
 
 #[cfg(test)]
 mod testing;

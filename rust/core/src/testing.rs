@@ -23,11 +23,6 @@ impl Rng {
         (self.next_u64() >> 11) as f64 / (1u64 << 52) as f64 - 1.0
     }
 
-    /// Uniform in [lo, hi).
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * 0.5 * (self.uniform() + 1.0)
-    }
-
     pub fn vec(&mut self, len: usize, scale: f64) -> Vec<f64> {
         (0..len).map(|_| scale * self.uniform()).collect()
     }
