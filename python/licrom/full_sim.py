@@ -10,13 +10,27 @@ normal penalty, optional normal damping and a friction dissipation potential who
 gradient is the force ``|f_t| = min(k_f |v_t|, mu f_n)`` with the normal force
 ``f_n`` lagged from the start of the step (see ``DESIGN.md`` and :class:`FullSim`).
 
-The minimiser is found by Newton's method: per-element PSD-projected Hessian (analytic
-eigensystem of the stable Neo-Hookean energy, Smith et al. 2019), block-sparse (3x3) assembly
-into a fixed BSR pattern, preconditioned conjugate gradients (``warp.optim.linear.cg``,
-block-Jacobi preconditioner, Eisenstat-Walker forcing), and a backtracking Armijo line
-search on ``E``. All kernels run in float64, on the CPU or on a CUDA device, with the same
-code. A step has converged when the mass-weighted RMS length of the Newton step divided by
-``h`` is below ``scene.solver.tolerance`` (m/s), the measure the reduced solver uses too.
+The minimiser is found by Newton's method:
+
+- Hessian: per-element PSD projection through the analytic eigensystem of the stable
+  Neo-Hookean energy (Smith, de Goes and Kim 2019; ``wp.svd3``/``wp.eig3``), contact and
+  friction blocks (PSD by construction), lumped mass; assembled by atomic adds straight
+  into 3x3 blocks of a block-CSR pattern built once per mesh.
+- Linear solves: conjugate gradients with a block-Jacobi (3x3) preconditioner, three fused
+  kernels per iteration, relative tolerance ``min(0.25, sqrt(|g| / |g_0|))`` (Eisenstat-Walker).
+- Friction makes the energy nearly non-smooth where stiff sticking meets slip. When a Newton
+  step would carry slipping contact points through the stick region, the step is solved
+  again with those points modelled as sticking and taken if it decreases ``E`` in full.
+- Line search: Armijo sufficient decrease on ``E``; a full step that overshoots the line
+  minimum is refined by safeguarded secant steps on the directional derivative.
+- Initial iterate: ``x_t + h v_t + h^2 a`` with ``a`` the previous step's acceleration
+  (``g`` on the first step, where this is ``x~``). The minimiser does not depend on it;
+  sticking contacts start in the stick region, so Newton needs far fewer iterations.
+
+A step has converged when the mass-weighted RMS length of the Newton step divided by ``h``,
+``sqrt(dx^T M dx / m_total) / h``, is below ``scene.solver.tolerance`` (m/s): the measure the
+reduced solver uses, invariant under a change of basis. All kernels run in float64, on the
+CPU or on a CUDA device, with the same code.
 """
 
 import math
@@ -52,9 +66,6 @@ _MAX_SECANT = 8  # secant steps locating an overshot line minimum
 _CURVATURE = 0.5  # |phi'(alpha)| <= this * |phi'(0)| accepts a step
 _MAX_FORCING = 0.25  # loosest relative tolerance of the linear solves
 _MIN_FORCING = 1.0e-10  # tightest relative tolerance of the linear solves
-
-# Bits of the contact-term mask.
-_PENALTY, _DAMPING, _FRICTION = 1, 2, 4
 
 # Evaluation modes of the kernels.
 _MODE_ENERGY, _MODE_GRADIENT, _MODE_HESSIAN, _MODE_RAW_HESSIAN = 0, 1, 2, 3
@@ -172,77 +183,96 @@ def tet_kernel(
     wp.atomic_add(grad, ids[3], gt[2])
     if mode == 1:
         return
-    U = mat33d()
-    s = vec3d()
-    V = mat33d()
-    wp.svd3(F, U, s, V)
-    # Scaling block: Hessian of Psi in the signed singular values.
+    # Exact Hessian, assembled directly per vertex pair (a, b) with shape gradients n_a:
+    #   d2Psi = psi2 I + c vec(F) vec(F)^T + lam vec(C) vec(C)^T + psi3 d2J,   C = cof F,
+    #   block_ab = V (psi2 (n_a . n_b) I + c (F n_a)(F n_b)^T + lam (C n_a)(C n_b)^T - psi3 [F (n_a x n_b)]_x)
     c = f64(2.0) * mu / (ic1 * ic1)
-    pi0 = s[1] * s[2]
-    pi1 = s[0] * s[2]
-    pi2 = s[0] * s[1]
-    A = mat33d(
-        psi2 + c * s[0] * s[0] + lam * pi0 * pi0,
-        c * s[0] * s[1] + lam * pi0 * pi1 + psi3 * s[2],
-        c * s[0] * s[2] + lam * pi0 * pi2 + psi3 * s[1],
-        c * s[1] * s[0] + lam * pi1 * pi0 + psi3 * s[2],
-        psi2 + c * s[1] * s[1] + lam * pi1 * pi1,
-        c * s[1] * s[2] + lam * pi1 * pi2 + psi3 * s[0],
-        c * s[2] * s[0] + lam * pi2 * pi0 + psi3 * s[1],
-        c * s[2] * s[1] + lam * pi2 * pi1 + psi3 * s[0],
-        psi2 + c * s[2] * s[2] + lam * pi2 * pi2,
-    )
-    Q = mat33d()
-    d = vec3d()
-    wp.eig3(A, Q, d)
-    qt = wp.transpose(Q)
-    twist = vec3d(psi2 + psi3 * s[0], psi2 + psi3 * s[1], psi2 + psi3 * s[2])
-    flip = vec3d(psi2 - psi3 * s[0], psi2 - psi3 * s[1], psi2 - psi3 * s[2])
-    # Shape-function gradients in the right singular frame.
-    vt = wp.transpose(V)
-    y1 = vt * dmi[0]
-    y2 = vt * dmi[1]
-    y3 = vt * dmi[2]
-    y0 = -(y1 + y2 + y3)
-    h00 = mat33d()
-    h01 = mat33d()
-    h02 = mat33d()
-    h03 = mat33d()
-    h11 = mat33d()
-    h12 = mat33d()
-    h13 = mat33d()
-    h22 = mat33d()
-    h23 = mat33d()
-    h33 = mat33d()
-    for m in range(9):
-        ev = f64(0.0)
-        if m < 3:
-            ev = d[m]
-        elif m < 6:
-            ev = twist[m - 3]
-        else:
-            ev = flip[m - 6]
-        if mode == 2:
-            ev = wp.max(ev, f64(0.0))
-        if ev != f64(0.0):
-            ev = ev * v
-            w0 = U * mode_apply(m, y0, qt)
-            w1 = U * mode_apply(m, y1, qt)
-            w2 = U * mode_apply(m, y2, qt)
-            w3 = U * mode_apply(m, y3, qt)
-            e0 = ev * w0
-            e1 = ev * w1
-            e2 = ev * w2
-            h00 += wp.outer(e0, w0)
-            h01 += wp.outer(e0, w1)
-            h02 += wp.outer(e0, w2)
-            h03 += wp.outer(e0, w3)
-            h11 += wp.outer(e1, w1)
-            h12 += wp.outer(e1, w2)
-            h13 += wp.outer(e1, w3)
-            h22 += wp.outer(e2, w2)
-            h23 += wp.outer(e2, w3)
-            h33 += wp.outer(ev * w3, w3)
+    n1 = dmi[0]
+    n2 = dmi[1]
+    n3 = dmi[2]
+    n0 = -(n1 + n2 + n3)
+    f0 = F * n0
+    f1 = F * n1
+    f2 = F * n2
+    f3 = F * n3
+    k0 = cof * n0
+    k1 = cof * n1
+    k2 = cof * n2
+    k3 = cof * n3
+    I3 = wp.identity(n=3, dtype=f64)
+    cv = c * v
+    lv = lam * v
+    pv = psi2 * v
+    jv = -psi3 * v
+    h00 = pv * wp.dot(n0, n0) * I3 + cv * wp.outer(f0, f0) + lv * wp.outer(k0, k0)
+    h11 = pv * wp.dot(n1, n1) * I3 + cv * wp.outer(f1, f1) + lv * wp.outer(k1, k1)
+    h22 = pv * wp.dot(n2, n2) * I3 + cv * wp.outer(f2, f2) + lv * wp.outer(k2, k2)
+    h33 = pv * wp.dot(n3, n3) * I3 + cv * wp.outer(f3, f3) + lv * wp.outer(k3, k3)
+    h01 = pv * wp.dot(n0, n1) * I3 + cv * wp.outer(f0, f1) + lv * wp.outer(k0, k1) + jv * wp.skew(F * wp.cross(n0, n1))
+    h02 = pv * wp.dot(n0, n2) * I3 + cv * wp.outer(f0, f2) + lv * wp.outer(k0, k2) + jv * wp.skew(F * wp.cross(n0, n2))
+    h03 = pv * wp.dot(n0, n3) * I3 + cv * wp.outer(f0, f3) + lv * wp.outer(k0, k3) + jv * wp.skew(F * wp.cross(n0, n3))
+    h12 = pv * wp.dot(n1, n2) * I3 + cv * wp.outer(f1, f2) + lv * wp.outer(k1, k2) + jv * wp.skew(F * wp.cross(n1, n2))
+    h13 = pv * wp.dot(n1, n3) * I3 + cv * wp.outer(f1, f3) + lv * wp.outer(k1, k3) + jv * wp.skew(F * wp.cross(n1, n3))
+    h23 = pv * wp.dot(n2, n3) * I3 + cv * wp.outer(f2, f3) + lv * wp.outer(k2, k3) + jv * wp.skew(F * wp.cross(n2, n3))
+    if mode == 2:
+        # PSD projection: remove the negative part of the analytic eigensystem (Smith et al. 2019).
+        # With F = U diag(s) V^T (rotation-variant SVD), the 9 eigenpairs of d2Psi are
+        # 3 twists psi2 + psi3 s_k, 3 flips psi2 - psi3 s_k, and the eigenpairs of the 3x3
+        # Hessian A of Psi in the singular values (scaling modes).
+        U = mat33d()
+        s = vec3d()
+        V = mat33d()
+        wp.svd3(F, U, s, V)
+        pi0 = s[1] * s[2]
+        pi1 = s[0] * s[2]
+        pi2 = s[0] * s[1]
+        a00 = psi2 + c * s[0] * s[0] + lam * pi0 * pi0
+        a11 = psi2 + c * s[1] * s[1] + lam * pi1 * pi1
+        a22 = psi2 + c * s[2] * s[2] + lam * pi2 * pi2
+        a01 = c * s[0] * s[1] + lam * pi0 * pi1 + psi3 * s[2]
+        a02 = c * s[0] * s[2] + lam * pi0 * pi2 + psi3 * s[1]
+        a12 = c * s[1] * s[2] + lam * pi1 * pi2 + psi3 * s[0]
+        A = mat33d(a00, a01, a02, a01, a11, a12, a02, a12, a22)
+        d = vec3d(f64(1.0), f64(1.0), f64(1.0))
+        qt = wp.identity(n=3, dtype=f64)
+        if a00 <= f64(0.0) or a00 * a11 - a01 * a01 <= f64(0.0) or wp.determinant(A) <= f64(0.0):
+            Q = mat33d()
+            wp.eig3(A, Q, d)
+            qt = wp.transpose(Q)
+        twist = vec3d(psi2 + psi3 * s[0], psi2 + psi3 * s[1], psi2 + psi3 * s[2])
+        flip = vec3d(psi2 - psi3 * s[0], psi2 - psi3 * s[1], psi2 - psi3 * s[2])
+        vt = wp.transpose(V)
+        y0 = vt * n0
+        y1 = vt * n1
+        y2 = vt * n2
+        y3 = vt * n3
+        for m in range(9):
+            ev = f64(0.0)
+            if m < 3:
+                ev = d[m]
+            elif m < 6:
+                ev = twist[m - 3]
+            else:
+                ev = flip[m - 6]
+            if ev < f64(0.0):
+                ev = -ev * v
+                w0 = U * mode_apply(m, y0, qt)
+                w1 = U * mode_apply(m, y1, qt)
+                w2 = U * mode_apply(m, y2, qt)
+                w3 = U * mode_apply(m, y3, qt)
+                e0 = ev * w0
+                e1 = ev * w1
+                e2 = ev * w2
+                h00 += wp.outer(e0, w0)
+                h01 += wp.outer(e0, w1)
+                h02 += wp.outer(e0, w2)
+                h03 += wp.outer(e0, w3)
+                h11 += wp.outer(e1, w1)
+                h12 += wp.outer(e1, w2)
+                h13 += wp.outer(e1, w3)
+                h22 += wp.outer(e2, w2)
+                h23 += wp.outer(e2, w3)
+                h33 += wp.outer(ev * w3, w3)
     wp.atomic_add(values, slots[t, 0], h00)
     wp.atomic_add(values, slots[t, 1], h01)
     wp.atomic_add(values, slots[t, 2], h02)
@@ -579,11 +609,6 @@ for _name, _obj in list(globals().items()):
         setattr(_KERNELS, _name, _obj)
 
 
-def _build_kernels() -> Any:
-    """The warp kernels (float64); warp compiles them on first launch."""
-    return _KERNELS
-
-
 @dataclass(frozen=True)
 class StepStats:
     """What the last :meth:`FullSim.step` did.
@@ -632,7 +657,6 @@ class FullSim:
         self.scene = scene
         idx, areas = self._check_contact_points(contact_points)
         wp = _warp()
-        self._k = _build_kernels()
         dev = self.device
         n = mesh.n_vertices
         self._n = n
@@ -849,7 +873,7 @@ class FullSim:
     def _begin_step(self) -> None:
         """x_start = x, x~ = x + h v + h^2 g, lagged normal forces; the iterate starts at x~."""
         wp = _warp()
-        k = self._k
+        k = _KERNELS
         dev = self.device
         h = self._h
         wp.launch(
@@ -870,7 +894,7 @@ class FullSim:
         ``terms`` bits: 1 inertia, 2 elastic, 4 penalty, 8 damping, 16 friction.
         """
         wp = _warp()
-        k = self._k
+        k = _KERNELS
         dev = self.device
         c = self.scene.contact
         self._energy.zero_()
@@ -899,7 +923,7 @@ class FullSim:
         wp = _warp()
         c = self.scene.contact
         wp.launch(
-            self._k.contact_kernel, dim=len(self._contact_idx), device=self.device,
+            _KERNELS.contact_kernel, dim=len(self._contact_idx), device=self.device,
             inputs=[x, self._x_start, self._points, self._areas, self._normals, self._offsets, self._frictions,
                     self._fn_lag, wp.float64(c.normal_stiffness), wp.float64(c.normal_damping),
                     wp.float64(c.friction_stiffness), wp.float64(self._h), contact_terms, mode, self._diag_slots,
@@ -923,7 +947,7 @@ class FullSim:
                 With ``"record"`` the last finite iterate is kept and ``last_stats.converged``
                 is False.
         """
-        k = self._k
+        k = _KERNELS
         dev = self.device
         n = self._n
         start = time.perf_counter()
@@ -1076,16 +1100,23 @@ class FullSim:
         """
         d0 = -slope
         slack = 1e-13 * max(abs(e0), 1e-300)
+        noise = 1e-10 * max(abs(e0), 1e-300)
 
-        def armijo(a: float, e: float) -> bool:
-            return math.isfinite(e) and e <= e0 + _ARMIJO * a * d0 + slack
+        def ok(a: float, e: float, d: float = math.nan) -> bool:
+            if not math.isfinite(e):
+                return False
+            if e <= e0 + _ARMIJO * a * d0 + slack:
+                return True
+            # Near convergence the decrease hides in the round-off of E (positions minus
+            # positions); there a step at the line minimum (small phi') is accepted.
+            return e <= e0 + noise and math.isfinite(d) and abs(d) <= _CURVATURE * abs(d0)
 
         evals = 1
         e1, d1 = self._trial(1.0, True)
-        if armijo(1.0, e1) and d1 <= _CURVATURE * abs(d0):
+        if ok(1.0, e1, d1) and d1 <= _CURVATURE * abs(d0):
             return 1.0, e1, evals
         hi = 1.0
-        best: tuple[float, float] | None = (1.0, e1) if armijo(1.0, e1) else None
+        best: tuple[float, float] | None = (1.0, e1) if ok(1.0, e1, d1) else None
         if math.isfinite(d1) and d1 > 0.0:
             lo, dlo, dhi = 0.0, d0, d1
             for _ in range(_MAX_SECANT):
@@ -1094,12 +1125,12 @@ class FullSim:
                 a = min(max(a, lo + 0.05 * width), hi - 0.05 * width)
                 e, d = self._trial(a, True)
                 evals += 1
-                ok = armijo(a, e)
-                if ok and (best is None or e < best[1]):
+                good = ok(a, e, d)
+                if good and (best is None or e < best[1]):
                     best = (a, e)
-                if ok and abs(d) <= _CURVATURE * abs(d0):
+                if good and abs(d) <= _CURVATURE * abs(d0):
                     return a, e, evals
-                if ok and d < 0.0:
+                if good and d < 0.0:
                     lo, dlo = a, d
                 elif math.isfinite(d) and d > 0.0:
                     hi, dhi = a, d
@@ -1116,7 +1147,7 @@ class FullSim:
         for _ in range(_MAX_HALVINGS):
             e, _ = self._trial(alpha, False)
             evals += 1
-            if armijo(alpha, e):
+            if ok(alpha, e):
                 return alpha, e, evals
             alpha *= 0.5
         return alpha, None, evals

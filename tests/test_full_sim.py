@@ -1,0 +1,357 @@
+"""The full-space simulator: derivatives against finite differences, and motion against analytic values."""
+
+import math
+
+import numpy as np
+import pytest
+
+from licrom import (
+    ConfigError,
+    ContactParams,
+    InitialState,
+    Material,
+    Plane,
+    Scene,
+    ShapeError,
+    SolverError,
+    SolverParams,
+    meshes,
+)
+from licrom.full_sim import FullSim
+
+G = 9.81
+L = 0.1  # box edge, m
+STIFF = Material(youngs_modulus=1e7, poisson_ratio=0.3, density=1000.0)  # the box moves like a rigid body
+CONTACT = ContactParams(normal_stiffness=1e7, normal_damping=0.0, friction_stiffness=1e7)
+
+
+def _bottom_area(mesh):
+    """Contact area carried by the boundary vertices of the face z = -L/2."""
+    b = mesh.boundary_vertices
+    on_bottom = np.isclose(mesh.vertices[b, 2], mesh.vertices[:, 2].min())
+    return float(mesh.boundary_vertex_areas[on_bottom].sum())
+
+
+def _box_on_incline(theta_deg, mu, *, speed=0.0, dt=0.01, res=2, contact=CONTACT, material=STIFF):
+    """A cube lying on a plane tilted by theta (about y), sunk to its static penetration, moving downhill at ``speed``."""
+    mesh = meshes.box(L, resolution=res)
+    t = math.radians(theta_deg)
+    normal = np.array([math.sin(t), 0.0, math.cos(t)])
+    downhill = np.array([math.cos(t), 0.0, -math.sin(t)])
+    mass = material.density * L**3
+    sink = mass * G * math.cos(t) / (contact.normal_stiffness * _bottom_area(mesh))
+    scene = Scene(
+        material=material,
+        planes=(Plane.incline(theta_deg, mu),),
+        contact=contact,
+        dt=dt,
+        initial=InitialState(translation=tuple(normal * (L / 2 - sink)), rotation=(0.0, t, 0.0), velocity=tuple(speed * downhill)),
+    )
+    return mesh, scene, downhill
+
+
+def _com(sim):
+    m = sim.masses
+    return m @ sim.positions / m.sum(), m @ sim.velocities / m.sum()
+
+
+# --- derivatives --------------------------------------------------------------------------
+
+
+def _fd_check(sim, x, terms, eps, rtol_g, rtol_h):
+    """Central differences of energy -> gradient and of gradient -> Hessian (unprojected)."""
+    g = sim.gradient(x, terms).ravel()
+    H = sim.hessian(x, terms, project=False).toarray()
+    flat = x.ravel()
+    fd_g = np.empty_like(g)
+    fd_h = np.empty_like(H)
+    for i in range(len(flat)):
+        xp, xm = flat.copy(), flat.copy()
+        xp[i] += eps
+        xm[i] -= eps
+        xp, xm = xp.reshape(-1, 3), xm.reshape(-1, 3)
+        fd_g[i] = (sim.energy(xp, terms) - sim.energy(xm, terms)) / (2 * eps)
+        fd_h[:, i] = (sim.gradient(xp, terms).ravel() - sim.gradient(xm, terms).ravel()) / (2 * eps)
+    err_g = np.abs(g - fd_g).max() / np.abs(g).max()
+    err_h = np.abs(H - fd_h).max() / np.abs(H).max()
+    print(f"{terms}: |grad| {np.abs(g).max():.3e}, gradient error {err_g:.2e}; |H| {np.abs(H).max():.3e}, Hessian error {err_h:.2e}")
+    assert err_g < rtol_g
+    assert err_h < rtol_h
+    np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+    return g, H
+
+
+def test_elastic_gradient_and_hessian_match_finite_differences(rng):
+    mesh = meshes.box(L, resolution=2)
+    sim = FullSim(mesh, Scene(material=Material(1e5, 0.3), planes=()))
+    x = mesh.vertices + 0.01 * rng.standard_normal(mesh.vertices.shape)
+    _, H = _fd_check(sim, x, "elastic", 1e-7, 1e-6, 1e-6)
+    # The projected Hessian is PSD and differs from the exact one only where that is indefinite.
+    Hp = sim.hessian(x, "elastic").toarray()
+    ev, evp = np.linalg.eigvalsh(H), np.linalg.eigvalsh(Hp)
+    print(f"elastic Hessian eigenvalues: exact min {ev.min():.3e}, projected min {evp.min():.3e} (max {evp.max():.3e})")
+    assert ev.min() < 0 and evp.min() > -1e-9 * evp.max()
+    # Rigid motions: the energy is invariant, its gradient zero.
+    R = InitialState(rotation=(0.3, -0.5, 0.9)).rotation_matrix()
+    xr = mesh.vertices @ R.T + np.array([0.1, 0.2, 0.3])
+    assert abs(sim.energy(xr, "elastic")) < 1e-12 * sim.energy(x, "elastic")
+    assert np.abs(sim.gradient(xr, "elastic")).max() < 1e-9 * np.abs(sim.gradient(x, "elastic")).max()
+
+
+def test_elastic_energy_survives_inverted_tets(rng):
+    mesh = meshes.box(L, resolution=1)
+    sim = FullSim(mesh, Scene(material=Material(1e5, 0.3), planes=()))
+    x = mesh.vertices.copy()
+    x[:, 2] *= -0.5  # mirror and squash: every tet inverted
+    x += 1e-3 * rng.standard_normal(x.shape)
+    assert (np.linalg.det(mesh.deformation_gradients(x)) < 0).all()
+    assert np.isfinite(sim.energy(x, "elastic"))
+    _fd_check(sim, x, "elastic", 1e-7, 1e-6, 1e-6)
+    Hp = sim.hessian(x, "elastic").toarray()
+    assert np.linalg.eigvalsh(Hp).min() > -1e-9 * np.abs(Hp).max()
+
+
+def _contact_state(rng, mu=0.5, kd=3e4):
+    """A box sunk 2 mm into the ground (normal force on its bottom), evaluated at a moved position."""
+    mesh = meshes.box(L, resolution=2)
+    contact = ContactParams(normal_stiffness=1e7, normal_damping=kd, friction_stiffness=1e7)
+    scene = Scene(material=Material(1e5, 0.3), planes=(Plane((0, 0, 1), L / 2 - 2e-3, mu),), contact=contact)
+    sim = FullSim(mesh, scene)
+    return mesh, scene, sim
+
+
+def test_penalty_and_damping_match_finite_differences(rng):
+    mesh, scene, sim = _contact_state(rng)
+    # Pushed further in at most points (approaching: damping on), lifted out at some.
+    x = mesh.vertices + np.array([0, 0, -1e-3]) + 1.5e-3 * rng.standard_normal(mesh.vertices.shape)
+    bottom = sim.contact_indices[np.isclose(mesh.vertices[sim.contact_indices, 2], -L / 2)]
+    assert (x[bottom, 2] < mesh.vertices[bottom, 2]).any() and (x[bottom, 2] > mesh.vertices[bottom, 2]).any()
+    g, _ = _fd_check(sim, x, "penalty", 1e-8, 1e-6, 1e-6)
+    # Analytic penalty gradient: a k_n min(gap, 0) n at each contact point.
+    area = dict(zip(sim.contact_indices.tolist(), sim.contact_areas))
+    gap = x[:, 2] + L / 2 - 2e-3
+    for j in bottom:
+        assert g.reshape(-1, 3)[j, 2] == pytest.approx(area[j] * 1e7 * min(gap[j], 0.0), rel=1e-12, abs=1e-15)
+    gd, _ = _fd_check(sim, x, "damping", 1e-8, 1e-6, 1e-6)
+    # Analytic damping force: a k_d v_n (approaching only), v_n = dz / h, where the start state is in contact.
+    dz = x[:, 2] - mesh.vertices[:, 2]
+    for j in bottom:
+        assert gd.reshape(-1, 3)[j, 2] == pytest.approx(area[j] * 3e4 * min(dz[j], 0.0) / scene.dt, rel=1e-12, abs=1e-15)
+
+
+def test_friction_matches_finite_differences_in_stick_and_slip(rng):
+    mu, kf, h = 0.5, 1e7, 0.01
+    mesh, scene, sim = _contact_state(rng, mu=mu)
+    idx = sim.contact_indices
+    area = sim.contact_areas
+    bottom = np.isclose(mesh.vertices[idx, 2], -L / 2)
+    fn = area * 1e7 * 2e-3  # lagged normal force at the start of the step
+    threshold = mu * fn * h / (area * kf)  # slip length where stick turns into slip
+    # Tangential moves from 0.3x to 3x the threshold: some points stick, others slip.
+    x = mesh.vertices.copy()
+    scale = np.zeros(mesh.n_vertices)
+    scale[idx[bottom]] = threshold[bottom] * rng.uniform(0.3, 3.0, bottom.sum())
+    direction = rng.standard_normal((mesh.n_vertices, 2))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    x[:, :2] += scale[:, None] * direction
+    slip = np.linalg.norm(x[idx, :2] - mesh.vertices[idx, :2], axis=1)
+    sticking = bottom & (slip < threshold)
+    slipping = bottom & (slip > threshold)
+    print(f"friction check: {sticking.sum()} points stick, {slipping.sum()} slip")
+    assert sticking.sum() >= 2 and slipping.sum() >= 2
+    assert np.min(np.abs(slip[bottom] / threshold[bottom] - 1)) > 1e-3  # no point on the switch
+    g, H = _fd_check(sim, x, "friction", 1e-10, 1e-6, 1e-5)
+    # Analytic force magnitude: min(a k_f |v_t|, mu f_n), opposite to the slip.
+    force = np.linalg.norm(g.reshape(-1, 3)[idx], axis=1)
+    np.testing.assert_allclose(force[sticking], area[sticking] * kf * slip[sticking] / h, rtol=1e-10)
+    np.testing.assert_allclose(force[slipping], mu * fn[slipping], rtol=1e-10)
+    assert np.linalg.eigvalsh(sim.hessian(x, "friction").toarray()).min() > -1e-9 * np.abs(H).max()
+
+
+# --- motion -------------------------------------------------------------------------------
+
+
+def test_free_fall_is_discrete_backward_euler():
+    mesh = meshes.box(L, resolution=2)
+    v0 = np.array([0.5, -0.2, 1.0])
+    scene = Scene(material=STIFF, planes=(), initial=InitialState(translation=(0, 0, 1), velocity=tuple(v0)))
+    sim = FullSim(mesh, scene)
+    traj = sim.run(50)
+    h, g = scene.dt, np.array(scene.gravity)
+    x, v = np.array([0, 0, 1.0]), v0.copy()
+    worst = 0.0
+    for k in range(1, 51):
+        x, v = x + h * v + h * h * g, v + h * g
+        worst = max(worst, np.abs(traj.displacements[k] - x).max(), np.abs(traj.velocities[k] - v).max())
+    print(f"free fall: max deviation from the point-mass recursion {worst:.2e} (m, m/s); iterations {set(traj.iterations)}")
+    assert worst < 1e-10
+    assert traj.converged.all()
+
+
+def test_free_fall_centre_of_mass_of_a_spinning_body():
+    mesh = meshes.box((0.1, 0.06, 0.04), resolution=3)
+    scene = Scene(
+        material=Material(1e5, 0.3),
+        planes=(),
+        solver=SolverParams(tolerance=1e-10),
+        initial=InitialState(velocity=(0.3, 0, 0.5), angular_velocity=(2.0, 5.0, -3.0)),
+    )
+    sim = FullSim(mesh, scene)
+    c0, v0 = _com(sim)
+    h, g = scene.dt, np.array(scene.gravity)
+    for _ in range(30):
+        sim.step()
+        c0, v0 = c0 + h * v0 + h * h * g, v0 + h * g
+    c, v = _com(sim)
+    print(f"spinning body: centre of mass off the point-mass recursion by {np.abs(c - c0).max():.2e} m")
+    assert np.abs(c - c0).max() < 1e-10 and np.abs(v - v0).max() < 1e-8
+
+
+@pytest.mark.parametrize("theta, mu", [(10.0, 0.3), (20.0, 0.5), (30.0, 0.7)])
+def test_box_sticks_on_incline_below_friction_angle(theta, mu):
+    assert math.tan(math.radians(theta)) < mu
+    mesh, scene, downhill = _box_on_incline(theta, mu)
+    sim = FullSim(mesh, scene)
+    c0, _ = _com(sim)
+    sim.run(100)
+    c, v = _com(sim)
+    slide = (c - c0) @ downhill
+    print(f"stick theta={theta} mu={mu}: moved {1e6 * slide:.2f} um down the slope in 1 s, speed {1e6 * abs(v @ downhill):.2f} um/s")
+    assert abs(slide) < 1e-4  # 0.1 mm (creep of the friction regularisation k_f: ~ rho L g sin(theta) / k_f)
+
+
+@pytest.mark.parametrize("theta, mu", [(30.0, 0.3), (25.0, 0.2), (35.0, 0.5), (40.0, 0.8)])
+def test_box_slides_on_incline_with_coulomb_acceleration(theta, mu):
+    t = math.radians(theta)
+    assert math.tan(t) > mu
+    mesh, scene, downhill = _box_on_incline(theta, mu)
+    sim = FullSim(mesh, scene)
+    traj = sim.run(100)
+    w = sim.masses / sim.masses.sum()
+    v = np.einsum("fnk,n,k->f", traj.velocities, w, downhill)
+    window = traj.times >= 0.3  # after the landing transient
+    a = np.polyfit(traj.times[window], v[window], 1)[0]
+    expected = G * (math.sin(t) - mu * math.cos(t))
+    print(f"slide theta={theta} mu={mu}: a = {a:.5f} m/s^2, analytic {expected:.5f} m/s^2 (error {100 * (a / expected - 1):+.3f}%)")
+    assert a == pytest.approx(expected, rel=0.02)
+
+
+def test_box_pushed_on_flat_ground_stops_at_analytic_distance():
+    mu, v0 = 0.3, 2.0
+    mesh, scene, direction = _box_on_incline(0.0, mu, speed=v0, dt=0.005)
+    sim = FullSim(mesh, scene)
+    c0, _ = _com(sim)
+    sim.run(200)  # 1 s; it stops after v0 / (mu g) = 0.68 s
+    c, v = _com(sim)
+    distance = (c - c0) @ direction
+    expected = v0**2 / (2 * mu * G)
+    print(f"push v0={v0} mu={mu}: stopped after {distance:.5f} m, analytic {expected:.5f} m (error {100 * (distance / expected - 1):+.3f}%)")
+    assert np.linalg.norm(v) < 1e-3
+    assert distance == pytest.approx(expected, rel=0.03)
+
+
+def test_contact_forces_carry_the_weight_at_rest():
+    mesh, scene, _ = _box_on_incline(0.0, 0.5)
+    sim = FullSim(mesh, scene)
+    assert np.all(sim.contact_forces() == 0)
+    sim.run(30)
+    f = sim.contact_forces()
+    assert f.shape == (len(sim.contact_indices), 3)
+    total = f.sum(axis=0)
+    weight = sim.masses.sum() * G
+    print(f"resting box: contact force {total} N, weight {weight:.5f} N")
+    assert total[2] == pytest.approx(weight, rel=1e-3)
+    assert np.abs(total[:2]).max() < 1e-3 * weight
+
+
+def test_cheese_dropped_on_incline_stays_sound():
+    mesh = meshes.cheese(resolution=6)
+    theta, mu = 20.0, 0.5
+    t = math.radians(theta)
+    normal = np.array([math.sin(t), 0.0, math.cos(t)])
+    scene = Scene(
+        planes=(Plane.incline(theta, mu),),
+        contact=CONTACT,
+        initial=InitialState(translation=tuple(0.1 * normal), rotation=(0.3, 0.2, 0.1)),
+    )
+    sim = FullSim(mesh, scene)
+    depth, min_j, iterations = 0.0, np.inf, []
+    for k in range(1000):
+        its, _ = sim.step()
+        iterations.append(its)
+        x = sim.positions
+        assert np.isfinite(x).all()
+        depth = max(depth, -float((x @ normal).min()))
+        min_j = min(min_j, float(np.linalg.det(mesh.deformation_gradients(x)).min()))
+    print(
+        f"cheese drop ({mesh.n_tets} tets, 1000 steps): max penetration {1e3 * depth:.3f} mm, min J {min_j:.3f}, "
+        f"Newton iterations mean {np.mean(iterations):.2f} max {max(iterations)}"
+    )
+    assert min_j > 0.0
+    assert depth < 2e-3  # 1% of the cheese's 0.2 m length
+    _, v = _com(sim)
+    assert np.linalg.norm(v) < 0.05  # it came to rest on the 20 deg slope (tan 20 < 0.5)
+
+
+# --- failure and API -------------------------------------------------------------------------
+
+
+def test_failed_step_raises_and_leaves_state_unchanged():
+    mesh, scene, _ = _box_on_incline(30.0, 0.3, speed=0.5)
+    scene = scene.replace(solver=SolverParams(tolerance=1e-14, max_iterations=1))
+    sim = FullSim(mesh, scene)
+    x0, v0 = sim.positions, sim.velocities
+    with pytest.raises(SolverError, match=r"step 0 .*residual .* 1 iterations") as info:
+        sim.step()
+    assert info.value.iterations == 1 and info.value.residual > 1e-14
+    np.testing.assert_array_equal(sim.positions, x0)
+    np.testing.assert_array_equal(sim.velocities, v0)
+    assert sim.time == 0.0
+
+
+def test_failed_steps_are_recorded_on_request():
+    mesh, scene, _ = _box_on_incline(30.0, 0.3, speed=0.5)
+    scene = scene.replace(solver=SolverParams(tolerance=1e-14, max_iterations=1, on_failure="record"))
+    traj = FullSim(mesh, scene).run(3)
+    assert traj.converged.tolist() == [False, False, False]
+    assert traj.iterations.tolist() == [1, 1, 1]
+    assert np.isfinite(traj.displacements).all() and traj.n_frames == 4
+    assert traj.info["unconverged_steps"] == 3
+
+
+def test_run_records_frames_and_metadata():
+    mesh, scene, _ = _box_on_incline(30.0, 0.3)
+    sim = FullSim(mesh, scene)
+    traj = sim.run(6, record_every=3)
+    np.testing.assert_allclose(traj.times, [0.0, 0.03, 0.06])
+    assert len(traj.iterations) == len(traj.residuals) == len(traj.step_seconds) == 6
+    assert traj.converged.all() and (traj.residuals < scene.solver.tolerance).all()
+    assert traj.info["source"] == "full" and traj.info["n_tets"] == mesh.n_tets
+    np.testing.assert_allclose(traj.positions(2), sim.positions, atol=1e-15)
+    assert sim.time == pytest.approx(0.06)
+
+
+def test_custom_contact_points_and_validation():
+    mesh, scene, _ = _box_on_incline(0.0, 0.5)
+    sub = mesh.boundary_vertices[:5]
+    sim = FullSim(mesh, scene, contact_points=(sub, np.full(5, 1e-3)))
+    np.testing.assert_array_equal(sim.contact_indices, sub)
+    with pytest.raises(ConfigError, match="cpu, cuda, cuda:N"):
+        FullSim(mesh, scene, device="gpu")
+    with pytest.raises(ConfigError, match="vertex indices"):
+        FullSim(mesh, scene, contact_points=([0, mesh.n_vertices], [1.0, 1.0]))
+    with pytest.raises(ShapeError):
+        FullSim(mesh, scene, contact_points=([0, 1], [1.0]))
+    with pytest.raises(ShapeError, match="shape"):
+        sim.set_state(positions=np.zeros((3, 3)))
+    bad = sim.positions
+    bad[0, 0] = np.nan
+    with pytest.raises(ShapeError, match="NaN"):
+        sim.set_state(positions=bad)
+    with pytest.raises(ConfigError):
+        sim.run(-1)
+    with pytest.raises(ConfigError):
+        sim.run(2, record_every=0)
+    v = np.ones((mesh.n_vertices, 3))
+    sim.set_state(velocities=v)
+    np.testing.assert_array_equal(sim.velocities, v)
