@@ -1,0 +1,786 @@
+"""Learned continuous subspaces (LiCROM): PointNet encoder, neural field W(X), the model file.
+
+A trained :class:`Model` is a *basis* for the reduced simulation: the displacement
+of any material point ``X`` of the rest shape is ``u(X) = B(X) q`` with
+
+    B(X) = [A(X) | W(X)]    (3 x (12 + r)),
+
+where ``A`` holds the 12 affine modes and ``W`` the ``r`` learned modes. The
+column order of the affine modes is fixed: for ``c`` in ``0..8`` mode ``c`` is
+``X_j e_i`` with ``(i, j) = divmod(c, 3)`` (entry ``F_ij`` of a linear map),
+then modes 9, 10, 11 are the translations ``e_0, e_1, e_2``.
+
+The learned modes are the network's field after two exact linear changes made
+once at the end of training (they do not change the span of ``[A | W]``):
+
+* the part of each learned column that the affine modes explain on the rest
+  mesh is removed (``W' = W_net - A C``), so the learned modes are
+  mass-orthogonal to the affine ones;
+* the columns are rotated and scaled (``W = W' T``) to be mass-orthogonal with
+  ``W^T M W = m_total I`` and ordered by the variance they carry over the
+  training frames (mode 0 first). A latent coordinate is then the mass-weighted
+  RMS displacement, in m, that its mode contributes.
+
+This keeps the reduced mass matrix ``M_r = B^T M B`` well conditioned.
+
+Torch is needed to evaluate a model; the file itself is a plain ``.npz`` with a
+JSON header (no pickle) and loads without the training data.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from ._io import check_version, load_npz, save_npz
+from .errors import ConfigError, FileFormatError, ShapeError
+from .mesh import Mesh
+from .scene import Scene
+
+__all__ = [
+    "ModelConfig",
+    "Model",
+    "LicromNet",
+    "PointNetEncoder",
+    "NeuralField",
+    "MODEL_FORMAT_VERSION",
+    "N_AFFINE",
+]
+
+MODEL_FORMAT_VERSION = 1
+N_AFFINE = 12
+# Points evaluated per batch by values()/jacobians() (bounds peak memory, not speed).
+_CHUNK = 16384
+
+
+# ----------------------------------------------------------------------------------------
+# configuration
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ModelConfig:
+    """Sizes of the LiCROM networks.
+
+    Attributes:
+        latent_dim: r, the number of learned modes (the latent size), >= 1.
+        field_layers: number of linear layers of the neural field W(X) (input 3, then
+            ``field_layers - 1`` hidden ELU layers, then the 3 r output), >= 2.
+            The default 5 with width 60 is LiCROM's network.
+        field_width: width of the hidden layers of W(X).
+        encoder_point_widths: widths of the shared per-point MLP of the PointNet
+            encoder (applied to each sampled (X, u) point, ELU after each layer),
+            before max pooling over the points.
+        encoder_fc_widths: widths of the fully connected ELU layers after pooling;
+            a last linear layer maps to r.
+        affine: stack the 12 exact affine modes in front of the learned ones and learn
+            only what they cannot express (True), or learn the whole displacement (False).
+    """
+
+    latent_dim: int = 20
+    field_layers: int = 5
+    field_width: int = 60
+    encoder_point_widths: tuple[int, ...] = (64, 128, 256)
+    encoder_fc_widths: tuple[int, ...] = (128,)
+    affine: bool = True
+
+    def __post_init__(self) -> None:
+        def positive_int(name: str, v: Any, minimum: int = 1) -> int:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
+                raise ConfigError(f"ModelConfig.{name} must be an integer >= {minimum}, got {v!r}")
+            return int(v)
+
+        object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
+        object.__setattr__(self, "field_layers", positive_int("field_layers", self.field_layers, 2))
+        object.__setattr__(self, "field_width", positive_int("field_width", self.field_width))
+        for name in ("encoder_point_widths", "encoder_fc_widths"):
+            v = getattr(self, name)
+            try:
+                widths = tuple(v)
+            except TypeError:
+                raise ConfigError(f"ModelConfig.{name} must be a sequence of integers, got {v!r}") from None
+            widths = tuple(positive_int(name, w) for w in widths)
+            if name == "encoder_point_widths" and not widths:
+                raise ConfigError("ModelConfig.encoder_point_widths needs at least one layer")
+            object.__setattr__(self, name, widths)
+        if not isinstance(self.affine, (bool, np.bool_)):
+            raise ConfigError(f"ModelConfig.affine must be True or False, got {self.affine!r}")
+        object.__setattr__(self, "affine", bool(self.affine))
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["encoder_point_widths"] = list(self.encoder_point_widths)
+        d["encoder_fc_widths"] = list(self.encoder_fc_widths)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise ConfigError(f"unknown or missing ModelConfig fields: {exc}") from exc
+
+
+# ----------------------------------------------------------------------------------------
+# affine modes (same column order as the reduced simulator's AffineBasis)
+# ----------------------------------------------------------------------------------------
+def _affine_values(points: np.ndarray | torch.Tensor) -> Any:
+    """(p, 3, 12) values of the affine modes at ``points`` (p, 3); numpy or torch in, same out."""
+    if isinstance(points, torch.Tensor):
+        p = points.shape[0]
+        out = points.new_zeros((p, 3, N_AFFINE))
+        for i in range(3):
+            out[:, i, 3 * i : 3 * i + 3] = points
+            out[:, i, 9 + i] = 1.0
+        return out
+    x = np.asarray(points, dtype=np.float64)
+    out = np.zeros((len(x), 3, N_AFFINE))
+    for i in range(3):
+        out[:, i, 3 * i : 3 * i + 3] = x
+        out[:, i, 9 + i] = 1.0
+    return out
+
+
+def _affine_jacobian_constant() -> np.ndarray:
+    """(3, 3, 12) constant ``d A_ic / d X_j`` of the affine modes."""
+    out = np.zeros((3, 3, N_AFFINE))
+    for c in range(9):
+        i, j = divmod(c, 3)
+        out[i, j, c] = 1.0
+    return out
+
+
+def _affine_jacobians(points: np.ndarray) -> np.ndarray:
+    """(p, 3, 3, 12) Jacobians ``J[p, i, j, c] = d A_ic / d X_j`` of the affine modes."""
+    n = len(np.asarray(points))
+    return np.broadcast_to(_affine_jacobian_constant(), (n, 3, 3, N_AFFINE)).copy()
+
+
+def fit_affine(points: np.ndarray, displacements: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted least-squares affine coefficients of displacement fields.
+
+    Solves ``min_a sum_v w_v |u_v - A(X_v) a|^2`` for each frame.
+
+    Args:
+        points: (n, 3) points X.
+        displacements: (n, 3) or (f, n, 3) displacements u at those points.
+        weights: (n,) non-negative weights (lumped masses).
+
+    Returns:
+        (12,) or (f, 12) coefficients in the affine mode order.
+    """
+    x = np.asarray(points, dtype=np.float64)
+    u = np.asarray(displacements, dtype=np.float64)
+    single = u.ndim == 2
+    if single:
+        u = u[None]
+    w = np.asarray(weights, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or u.shape[1:] != x.shape or w.shape != (len(x),):
+        raise ShapeError(f"fit_affine needs points (n, 3), displacements (f, n, 3) and weights (n,); got {x.shape}, {u.shape}, {w.shape}")
+    centre = (w @ x) / w.sum()
+    xc = x - centre
+    design = np.concatenate([xc, np.ones((len(x), 1))], axis=1)  # (n, 4)
+    gram = design.T @ (w[:, None] * design)
+    rhs = np.einsum("nk,n,fni->fki", design, w, u)  # (f, 4, 3)
+    coef = np.linalg.solve(gram[None], rhs)  # (f, 4, 3): coef[k, i]
+    lin = np.transpose(coef[:, :3, :], (0, 2, 1))  # (f, 3, 3): F_ij
+    trans = coef[:, 3, :] - np.einsum("fij,j->fi", lin, centre)
+    a = np.concatenate([lin.reshape(len(u), 9), trans], axis=1)
+    return a[0] if single else a
+
+
+def apply_affine(points: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """Displacements (n, 3) or (f, n, 3) of affine coefficients (12,) or (f, 12) at points (n, 3)."""
+    a = np.asarray(coefficients, dtype=np.float64)
+    x = np.asarray(points, dtype=np.float64)
+    single = a.ndim == 1
+    a2 = a[None] if single else a
+    out = np.einsum("fij,nj->fni", a2[:, :9].reshape(-1, 3, 3), x) + a2[:, None, 9:]
+    return out[0] if single else out
+
+
+# ----------------------------------------------------------------------------------------
+# networks
+# ----------------------------------------------------------------------------------------
+def _xavier(module: nn.Module) -> None:
+    for m in module.modules():
+        if isinstance(m, nn.Linear):
+            nn.init.xavier_uniform_(m.weight)
+            nn.init.zeros_(m.bias)
+
+
+class NeuralField(nn.Module):
+    """W(X): an MLP ``R^3 -> R^(3 r)`` with ELU activations (C^1 in X), Xavier initialised.
+
+    Takes normalised points (..., 3) and returns (..., 3, r).
+    """
+
+    def __init__(self, latent_dim: int, layers: int = 5, width: int = 60) -> None:
+        super().__init__()
+        self.latent_dim = latent_dim
+        dims = [3] + [width] * (layers - 1) + [3 * latent_dim]
+        mods: list[nn.Module] = []
+        for k in range(layers):
+            mods.append(nn.Linear(dims[k], dims[k + 1]))
+            if k < layers - 1:
+                mods.append(nn.ELU())
+        self.mlp = nn.Sequential(*mods)
+        _xavier(self)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = self.mlp(x)
+        return out.reshape(*x.shape[:-1], 3, self.latent_dim)
+
+
+class PointNetEncoder(nn.Module):
+    """PointNet without input/feature transform nets: shared per-point MLP, max pooling, FC.
+
+    Takes a batch of point clouds (B, P, 6) of normalised (X, u) and returns z (B, r).
+    The per-point layers are ``nn.Linear`` applied to the last axis (the same as a
+    kernel-1 ``Conv1d``).
+    """
+
+    def __init__(self, latent_dim: int, point_widths: Sequence[int] = (64, 128, 256), fc_widths: Sequence[int] = (128,), in_dim: int = 6) -> None:
+        super().__init__()
+        pts: list[nn.Module] = []
+        d = in_dim
+        for w in point_widths:
+            pts += [nn.Linear(d, w), nn.ELU()]
+            d = w
+        self.point_mlp = nn.Sequential(*pts)
+        fc: list[nn.Module] = []
+        for w in fc_widths:
+            fc += [nn.Linear(d, w), nn.ELU()]
+            d = w
+        fc.append(nn.Linear(d, latent_dim))
+        self.head = nn.Sequential(*fc)
+        _xavier(self)
+
+    def forward(self, cloud: torch.Tensor) -> torch.Tensor:
+        feat = self.point_mlp(cloud)  # (B, P, C)
+        return self.head(feat.amax(dim=-2))
+
+
+class LicromNet(nn.Module):
+    """Encoder + neural field, with the normalisation statistics as buffers.
+
+    Normalised coordinates: ``X^ = (X - x_center) / x_scale``, ``u^ = u / u_scale``.
+    The raw learned field in metres is ``W_raw(X) = u_scale * field(X^)`` and the
+    encoder maps a cloud of ``(X^, u^)`` to ``z`` with ``u ~ W_raw(X) z``.
+    """
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.encoder = PointNetEncoder(config.latent_dim, config.encoder_point_widths, config.encoder_fc_widths)
+        self.field = NeuralField(config.latent_dim, config.field_layers, config.field_width)
+        self.register_buffer("x_center", torch.zeros(3))
+        self.register_buffer("x_scale", torch.ones(()))
+        self.register_buffer("u_scale", torch.ones(()))
+
+    def set_normalization(self, x_center: np.ndarray, x_scale: float, u_scale: float) -> None:
+        with torch.no_grad():
+            self.x_center.copy_(torch.as_tensor(np.asarray(x_center), dtype=self.x_center.dtype))
+            self.x_scale.fill_(float(x_scale))
+            self.u_scale.fill_(float(u_scale))
+
+    def normalize(self, points: torch.Tensor) -> torch.Tensor:
+        return (points - self.x_center) / self.x_scale
+
+    def encode_normalized(self, points: torch.Tensor, displacements: torch.Tensor) -> torch.Tensor:
+        """z (B, r) from raw points (B, P, 3) or (P, 3) shared by the batch, and residual
+        displacements (B, P, 3) in m."""
+        xh = self.normalize(points)
+        if xh.dim() == 2:
+            xh = xh.expand(displacements.shape[0], -1, -1)
+        cloud = torch.cat([xh, displacements / self.u_scale], dim=-1)
+        return self.encoder(cloud)
+
+    def reconstruct_normalized(self, points: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """Normalised displacement ``field(X^) z`` (B, P, 3) for points (B, P, 3) or (P, 3), z (B, r)."""
+        phi = self.field(self.normalize(points))
+        if phi.dim() == 3:  # points shared by the batch: one field evaluation
+            return torch.einsum("pir,br->bpi", phi, z)
+        return torch.einsum("bpir,br->bpi", phi, z)
+
+    def nonaffine_field(self, points: torch.Tensor) -> torch.Tensor:
+        """field(X^) (P, 3, r) at points (P, 3) minus its least-squares affine part over those points.
+
+        With the affine modes on, the targets have no affine part, and a learned column
+        that is (nearly) affine would get no gradient: it would stay a dead mode. Taking
+        the affine part out of the field at the loss points removes that plateau and
+        matches the final basis, whose learned modes are made mass-orthogonal to the
+        affine modes (the points are drawn uniformly in volume, so the uniform
+        least squares here estimates the mass-weighted one).
+        """
+        xh = self.normalize(points)
+        phi = self.field(xh)
+        if not self.config.affine:
+            return phi
+        r = phi.shape[-1]
+        a = _affine_values(xh).reshape(-1, N_AFFINE)
+        gram = a.T @ a + 1e-9 * len(xh) * torch.eye(N_AFFINE, dtype=a.dtype, device=a.device)
+        c = torch.linalg.solve(gram, a.T @ phi.reshape(-1, r))
+        return (phi.reshape(-1, r) - a @ c).reshape(phi.shape)
+
+    def forward(self, points: torch.Tensor, displacements: torch.Tensor, encoder_points: int | None = None, projection_weight: float = 0.0) -> torch.Tensor:
+        """Training loss: MSE of the reconstructed normalised residual displacement.
+
+        Args:
+            points: (P, 3) loss points, shared by every frame of the batch.
+            displacements: (B, P, 3) residual displacements at those points, m.
+            encoder_points: feed only the first this many points to the encoder
+                (the loss still uses all P); None: all.
+            projection_weight: add this times the MSE of the least-squares projection
+                of the targets onto the field at the loss points (trains the span of W
+                directly; 0 is plain LiCROM).
+        """
+        k = displacements.shape[1] if encoder_points is None else min(encoder_points, displacements.shape[1])
+        z = self.encode_normalized(points[:k], displacements[:, :k])
+        phi = self.nonaffine_field(points)
+        target = displacements / self.u_scale
+        loss = torch.mean((torch.einsum("pir,br->bpi", phi, z) - target) ** 2)
+        if projection_weight > 0:
+            flat = phi.reshape(-1, phi.shape[-1])
+            gram = flat.T @ flat
+            gram = gram + 1e-8 * gram.diagonal().mean().clamp(min=1e-30) * torch.eye(len(gram), dtype=gram.dtype, device=gram.device)
+            zp = torch.linalg.solve(gram, flat.T @ target.reshape(len(target), -1).T).T
+            loss = loss + projection_weight * torch.mean((torch.einsum("pir,br->bpi", phi, zp) - target) ** 2)
+        return loss
+
+    def raw_field(self, points: torch.Tensor) -> torch.Tensor:
+        """W_raw (p, 3, r) in metres per unit z at raw points (p, 3)."""
+        return self.u_scale * self.field(self.normalize(points))
+
+
+# ----------------------------------------------------------------------------------------
+# the model: a basis, an encoder, a file
+# ----------------------------------------------------------------------------------------
+def _as_points(points: Any, name: str = "points") -> np.ndarray:
+    x = np.asarray(points, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ShapeError(f"{name} must have shape (p, 3), got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ShapeError(f"{name} holds NaN or inf")
+    return x
+
+
+@dataclass
+class _Finalization:
+    """Exact linear post-processing of the raw field: ``W = (W_raw - A C) T``."""
+
+    affine_correction: np.ndarray  # (12, r) C (zeros without affine modes)
+    transform: np.ndarray  # (r, r) T
+    transform_inv: np.ndarray  # (r, r) T^-1
+    mode_variance: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (r,) variance per final mode over training frames
+
+
+class Model:
+    """A trained LiCROM subspace; also a basis for the reduced simulation.
+
+    Build one with :func:`licrom.train` or :meth:`Model.load`. Evaluation runs in
+    float64 on the CPU by default (:meth:`to` moves it to a GPU).
+
+    Attributes:
+        config: the network sizes.
+        mesh: the rest mesh trained on.
+        scenes: the scenes of the training trajectories.
+        default_scene: the scene a reduced simulation of this model uses by default.
+        metadata: JSON-ready training information (data, split, losses, timings, ...).
+    """
+
+    def __init__(
+        self,
+        net: LicromNet,
+        mesh: Mesh,
+        scenes: Sequence[Scene] = (),
+        *,
+        finalization: _Finalization | None = None,
+        default_scene_index: int = 0,
+        metadata: dict[str, Any] | None = None,
+    ) -> None:
+        if not isinstance(net, LicromNet):
+            raise ConfigError(f"Model needs a LicromNet, got {type(net).__name__}")
+        if not isinstance(mesh, Mesh):
+            raise ConfigError(f"Model needs a Mesh, got {type(mesh).__name__}")
+        self.config: ModelConfig = net.config
+        r = self.config.latent_dim
+        self.mesh = mesh
+        self.scenes: list[Scene] = list(scenes)
+        if self.scenes and not 0 <= default_scene_index < len(self.scenes):
+            raise ConfigError(f"default_scene_index {default_scene_index} out of range for {len(self.scenes)} scenes")
+        self._default_index = int(default_scene_index)
+        self.metadata: dict[str, Any] = dict(metadata or {})
+        if finalization is None:
+            finalization = _Finalization(np.zeros((N_AFFINE, r)), np.eye(r), np.eye(r), np.zeros(r))
+        if finalization.affine_correction.shape != (N_AFFINE, r) or finalization.transform.shape != (r, r):
+            raise ShapeError("model finalization arrays do not match the latent size")
+        self._fin = finalization
+        self._device = torch.device("cpu")
+        self._net32 = net  # as trained (float32), kept for saving
+        self._build_eval_net()
+        self._vertex_cache: dict[str, Any] = {}
+
+    # --- construction helpers -------------------------------------------------------
+    def _build_eval_net(self) -> None:
+        net = copy.deepcopy(self._net32).to(device=self._device, dtype=torch.float64)
+        net.eval()
+        for p in net.parameters():
+            p.requires_grad_(False)
+        self._net = net
+        dev = self._device
+        self._C = torch.as_tensor(self._fin.affine_correction, dtype=torch.float64, device=dev)
+        self._T = torch.as_tensor(self._fin.transform, dtype=torch.float64, device=dev)
+        self._Tinv = torch.as_tensor(self._fin.transform_inv, dtype=torch.float64, device=dev)
+        self._dA = torch.as_tensor(_affine_jacobian_constant(), dtype=torch.float64, device=dev)
+
+    def to(self, device: str | torch.device) -> Model:
+        """Evaluate on ``device`` ("cpu", "cuda", ...) from now on; returns self."""
+        self._device = torch.device(device)
+        self._build_eval_net()
+        return self
+
+    # --- basic properties -----------------------------------------------------------
+    @property
+    def affine(self) -> bool:
+        """Whether the 12 affine modes are stacked in front of the learned ones."""
+        return self.config.affine
+
+    @property
+    def n_learned(self) -> int:
+        """r, the number of learned modes."""
+        return self.config.latent_dim
+
+    @property
+    def n_affine(self) -> int:
+        return N_AFFINE if self.affine else 0
+
+    @property
+    def n_modes(self) -> int:
+        """Total number of modes: 12 + r (affine) or r."""
+        return self.n_affine + self.n_learned
+
+    @property
+    def default_scene(self) -> Scene:
+        """The scene a reduced simulation uses unless told otherwise (the first training scene)."""
+        if not self.scenes:
+            return Scene()
+        return self.scenes[self._default_index]
+
+    @property
+    def normalization(self) -> dict[str, Any]:
+        """Input centre (m), input scale (m) and output scale (m) used by the networks."""
+        return {
+            "x_center": self._net32.x_center.detach().cpu().numpy().astype(np.float64).tolist(),
+            "x_scale": float(self._net32.x_scale),
+            "u_scale": float(self._net32.u_scale),
+        }
+
+    @property
+    def mode_variance(self) -> np.ndarray:
+        """(r,) mean squared latent coordinate of each learned mode over the training frames, m^2."""
+        return self._fin.mode_variance.copy()
+
+    @property
+    def net(self) -> LicromNet:
+        """The trained float32 networks (encoder and field)."""
+        return self._net32
+
+    def __repr__(self) -> str:
+        return f"Model(n_learned={self.n_learned}, affine={self.affine}, n_modes={self.n_modes}, mesh={self.mesh!r})"
+
+    # --- the learned field ------------------------------------------------------------
+    def _learned_values_t(self, x: torch.Tensor) -> torch.Tensor:
+        w = self._net.raw_field(x)
+        if self.affine:
+            w = w - torch.einsum("pic,cr->pir", _affine_values(x), self._C)
+        return w @ self._T
+
+    def _learned_jacobians_t(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Values (p, 3, r) and Jacobians (p, 3, 3, r) of the learned modes at raw points x."""
+        from torch.func import jacfwd, vmap
+
+        net = self._net
+
+        def f(xh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            out = net.field(xh)  # (3, r)
+            return out, out
+
+        xh = net.normalize(x)
+        jac, val = vmap(jacfwd(f, has_aux=True))(xh)  # jac (p, 3, r, 3): d out_ic / d xh_j
+        val = net.u_scale * val
+        jac = (net.u_scale / net.x_scale) * jac.permute(0, 1, 3, 2)  # (p, 3, 3, r): [i, j, c]
+        if self.affine:
+            val = val - torch.einsum("pic,cr->pir", _affine_values(x), self._C)
+            jac = jac - torch.einsum("ijc,cr->ijr", self._dA, self._C)[None]
+        return val @ self._T, jac @ self._T
+
+    def values(self, points: Any) -> np.ndarray:
+        """(p, 3, n_modes) float64 basis values ``B(X)`` at points (p, 3); affine modes first."""
+        x = _as_points(points)
+        out = np.empty((len(x), 3, self.n_modes))
+        if self.affine:
+            out[:, :, :N_AFFINE] = _affine_values(x)
+        with torch.no_grad():
+            for s in range(0, len(x), _CHUNK):
+                xt = torch.as_tensor(x[s : s + _CHUNK], device=self._device)
+                out[s : s + _CHUNK, :, self.n_affine :] = self._learned_values_t(xt).cpu().numpy()
+        return out
+
+    def jacobians(self, points: Any) -> np.ndarray:
+        """(p, 3, 3, n_modes) float64 ``J[p, i, j, c] = d B_ic / d X_j`` at points (p, 3).
+
+        ``F = I + sum_c J[:, :, :, c] q_c`` is the deformation gradient of ``u = B q``.
+        """
+        return self.values_and_jacobians(points)[1]
+
+    def values_and_jacobians(self, points: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Both :meth:`values` and :meth:`jacobians` in one pass."""
+        x = _as_points(points)
+        vals = np.empty((len(x), 3, self.n_modes))
+        jacs = np.empty((len(x), 3, 3, self.n_modes))
+        if self.affine:
+            vals[:, :, :N_AFFINE] = _affine_values(x)
+            jacs[:, :, :, :N_AFFINE] = _affine_jacobian_constant()
+        with torch.no_grad():
+            for s in range(0, len(x), _CHUNK):
+                xt = torch.as_tensor(x[s : s + _CHUNK], device=self._device)
+                v, j = self._learned_jacobians_t(xt)
+                vals[s : s + _CHUNK, :, self.n_affine :] = v.cpu().numpy()
+                jacs[s : s + _CHUNK, :, :, self.n_affine :] = j.cpu().numpy()
+        return vals, jacs
+
+    # --- projection onto the subspace ---------------------------------------------------
+    def _vertex_system(self, mesh: Mesh | None) -> tuple[Mesh, np.ndarray, np.ndarray, Any]:
+        """Basis at the vertices of ``mesh`` (default: the model mesh), its masses and M_r's factor."""
+        import scipy.linalg
+
+        m = self.mesh if mesh is None else mesh
+        key = "model" if mesh is None else str(id(mesh))
+        hit = self._vertex_cache.get(key)
+        if hit is not None and hit[0] is m:
+            return hit
+        masses = m.vertex_masses(1.0)  # relative weights; a homogeneous density cancels
+        basis = self.values(m.vertices)  # (n, 3, k)
+        flat = basis.reshape(-1, self.n_modes)
+        mr = flat.T @ (np.repeat(masses, 3)[:, None] * flat)
+        try:
+            factor = scipy.linalg.cho_factor(mr)
+        except np.linalg.LinAlgError as exc:
+            raise ShapeError(f"the reduced mass matrix of this basis is singular on this mesh ({exc})") from exc
+        entry = (m, basis, masses, factor)
+        if mesh is None or len(self._vertex_cache) < 4:
+            self._vertex_cache[key] = entry
+        return entry
+
+    def project(self, displacements: Any, mesh: Mesh | None = None) -> np.ndarray:
+        """Exact mass-weighted projection ``q = M_r^-1 B^T M u`` onto the subspace.
+
+        Args:
+            displacements: (n, 3) or (f, n, 3) vertex displacements of ``mesh`` in m.
+            mesh: the mesh they live on; default the model's rest mesh. Any mesh of the
+                same object works (the basis is continuous).
+
+        Returns:
+            (n_modes,) or (f, n_modes) reduced coordinates.
+        """
+        import scipy.linalg
+
+        m, basis, masses, factor = self._vertex_system(mesh)
+        u = np.asarray(displacements, dtype=np.float64)
+        single = u.ndim == 2
+        if single:
+            u = u[None]
+        if u.ndim != 3 or u.shape[1:] != (m.n_vertices, 3):
+            raise ShapeError(f"displacements must have shape (n, 3) or (f, n, 3) with n = {m.n_vertices}, got {np.shape(displacements)}")
+        rhs = np.einsum("nic,n,fni->cf", basis, masses, u)
+        q = scipy.linalg.cho_solve(factor, rhs).T
+        return q[0] if single else q
+
+    def reconstruct(self, q: Any, mesh: Mesh | None = None) -> np.ndarray:
+        """Vertex displacements ``B q`` (n, 3) or (f, n, 3) of the model mesh (or ``mesh``)."""
+        m, basis, _, _ = self._vertex_system(mesh)
+        qa = np.asarray(q, dtype=np.float64)
+        if qa.shape[-1] != self.n_modes or qa.ndim not in (1, 2):
+            raise ShapeError(f"q must have shape ({self.n_modes},) or (f, {self.n_modes}), got {qa.shape}")
+        return np.einsum("nic,...c->...ni", basis, qa)
+
+    # --- encoder ------------------------------------------------------------------------
+    def _split_affine(self, x: np.ndarray, u: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if not self.affine:
+            return np.zeros(0), u
+        w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(x),) or np.any(w < 0) or not np.isfinite(w).all() or w.sum() <= 0:
+            raise ShapeError(f"weights must be ({len(x)},) non-negative and not all zero")
+        a = fit_affine(x, u, w)
+        return a, u - apply_affine(x, a)
+
+    def encode(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
+        """Latent z (r,) of the learned modes from a displacement field sampled at points.
+
+        The affine part is first removed by a weighted least-squares fit (``weights``:
+        (p,) lumped masses of the points, default uniform; for the model mesh's own
+        vertices the masses are used automatically), then the PointNet encoder maps
+        the cloud of (X, residual) to z. Use :meth:`encode_q` for the full ``q``.
+
+        Args:
+            points: (p, 3) rest positions X in m (any sampling of the object).
+            displacements: (p, 3) displacements u at those points in m.
+            weights: optional (p,) weights of the affine fit.
+        """
+        return self.encode_q(points, displacements, weights)[self.n_affine :]
+
+    def encode_q(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
+        """Full reduced coordinates ``q = [a; z]`` (n_modes,): the affine fit, then :meth:`encode`."""
+        x = _as_points(points)
+        u = _as_points(displacements, "displacements")
+        if u.shape != x.shape:
+            raise ShapeError(f"points and displacements must have the same shape, got {x.shape} and {u.shape}")
+        if weights is None and x.shape == self.mesh.vertices.shape and np.array_equal(x, self.mesh.vertices):
+            weights = self.mesh.vertex_masses(1.0)
+        a, res = self._split_affine(x, u, weights)
+        with torch.no_grad():
+            xt = torch.as_tensor(x, device=self._device)[None]
+            ut = torch.as_tensor(res, device=self._device)[None]
+            z_raw = self._net.encode_normalized(xt, ut)[0]
+            z = (self._Tinv @ z_raw).cpu().numpy()
+        return np.concatenate([a, z])
+
+    # --- file ---------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the model to one file atomically (``.npz`` container, JSON header, no pickle).
+
+        Any file name works; ``.lcm`` is the conventional extension.
+        """
+        p = Path(path)
+        state = self._net32.state_dict()
+        arrays: dict[str, np.ndarray] = {f"net/{k}": v.detach().cpu().numpy() for k, v in state.items()}
+        arrays.update(
+            rest_vertices=np.asarray(self.mesh.vertices),
+            tets=np.asarray(self.mesh.tets),
+            affine_correction=self._fin.affine_correction,
+            mode_transform=self._fin.transform,
+            mode_transform_inv=self._fin.transform_inv,
+            mode_variance=self._fin.mode_variance,
+        )
+        header = {
+            "kind": "model",
+            "version": MODEL_FORMAT_VERSION,
+            "model_config": self.config.to_dict(),
+            "n_learned": self.n_learned,
+            "affine": self.affine,
+            "normalization": self.normalization,
+            "scenes": [s.to_dict() for s in self.scenes],
+            "default_scene": self._default_index,
+            "state_keys": sorted(state.keys()),
+            "metadata": self.metadata,
+            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "torch_version": torch.__version__,
+        }
+        save_npz(p, arrays, header)
+        return p
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Model:
+        """Read a model written by :meth:`save` (no training data needed).
+
+        Raises:
+            FileFormatError: missing, truncated or foreign file, unknown format version,
+                or incomplete/inconsistent contents.
+        """
+        header, arrays = load_npz(path, "model")
+        check_version(header.get("version"), MODEL_FORMAT_VERSION, f"model '{path}'")
+        try:
+            config = ModelConfig.from_dict(header["model_config"])
+            if int(header["n_learned"]) != config.latent_dim or bool(header["affine"]) != config.affine:
+                raise FileFormatError(f"model '{path}' header is inconsistent (n_learned/affine vs model_config)")
+            net = LicromNet(config)
+            keys = header["state_keys"]
+            state = {}
+            for k in keys:
+                state[k] = torch.from_numpy(np.ascontiguousarray(arrays[f"net/{k}"]))
+            net.load_state_dict(state, strict=True)
+            mesh = Mesh(arrays["rest_vertices"], arrays["tets"], fix_orientation=False)
+            scenes = [Scene.from_dict(s) for s in header["scenes"]]
+            fin = _Finalization(
+                np.asarray(arrays["affine_correction"], dtype=np.float64),
+                np.asarray(arrays["mode_transform"], dtype=np.float64),
+                np.asarray(arrays["mode_transform_inv"], dtype=np.float64),
+                np.asarray(arrays.get("mode_variance", np.zeros(config.latent_dim)), dtype=np.float64),
+            )
+            net.eval()
+            return cls(net, mesh, scenes, finalization=fin, default_scene_index=int(header.get("default_scene", 0)), metadata=header.get("metadata", {}))
+        except FileFormatError:
+            raise
+        except (KeyError, TypeError, ValueError, RuntimeError, ConfigError) as exc:
+            raise FileFormatError(f"model '{path}' is incomplete or inconsistent: {type(exc).__name__}: {exc}") from exc
+
+
+# ----------------------------------------------------------------------------------------
+# finalisation at the end of training
+# ----------------------------------------------------------------------------------------
+def finalize_basis(net: LicromNet, mesh: Mesh, residuals: np.ndarray | None = None, *, chunk_frames: int = 256) -> _Finalization:
+    """Compute the exact post-processing ``W = (W_raw - A C) T`` (see the module docstring).
+
+    Args:
+        net: trained networks.
+        mesh: rest mesh (its lumped masses weight everything).
+        residuals: optional (f, n, 3) training residual displacements (affine part removed);
+            when given, the modes are ordered by the variance they carry over these frames.
+    """
+    config = net.config
+    r = config.latent_dim
+    masses = mesh.vertex_masses(1.0)
+    x = np.asarray(mesh.vertices)
+    net64 = copy.deepcopy(net).to(device="cpu", dtype=torch.float64).eval()
+    with torch.no_grad():
+        wraw = np.concatenate(
+            [net64.raw_field(torch.as_tensor(x[s : s + _CHUNK])).numpy() for s in range(0, len(x), _CHUNK)]
+        )  # (n, 3, r)
+    mw = np.repeat(masses, 3)
+    if config.affine:
+        a = _affine_values(x).reshape(-1, N_AFFINE)
+        gram_a = a.T @ (mw[:, None] * a)
+        c = np.linalg.solve(gram_a, a.T @ (mw[:, None] * wraw.reshape(-1, r)))
+        wp = wraw.reshape(-1, r) - a @ c
+    else:
+        c = np.zeros((N_AFFINE, r))
+        wp = wraw.reshape(-1, r)
+    total = masses.sum()
+    gram = wp.T @ (mw[:, None] * wp) / total
+    lam, vec = np.linalg.eigh(gram)
+    floor = max(float(lam.max()), 1e-300) * 1e-12
+    if lam.min() <= floor:
+        import warnings
+
+        warnings.warn(
+            f"the learned modes are (nearly) linearly dependent on the rest mesh (Gram eigenvalues {lam.min():.3e} .. {lam.max():.3e}); "
+            "the reduced mass matrix will be ill-conditioned; train longer or use fewer modes",
+            stacklevel=2,
+        )
+        lam = np.maximum(lam, floor)
+    s = vec / np.sqrt(lam)  # W' s is mass-orthonormal with W^T M W = m_total I
+    s_inv = (vec * np.sqrt(lam)).T
+    variance = np.zeros(r)
+    rot = np.eye(r)
+    if residuals is not None and len(residuals):
+        basis = wp @ s  # (3n, r)
+        cov = np.zeros((r, r))
+        for f0 in range(0, len(residuals), chunk_frames):
+            res = np.asarray(residuals[f0 : f0 + chunk_frames], dtype=np.float64).reshape(-1, 3 * len(x))
+            y = (res * mw) @ basis / total  # (f, r) coefficients (basis orthonormal)
+            cov += y.T @ y
+        cov /= len(residuals)
+        mu, rot = np.linalg.eigh(cov)
+        order = np.argsort(mu)[::-1]
+        rot, variance = rot[:, order], np.maximum(mu[order], 0.0)
+    t = s @ rot
+    t_inv = rot.T @ s_inv
+    return _Finalization(c, t, t_inv, variance)
+
