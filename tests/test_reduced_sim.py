@@ -1,0 +1,189 @@
+"""The reduced runtime tied to the full simulation and to analytic motion."""
+
+import math
+
+import numpy as np
+import pytest
+
+from licrom import (
+    AffineBasis,
+    ConfigError,
+    ContactParams,
+    FullSim,
+    InitialState,
+    Material,
+    MeshBasis,
+    Plane,
+    ReducedSim,
+    Scene,
+    ShapeError,
+    SolverError,
+    SolverParams,
+    StackedBasis,
+    meshes,
+)
+from licrom.compare import compare
+from licrom.cubature import ContactPoints, Cubature
+
+G = 9.81
+STIFF = Material(youngs_modulus=1e7, poisson_ratio=0.3, density=1000.0)
+TIGHT = SolverParams(tolerance=1e-11, max_iterations=100)
+
+
+def _incline_scene(theta_deg, mu, **kw):
+    t = math.radians(theta_deg)
+    # Gravity tilted instead of the plane, so "along the slope" is the x axis.
+    return Scene(
+        material=STIFF,
+        planes=(Plane((0, 0, 1), 0.05, mu),),
+        gravity=(G * math.sin(t), 0.0, -G * math.cos(t)),
+        dt=0.01,
+        **kw,
+    )
+
+
+def test_identity_basis_reproduces_full_simulation():
+    mesh = meshes.box((0.1, 0.08, 0.06), resolution=2)
+    scene = Scene(
+        material=Material(youngs_modulus=2e4, poisson_ratio=0.35),
+        planes=(Plane.incline(25.0, 0.3, offset=0.045), Plane((-1, 0, 0.2), 0.2, 0.6)),
+        contact=ContactParams(normal_stiffness=1e6, normal_damping=50.0, friction_stiffness=1e6),
+        solver=TIGHT,
+        initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.2)),
+    )
+    full = FullSim(mesh, scene).run(40)
+    reduced = ReducedSim(MeshBasis.identity(mesh), mesh, scene, cubature=Cubature.full(mesh)).run(40)
+    assert full.converged.all() and reduced.converged.all()
+    scale = np.abs(full.displacements).max()
+    assert scale > 0.01  # it moved and touched (contact + friction active)
+    err = np.abs(reduced.displacements - full.displacements).max() / scale
+    print(f"identity basis vs full: max relative position difference {err:.2e}")
+    assert err < 1e-8
+
+
+def test_affine_free_fall_is_discrete_backward_euler():
+    mesh = meshes.box(0.1, 2)
+    scene = Scene(material=STIFF, planes=(), solver=TIGHT, initial=InitialState(velocity=(0.5, 0, 1.0)))
+    traj = ReducedSim(AffineBasis(), mesh, scene).run(50)
+    h, g = scene.dt, np.array(scene.gravity)
+    x, v = np.zeros(3), np.array([0.5, 0, 1.0])
+    for _ in range(50):
+        x, v = x + h * v + h * h * g, v + h * g
+    np.testing.assert_allclose(traj.displacements[-1], np.broadcast_to(x, (mesh.n_vertices, 3)), atol=1e-10)
+
+
+def test_affine_rigid_rotation_has_no_elastic_force():
+    mesh = meshes.cheese(resolution=6)
+    scene = Scene(material=STIFF, planes=(), gravity=(0, 0, 0), solver=TIGHT, initial=InitialState(rotation=(0.4, -1.1, 0.7)))
+    sim = ReducedSim(AffineBasis(), mesh, scene)
+    start = sim.positions
+    d0 = np.linalg.norm(mesh.vertices[:, None] - mesh.vertices[None], axis=2)
+    np.testing.assert_allclose(np.linalg.norm(start[:, None] - start[None], axis=2), d0, atol=1e-12)
+    for _ in range(5):
+        sim.step()
+    np.testing.assert_allclose(sim.positions, start, atol=1e-10)
+
+
+@pytest.mark.parametrize("theta, mu", [(20.0, 0.2), (30.0, 0.3), (35.0, 0.5)])
+def test_affine_box_slides_with_coulomb_acceleration(theta, mu):
+    t = math.radians(theta)
+    assert math.tan(t) > mu
+    mesh = meshes.box(0.1, 2)
+    scene = _incline_scene(theta, mu, contact=ContactParams(normal_stiffness=1e7, friction_stiffness=1e7))
+    traj = ReducedSim(AffineBasis(), mesh, scene).run(100)
+    com_v = traj.velocities.mean(axis=1)[:, 0]
+    a = np.polyfit(traj.times[40:], com_v[40:], 1)[0]
+    expected = G * (math.sin(t) - mu * math.cos(t))
+    print(f"theta={theta} mu={mu}: a={a:.4f} expected {expected:.4f}")
+    assert a == pytest.approx(expected, rel=0.02)
+
+
+@pytest.mark.parametrize("theta, mu", [(10.0, 0.3), (20.0, 0.5)])
+def test_affine_box_sticks_below_friction_angle(theta, mu):
+    mesh = meshes.box(0.1, 2)
+    scene = _incline_scene(theta, mu, contact=ContactParams(normal_stiffness=1e7, friction_stiffness=1e7))
+    traj = ReducedSim(AffineBasis(), mesh, scene).run(100)
+    slide = traj.displacements[-1, :, 0].mean()
+    print(f"theta={theta} mu={mu}: slid {1e3 * slide:.4f} mm in 1 s")
+    assert abs(slide) < 1e-4
+
+
+def test_affine_box_slides_to_rest_at_analytic_distance():
+    mu, v0 = 0.4, 1.0
+    mesh = meshes.box(0.1, 2)
+    scene = _incline_scene(0.0, mu, contact=ContactParams(normal_stiffness=1e7, friction_stiffness=1e7),
+                           initial=InitialState(velocity=(v0, 0, 0)))
+    traj = ReducedSim(AffineBasis(), mesh, scene).run(60)
+    distance = traj.displacements[-1, :, 0].mean()
+    expected = v0**2 / (2 * mu * G)
+    print(f"slide to rest: {distance:.4f} m, expected {expected:.4f} m")
+    assert np.abs(traj.velocities[-1]).max() < 1e-3
+    assert distance == pytest.approx(expected, rel=0.03)
+
+
+def test_pod_error_falls_as_modes_are_added():
+    mesh = meshes.cheese(resolution=5)
+    scene = Scene(
+        material=Material(youngs_modulus=5e4),
+        planes=(Plane.incline(20.0, 0.3),),
+        initial=InitialState(translation=(0, 0, 0.07), rotation=(0.3, 0.2, 0.0)),
+    )
+    full = FullSim(mesh, scene).run(60)
+    errors = []
+    for k in (2, 4, 8, 16):
+        pod, _ = MeshBasis.pod(mesh, full.displacements, k)
+        basis = StackedBasis(AffineBasis(), pod)
+        reduced = ReducedSim(basis, mesh, scene, cubature=Cubature.full(mesh)).run(60)
+        errors.append(compare(full, reduced).mean_error)
+    print("POD modes (+12 affine) 2, 4, 8, 16 -> mean relative error", ", ".join(f"{e:.2e}" for e in errors))
+    assert errors[-1] < errors[0]
+    assert errors[-1] < 0.05
+
+
+def test_projection_transfer_and_bad_input():
+    coarse = meshes.cheese(resolution=6)
+    fine = meshes.cheese(resolution=9)
+    scene = Scene(planes=(Plane((0, 0, 1), 0.06, 0.5),), initial=InitialState(velocity=(0.2, 0, 0)))
+    sim = ReducedSim(AffineBasis(), coarse, scene)
+    for _ in range(3):
+        sim.step()
+    other = sim.transfer(fine)
+    np.testing.assert_allclose(other.q, sim.q)
+    # the same affine motion evaluated on the other mesh's vertices
+    a = sim.q[:9].reshape(3, 3)
+    np.testing.assert_allclose(other.positions, fine.vertices + fine.vertices @ a.T + sim.q[9:], atol=1e-12)
+    u = sim.positions - coarse.vertices
+    np.testing.assert_allclose(sim.project(u), sim.q, atol=1e-10)
+    with pytest.raises(ShapeError, match="positions must have shape"):
+        sim.set_state(positions=np.zeros((3, 3)))
+    with pytest.raises(ShapeError, match="NaN"):
+        sim.set_state(velocities=np.full((coarse.n_vertices, 3), np.nan))
+    with pytest.raises(ConfigError, match="solver must be one of"):
+        ReducedSim(AffineBasis(), coarse, scene, solver="gradient")
+    with pytest.raises(ConfigError, match="singular"):
+        ReducedSim(StackedBasis(AffineBasis(), AffineBasis()), coarse, scene)
+    with pytest.raises(ConfigError, match="needs a mesh"):
+        ReducedSim(AffineBasis())
+
+
+def test_non_convergence_is_reported():
+    mesh = meshes.box(0.1, 2)
+    scene = _incline_scene(30.0, 0.3, solver=SolverParams(tolerance=1e-14, max_iterations=1),
+                           initial=InitialState(velocity=(0, 0, -1.0)))
+    sim = ReducedSim(AffineBasis(), mesh, scene)
+    before = sim.q
+    with pytest.raises(SolverError, match="converge"):
+        sim.step()
+    np.testing.assert_array_equal(sim.q, before)
+    recorded = ReducedSim(AffineBasis(), mesh, scene.replace(solver=SolverParams(1e-14, 1, "record"))).run(3)
+    assert not recorded.converged.any()
+
+
+def test_contact_subset_matches_weight_on_flat_ground():
+    mesh = meshes.box(0.1, 4)
+    scene = _incline_scene(0.0, 0.5)
+    sim = ReducedSim(AffineBasis(), mesh, scene, contact_points=ContactPoints.subset(mesh, 30))
+    for _ in range(150):
+        sim.step()
+    weight = mesh.vertex_masses(STIFF.density).sum() * G
+    assert sim.contact_forces()[:, 2].sum() == pytest.approx(weight, rel=1e-3)
