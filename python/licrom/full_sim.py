@@ -1186,7 +1186,7 @@ class FullSim:
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=int(steps), desc="full", unit="step")
+            bar = tqdm(total=int(steps), desc="full", unit="step", leave=False)
         try:
             for s in range(1, int(steps) + 1):
                 its, res = self.step()

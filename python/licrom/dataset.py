@@ -1,0 +1,474 @@
+"""Trajectory datasets: sweeps of full-space simulations over friction, planes and initial states.
+
+:func:`generate_dataset` runs the cartesian product of friction coefficients, plane
+configurations and initial states for one mesh, writes one trajectory file per run
+(``traj_XXX_*.npz``), the mesh once (``mesh.vtu``) and a manifest (``manifest.json``)
+listing every run with its parameters, status and timing. It is resumable: a run whose
+file exists and is valid (readable archive, licrom trajectory header, the same scene and
+frame count) is skipped, so an interrupted sweep continues where it stopped.
+
+:func:`report_dataset_spec` gives the report's sets as named presets ("cheese": 5 friction
+coefficients x 3 inclines with a cheese dropped from a short height; "sphere": a sphere
+bouncing down a 20 degree slope with mu 0.5).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import zipfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._io import atomic_path
+from .errors import ConfigError, FileFormatError, LicromError
+from .mesh import Mesh
+from .scene import InitialState, Plane, Scene
+from .trajectory import TRAJECTORY_FORMAT_VERSION
+
+__all__ = [
+    "generate_dataset",
+    "report_dataset_spec",
+    "DatasetSpec",
+    "load_manifest",
+    "PRESETS",
+    "MANIFEST_NAME",
+    "MESH_NAME",
+    "DATASET_FORMAT_VERSION",
+]
+
+DATASET_FORMAT_VERSION = 1
+MANIFEST_NAME = "manifest.json"
+MESH_NAME = "mesh.vtu"
+PRESETS = ("cheese", "sphere")
+INITIAL_FRAMES = ("world", "plane")
+
+
+# --- plane frames -------------------------------------------------------------------------
+def _plane_frame(plane: Plane) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation taking +z to the plane normal (smallest angle) and the plane point nearest the origin."""
+    n = np.asarray(plane.normal)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, n)
+    s, c = float(np.linalg.norm(axis)), float(n @ z)
+    if s < 1e-14:
+        rot = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    else:
+        k = axis / s
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        rot = np.eye(3) + s * kx + (1.0 - c) * kx @ kx
+    return rot, -plane.offset * n
+
+
+def _rotation_vector(rot: np.ndarray) -> tuple[float, float, float]:
+    from scipy.spatial.transform import Rotation
+
+    return tuple(float(v) for v in Rotation.from_matrix(rot).as_rotvec())
+
+
+def initial_state_on_plane(state: InitialState, plane: Plane, mesh: Mesh, density: float) -> InitialState:
+    """Express ``state``, given for a horizontal ground ``z = 0``, on ``plane``.
+
+    The placement and the velocities are carried by the rigid motion that takes the
+    ground ``z = 0`` (normal +z) onto the plane, so "2 cm above the ground, moving at
+    1 m/s along x" becomes "2 cm above the plane, moving at 1 m/s along its downhill
+    direction" for an incline about y.
+    """
+    masses = mesh.vertex_masses(density)
+    com = masses @ mesh.vertices / masses.sum()
+    rot, origin = _plane_frame(plane)
+    return InitialState(
+        translation=tuple(rot @ (com + np.asarray(state.translation)) + origin - com),
+        rotation=_rotation_vector(rot @ state.rotation_matrix()),
+        velocity=tuple(rot @ np.asarray(state.velocity)),
+        angular_velocity=tuple(rot @ np.asarray(state.angular_velocity)),
+    )
+
+
+def drop_state(mesh: Mesh, density: float, height: float, rotation=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0),
+               angular_velocity=(0.0, 0.0, 0.0)) -> InitialState:
+    """Initial state over a horizontal ground ``z = 0``: the lowest point of the rotated mesh ``height`` above it."""
+    masses = mesh.vertex_masses(density)
+    com = masses @ mesh.vertices / masses.sum()
+    rot = InitialState(rotation=rotation).rotation_matrix()
+    lowest = float(((mesh.vertices - com) @ rot.T)[:, 2].min())
+    return InitialState(translation=(-com[0], -com[1], height - lowest - com[2]), rotation=tuple(rotation),
+                        velocity=tuple(velocity), angular_velocity=tuple(angular_velocity))
+
+
+# --- sweep ---------------------------------------------------------------------------------
+def _as_planes(item: Any, friction: float | None) -> tuple[Plane, ...]:
+    """A sweep entry -> planes: a slope in degrees (incline about y), a Plane, or several Planes."""
+    if isinstance(item, Plane):
+        planes: tuple[Plane, ...] = (item,)
+    elif isinstance(item, (int, float, np.integer, np.floating)) and not isinstance(item, bool):
+        planes = (Plane.incline(float(item), 0.5 if friction is None else friction),)
+    elif isinstance(item, (tuple, list)) and all(isinstance(p, Plane) for p in item):
+        planes = tuple(item)
+    else:
+        raise ConfigError(f"planes entries must be slopes in degrees, Plane objects or tuples of Planes, got {item!r}")
+    if friction is not None:
+        planes = tuple(replace(p, friction=friction) for p in planes)
+    return planes
+
+
+def _describe_planes(planes: tuple[Plane, ...]) -> str:
+    if not planes:
+        return "noplane"
+    if len(planes) == 1:
+        return f"slope{planes[0].slope_deg:g}"
+    return f"{len(planes)}planes"
+
+
+def _file_name(index: int, friction: float | None, planes: tuple[Plane, ...], initial_index: int) -> str:
+    mu = f"_mu{friction:.2f}" if friction is not None else ""
+    return f"traj_{index:03d}{mu}_{_describe_planes(planes)}_ic{initial_index}.npz"
+
+
+def _valid_trajectory_file(path: Path, scene: Scene, frames: int) -> bool:
+    """True when ``path`` is an intact trajectory archive of ``scene`` with ``frames`` frames."""
+    if not path.is_file():
+        return False
+    try:
+        with zipfile.ZipFile(path) as zf:
+            if zf.testzip() is not None:  # CRC of every member
+                return False
+        with np.load(path, allow_pickle=False) as data:
+            if "header_json" not in data.files or "times" not in data.files or "displacements" not in data.files:
+                return False
+            header = json.loads(str(data["header_json"]))
+            if header.get("kind") != "trajectory" or header.get("version") != TRAJECTORY_FORMAT_VERSION:
+                return False
+            if Scene.from_dict(header["scene"]) != scene:
+                return False
+            return len(data["times"]) == frames
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError, json.JSONDecodeError, LicromError):
+        return False
+
+
+def load_manifest(out_dir: str | Path) -> dict[str, Any]:
+    """Read the manifest of a dataset directory.
+
+    Raises:
+        FileFormatError: missing, unreadable or not a licrom dataset manifest.
+    """
+    p = Path(out_dir) / MANIFEST_NAME
+    if not p.is_file():
+        raise FileFormatError(f"dataset manifest not found: '{p}'")
+    try:
+        d = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise FileFormatError(f"dataset manifest '{p}' is not readable JSON: {exc}") from exc
+    if not isinstance(d, dict) or d.get("format") != "licrom.dataset":
+        raise FileFormatError(f"'{p}' is not a licrom dataset manifest")
+    if d.get("version") != DATASET_FORMAT_VERSION:
+        raise FileFormatError(f"dataset manifest '{p}' has format version {d.get('version')!r}; this licrom reads version {DATASET_FORMAT_VERSION} only")
+    return d
+
+
+def _write_manifest(path: Path, manifest: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(manifest, indent=2))
+
+
+def generate_dataset(
+    out_dir: str | Path,
+    mesh: Mesh,
+    base_scene: Scene,
+    frictions: Sequence[float] | None = None,
+    planes: Sequence[Any] | None = None,
+    initial_states: Sequence[InitialState] | None = None,
+    steps: int = 200,
+    record_every: int = 1,
+    device: str = "cpu",
+    progress: bool = True,
+    initial_frame: str = "world",
+    precision: str = "float32",
+    name: str | None = None,
+) -> Path:
+    """Simulate the cartesian product of frictions x planes x initial states; return the manifest path.
+
+    Args:
+        out_dir: dataset directory (created if missing).
+        mesh: the mesh every run simulates (saved once as ``mesh.vtu``).
+        base_scene: material, contact, solver, time step and gravity of every run, and the
+            defaults for what is not swept.
+        frictions: Coulomb coefficients; each replaces the friction of every plane of a run.
+            ``None``: the planes keep their own.
+        planes: plane configurations: a slope in degrees (``Plane.incline(slope, mu)``), a
+            :class:`Plane`, or a tuple of planes. ``None``: the base scene's planes.
+        initial_states: initial placements and velocities. ``None``: the base scene's.
+        steps: time steps per run.
+        record_every: record every n-th step (frame 0 is the initial state).
+        device: warp device of the simulations.
+        progress: show progress bars (runs, and steps of the current run).
+        initial_frame: ``"world"``: initial states as given; ``"plane"``: initial states
+            are given over a horizontal ground ``z = 0`` and carried onto the first plane
+            of each run (see :func:`initial_state_on_plane`), so a drop height means the
+            same on every slope.
+        precision: storage precision of the frames (``"float32"`` or ``"float64"``).
+        name: a name recorded in the manifest.
+
+    Existing valid files are skipped; runs that fail (SolverError with
+    ``on_failure="raise"``) are recorded as failed and retried on the next call.
+
+    Raises:
+        ConfigError: bad arguments, or ``out_dir`` holds a dataset of another mesh.
+    """
+    from .full_sim import FullSim, _resolve_device
+
+    if not isinstance(mesh, Mesh):
+        raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
+    if not isinstance(base_scene, Scene):
+        raise ConfigError(f"base_scene must be a licrom.Scene, got {type(base_scene).__name__}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ConfigError(f"steps must be an integer >= 1, got {steps!r}")
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
+        raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
+    if initial_frame not in INITIAL_FRAMES:
+        raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
+    if precision not in ("float32", "float64"):
+        raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
+    device = _resolve_device(device)
+    mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
+    for m in mus:
+        if m is not None and (not math.isfinite(m) or m < 0):
+            raise ConfigError(f"friction coefficients must be finite and >= 0, got {m}")
+    plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
+    states = [base_scene.initial] if initial_states is None else list(initial_states)
+    for s in states:
+        if not isinstance(s, InitialState):
+            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
+    if not mus or not plane_items or not states:
+        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
+
+    runs = []
+    for mu in mus:
+        for p_item in plane_items:
+            run_planes = _as_planes(p_item, mu)
+            for k, state in enumerate(states):
+                initial = state
+                if initial_frame == "plane":
+                    if not run_planes:
+                        raise ConfigError("initial_frame='plane' needs at least one plane in every run")
+                    initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
+                scene = base_scene.replace(planes=run_planes, initial=initial)
+                runs.append((mu, run_planes, k, state, scene))
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    mesh_path = out / MESH_NAME
+    existing = None
+    if mesh_path.exists():
+        try:
+            existing = Mesh.load(mesh_path)
+        except LicromError:
+            existing = None  # unreadable: written again below
+    if existing is not None and not existing.same_as(mesh):
+        if (out / MANIFEST_NAME).exists():
+            raise ConfigError(f"'{out}' already holds a dataset of another mesh ({existing.n_tets} tets); use a new directory")
+        existing = None
+    if existing is None:
+        mesh.save(mesh_path)
+    frames = 1 + steps // record_every
+    manifest: dict[str, Any] = {
+        "format": "licrom.dataset",
+        "version": DATASET_FORMAT_VERSION,
+        "name": name,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "mesh": MESH_NAME,
+        "n_vertices": mesh.n_vertices,
+        "n_tets": mesh.n_tets,
+        "base_scene": base_scene.to_dict(),
+        "sweep": {
+            "frictions": mus,
+            "planes": [[{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in _as_planes(it, None)]
+                       for it in plane_items],
+            "initial_states": [s.__dict__ for s in states],
+            "initial_frame": initial_frame,
+        },
+        "steps": int(steps),
+        "record_every": int(record_every),
+        "frames": frames,
+        "device": device,
+        "precision": precision,
+        "trajectories": [],
+    }
+    manifest_path = out / MANIFEST_NAME
+    previous: dict[str, dict[str, Any]] = {}
+    if manifest_path.exists():
+        try:
+            previous = {t["file"]: t for t in load_manifest(out).get("trajectories", [])}
+        except (FileFormatError, KeyError, TypeError):
+            previous = {}
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj")
+    start_all = time.perf_counter()
+    entries = manifest["trajectories"]
+    try:
+        for index, (mu, run_planes, k, state, scene) in enumerate(runs):
+            fname = _file_name(index, mu, run_planes, k)
+            path = out / fname
+            entry: dict[str, Any] = {
+                "index": index,
+                "file": fname,
+                "friction": mu if mu is not None else [p.friction for p in run_planes],
+                "slope_deg": [p.slope_deg for p in run_planes],
+                "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
+                "initial_index": k,
+                "initial": state.__dict__,
+                "scene_initial": scene.initial.__dict__,
+            }
+            if _valid_trajectory_file(path, scene, frames):
+                old = previous.get(fname, {})
+                entry.update(
+                    status="done",
+                    skipped=True,
+                    seconds=old.get("seconds"),
+                    bytes=path.stat().st_size,
+                    newton_mean=old.get("newton_mean"),
+                    unconverged_steps=old.get("unconverged_steps"),
+                )
+            else:
+                t0 = time.perf_counter()
+                try:
+                    sim = FullSim(mesh, scene, device=device)
+                    traj = sim.run(int(steps), record_every=int(record_every), progress=progress)
+                    traj.info.update(
+                        dataset=name, index=index, friction=mu, slope_deg=entry["slope_deg"], initial_index=k,
+                        mesh=MESH_NAME,
+                    )
+                    traj.save(path, precision=precision)
+                    entry.update(
+                        status="done",
+                        skipped=False,
+                        seconds=round(time.perf_counter() - t0, 3),
+                        bytes=path.stat().st_size,
+                        newton_mean=round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
+                        unconverged_steps=int((~traj.converged).sum()),
+                    )
+                except LicromError as exc:
+                    entry.update(status="failed", skipped=False, seconds=round(time.perf_counter() - t0, 3),
+                                 error=f"{type(exc).__name__}: {exc}")
+            entries.append(entry)
+            manifest["seconds"] = round(time.perf_counter() - start_all, 3)
+            _write_manifest(manifest_path, {**manifest, "complete": False})
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(last=entry["status"] + (" (skipped)" if entry.get("skipped") else ""), refresh=False)
+    finally:
+        if bar is not None:
+            bar.close()
+    manifest["seconds"] = round(time.perf_counter() - start_all, 3)
+    manifest["complete"] = all(e["status"] == "done" for e in entries)
+    _write_manifest(manifest_path, manifest)
+    return manifest_path
+
+
+# --- the report's sets --------------------------------------------------------------------
+@dataclass(frozen=True)
+class DatasetSpec:
+    """A named dataset: the mesh, the base scene and the sweep, ready for :func:`generate_dataset`."""
+
+    name: str
+    mesh: Mesh
+    base_scene: Scene
+    frictions: tuple[float, ...] | None
+    planes: tuple[Any, ...] | None
+    initial_states: tuple[InitialState, ...]
+    steps: int
+    record_every: int
+    initial_frame: str = "plane"
+    description: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_trajectories(self) -> int:
+        return len(self.frictions or (None,)) * len(self.planes or (None,)) * len(self.initial_states)
+
+    def generate(self, out_dir: str | Path, device: str = "cpu", progress: bool = True) -> Path:
+        """Run :func:`generate_dataset` on this spec; return the manifest path."""
+        return generate_dataset(
+            out_dir,
+            self.mesh,
+            self.base_scene,
+            frictions=self.frictions,
+            planes=self.planes,
+            initial_states=self.initial_states,
+            steps=self.steps,
+            record_every=self.record_every,
+            device=device,
+            progress=progress,
+            initial_frame=self.initial_frame,
+            name=self.name,
+        )
+
+
+def report_dataset_spec(preset: str = "cheese", resolution: int | None = None, steps: int | None = None,
+                        record_every: int | None = None) -> DatasetSpec:
+    """The report's training/test sets as named presets.
+
+    - ``"cheese"``: the cheese block (default resolution 12, ~2.5k tets; E = 100 kPa,
+      nu = 0.3, 1000 kg/m^3) dropped from 2 cm, slightly tilted, onto an incline: 5 friction
+      coefficients (0.1, 0.3, 0.5, 0.7, 0.9) x 3 slopes (10, 20, 30 deg) = 15 runs of 2 s
+      (h = 10 ms). tan(10, 20, 30 deg) = 0.18, 0.36, 0.58, so the set holds sliding
+      (mu < tan) and sticking (mu > tan) runs on every slope but the steepest-with-0.9.
+    - ``"sphere"``: a ball (radius 5 cm, default resolution 8, E = 100 kPa) thrown down a
+      20 deg slope with mu 0.5 from 20 cm, moving downhill at 0.5 m/s and into the plane
+      at 1 m/s; h = 2 ms so that backward Euler keeps the bounces (at h = 10 ms its
+      numerical damping absorbs them), 1.5 s.
+
+    Args:
+        preset: ``"cheese"`` or ``"sphere"``.
+        resolution: mesh resolution (cells along the longest side).
+        steps: time steps per run (default 200 for the cheese, 750 for the sphere).
+        record_every: record every n-th step (default 1 for the cheese, 5 for the sphere).
+    """
+    from . import meshes
+    from .scene import ContactParams, Material
+
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown dataset preset {preset!r}; accepted: {', '.join(PRESETS)}")
+    contact = ContactParams(normal_stiffness=1.0e7, normal_damping=0.0, friction_stiffness=1.0e7)
+    material = Material(youngs_modulus=1.0e5, poisson_ratio=0.3, density=1000.0)
+    if preset == "cheese":
+        mesh = meshes.cheese(resolution=12 if resolution is None else resolution)
+        scene = Scene(material=material, contact=contact, dt=0.01)
+        state = drop_state(mesh, material.density, height=0.02, rotation=(0.15, 0.1, 0.0))
+        return DatasetSpec(
+            name="cheese",
+            mesh=mesh,
+            base_scene=scene,
+            frictions=(0.1, 0.3, 0.5, 0.7, 0.9),
+            planes=(10.0, 20.0, 30.0),
+            initial_states=(state,),
+            steps=200 if steps is None else steps,
+            record_every=1 if record_every is None else record_every,
+            initial_frame="plane",
+            description="cheese dropped from 2 cm onto inclines: mu 0.1..0.9 x slopes 10, 20, 30 deg",
+        )
+    mesh = meshes.sphere(radius=0.05, resolution=8 if resolution is None else resolution)
+    scene = Scene(material=material, contact=contact, dt=0.002)
+    state = drop_state(mesh, material.density, height=0.2, velocity=(0.5, 0.0, -1.0))
+    return DatasetSpec(
+        name="sphere",
+        mesh=mesh,
+        base_scene=scene,
+        frictions=(0.5,),
+        planes=(20.0,),
+        initial_states=(state,),
+        steps=750 if steps is None else steps,
+        record_every=5 if record_every is None else record_every,
+        initial_frame="plane",
+        description="sphere bouncing down a 20 deg slope, mu 0.5",
+    )
