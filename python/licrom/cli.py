@@ -128,6 +128,66 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
         raise click.ClickException(f"{len(failed)} trajectories failed (see {manifest_path}); rerun to retry them")
 
 
+@cli.command("train")
+@click.argument("data", type=click.Path(exists=True, path_type=Path))
+@click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Model file to write (.lcm); the loss CSV/PNG and checkpoints go beside it.")
+@click.option("--modes", "-r", type=int, default=20, show_default=True, help="Learned modes r (12 affine modes come on top).")
+@click.option("--epochs", type=int, default=None, help="Passes over the training frames [TrainConfig default].")
+@click.option("--lr", type=float, default=None, help="Initial Adam learning rate [1e-3].")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
+              help="Training device (auto: CUDA when available).")
+@click.option("--gpus", type=int, default=None, help="GPUs to use (default all visible; >1 trains with DDP).")
+@click.option("--batch-frames", type=int, default=None, help="Frames per step [16].")
+@click.option("--points", type=int, default=None, help="Points sampled per step, shared by its frames [2048].")
+@click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
+@click.option("--width", type=int, default=None, help="Width of the neural field W(X) [60].")
+@click.option("--layers", type=int, default=None, help="Linear layers of the neural field W(X) [5].")
+@click.option("--projection-weight", type=float, default=None, help="Weight of the projection loss term [0: plain LiCROM].")
+@click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
+                  layers, projection_weight, resume, quiet) -> None:
+    """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
+
+    Prints the held-out errors and writes the model, OUTPUT.losses.csv, OUTPUT.losses.png
+    and the checkpoints in OUTPUT.checkpoints/.
+    """
+    from .model import ModelConfig
+    from .training import TrainConfig, output_paths, train
+
+    start = time.perf_counter()
+    tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
+    for key, value in (("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
+                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus)):
+        if value is not None:
+            tkw[key] = value
+    mkw: dict = {"latent_dim": modes}
+    if width is not None:
+        mkw["field_width"] = width
+    if layers is not None:
+        mkw["field_layers"] = layers
+    model = train(data, output, TrainConfig(**tkw), ModelConfig(**mkw))
+    meta = model.metadata
+    final = meta.get("final", {})
+    split = meta.get("data", {})
+    click.echo(f"trained r = {model.n_learned} (+{model.n_affine} affine) on {len(split.get('train', []))} trajectories "
+               f"({split.get('train_frames')} frames), held out {len(split.get('validation', []))} ({split.get('validation_frames')} frames)")
+    click.echo(f"epochs            {meta.get('epochs_trained')}")
+    click.echo(f"final train loss  {final.get('train_loss', float('nan')):.4e}")
+    for key, label in (("val_proj_residual", "held-out projection error (residual)"), ("val_enc_residual", "held-out encoder error (residual)"),
+                       ("val_proj_full", "held-out projection error (full)"), ("val_enc_full", "held-out encoder error (full)")):
+        value = final.get(key)
+        if value is not None and value == value:
+            click.echo(f"{label:<38} {100 * value:.3f} %")
+    if meta.get("mean_train_seconds_per_epoch") is not None:
+        click.echo(f"time per epoch    {meta['mean_train_seconds_per_epoch']:.3f} s (training only, mean)")
+    paths = output_paths(output)
+    click.echo(f"wrote {paths['model']}, {paths['csv'].name}, {paths['png'].name}")
+    click.echo(f"wall time {time.perf_counter() - start:.1f} s")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``licrom`` script."""
     try:
