@@ -59,7 +59,7 @@ ENERGY_TERMS = ("inertia", "elastic", "penalty", "damping", "friction")
 # Energies and dot products are reduced through this many partial sums: one on the CPU
 # (sequential, deterministic), many on a GPU (spreads the atomic additions).
 _PARTIALS = {"cpu": 1, "cuda": 256}
-_CHECK_EVERY = {"cpu": 1, "cuda": 8}  # CG iterations between convergence checks on the host
+_CG_CHUNK = 12  # CG iterations per CUDA graph launch on a GPU (a multiple of 3)
 _ARMIJO = 1.0e-4  # sufficient-decrease constant of the line search
 _MAX_HALVINGS = 40  # line-search step halvings before giving up
 _MAX_SECANT = 8  # secant steps locating an overshot line minimum
@@ -114,6 +114,7 @@ def log1p_(x: f64):
         return x
     return wp.log(u) * x / (u - f64(1.0))
 
+
 @wp.func
 def mode_apply(m: int, y: vec3d, qt: mat33d):
     # The m-th eigenmode of the stable Neo-Hookean Hessian in the SVD frame, applied to y:
@@ -133,6 +134,7 @@ def mode_apply(m: int, y: vec3d, qt: mat33d):
     if m == 7:
         return vec3d(r * y[2], zero, r * y[0])
     return vec3d(r * y[1], r * y[0], zero)
+
 
 @wp.kernel
 def tet_kernel(
@@ -290,6 +292,7 @@ def tet_kernel(
     wp.atomic_add(values, slots[t, 14], wp.transpose(h23))
     wp.atomic_add(values, slots[t, 15], h33)
 
+
 @wp.kernel
 def inertia_kernel(
     x: wp.array(dtype=vec3d),
@@ -311,6 +314,7 @@ def inertia_kernel(
     wp.atomic_add(grad, i, k * d)
     if mode >= 2:
         wp.atomic_add(values, diag_slots[i], k * wp.identity(n=3, dtype=f64))
+
 
 @wp.kernel
 def contact_kernel(
@@ -384,6 +388,7 @@ def contact_kernel(
     if mode >= 2:
         wp.atomic_add(values, diag_slots[vi], hj)
 
+
 @wp.kernel
 def stick_kernel(
     x: wp.array(dtype=vec3d),
@@ -440,6 +445,7 @@ def lagged_normal_kernel(
     j, p = wp.tid()
     gap = wp.dot(normals[p], x[points[j]]) + offsets[p]
     fn_lag[j, p] = areas[j] * kn * wp.max(-gap, f64(0.0))
+
 
 @wp.kernel
 def predict_kernel(
@@ -585,10 +591,12 @@ def stats_kernel(
     wp.atomic_add(partials, 0, slot, wp.dot(grad[i], yi))
     wp.atomic_add(partials, 1, slot, mass[i] * wp.dot(yi, yi))
 
+
 @wp.kernel
 def axpy_kernel(x: wp.array(dtype=vec3d), y: wp.array(dtype=vec3d), a: f64, out: wp.array(dtype=vec3d)):
     i = wp.tid()
     out[i] = x[i] + a * y[i]
+
 
 @wp.kernel
 def velocity_kernel(
@@ -702,7 +710,7 @@ class FullSim:
         self._y = vec()
         self._inv_diag = wp.zeros(n, dtype=wp.mat33d, device=dev)
         parts = _PARTIALS["cpu" if dev == "cpu" else "cuda"]
-        self._check_every = _CHECK_EVERY["cpu" if dev == "cpu" else "cuda"]
+        self._cg_graphs: dict[tuple[int, int], Any] = {}
         self._energy = wp.zeros(parts, dtype=f64, device=dev)
         self._gnorm = wp.zeros(parts, dtype=f64, device=dev)
         self._stats = wp.zeros((2, parts), dtype=f64, device=dev)
@@ -800,6 +808,8 @@ class FullSim:
         if not (bb > 0.0) or not math.isfinite(bb):
             return 0
         threshold = tol * tol * bb
+        if dev != "cpu":
+            return self._solve_graphed(b, y, threshold, maxiter)
         it = 0
         while it < maxiter:
             wp.launch(k.pcg_matvec_kernel, dim=n, device=dev,
@@ -808,10 +818,40 @@ class FullSim:
                       inputs=[self._inv_diag, y, self._cg_r, self._cg_z, self._cg_p, self._cg_ap, scal, it])
             wp.launch(k.pcg_direction_kernel, dim=n, device=dev, inputs=[self._cg_z, self._cg_p, scal, it])
             it += 1
-            if it % self._check_every == 0 or it == maxiter:
-                rr = float(scal.numpy()[it % 3, 2].sum())
-                if not rr > threshold:  # also stops on NaN
-                    break
+            rr = float(scal.numpy()[it % 3, 2].sum())
+            if not rr > threshold:  # also stops on NaN
+                break
+        return it
+
+    def _solve_graphed(self, b: Any, y: Any, threshold: float, maxiter: int) -> int:
+        """The PCG iterations on a GPU: chunks of iterations replayed as one CUDA graph.
+
+        A chunk is a multiple of three iterations (the ring of partial sums), so one graph
+        serves every chunk; the residual is read back between chunks. Iterating a little
+        past the tolerance only makes the solve more accurate.
+        """
+        k = _KERNELS
+        dev = self.device
+        n = self._n
+        scal = self._cg_scal
+        key = (b.ptr, y.ptr)
+        graph = self._cg_graphs.get(key)
+        if graph is None:
+            with wp.ScopedCapture(device=dev, force_module_load=False) as capture:
+                for it in range(_CG_CHUNK):
+                    wp.launch(k.pcg_matvec_kernel, dim=n, device=dev,
+                              inputs=[self._offsets_dev, self._columns_dev, self._values, self._cg_p, self._cg_ap, scal, it])
+                    wp.launch(k.pcg_update_kernel, dim=n, device=dev,
+                              inputs=[self._inv_diag, y, self._cg_r, self._cg_z, self._cg_p, self._cg_ap, scal, it])
+                    wp.launch(k.pcg_direction_kernel, dim=n, device=dev, inputs=[self._cg_z, self._cg_p, scal, it])
+            graph = self._cg_graphs[key] = capture.graph
+        it = 0
+        while it < maxiter:
+            wp.capture_launch(graph)
+            it += _CG_CHUNK
+            rr = float(scal.numpy()[0, 2].sum())  # _CG_CHUNK % 3 == 0: the next iteration reads row 0
+            if not rr > threshold:
+                break
         return it
 
     # --- state -------------------------------------------------------------------------
