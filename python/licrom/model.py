@@ -529,7 +529,7 @@ class Model:
             out[:, :, :N_AFFINE] = _affine_values(x)
         with torch.no_grad():
             for s in range(0, len(x), _CHUNK):
-                xt = torch.as_tensor(x[s : s + _CHUNK], device=self._device)
+                xt = torch.tensor(x[s : s + _CHUNK], device=self._device)
                 out[s : s + _CHUNK, :, self.n_affine :] = self._learned_values_t(xt).cpu().numpy()
         return out
 
@@ -550,7 +550,7 @@ class Model:
             jacs[:, :, :, :N_AFFINE] = _affine_jacobian_constant()
         with torch.no_grad():
             for s in range(0, len(x), _CHUNK):
-                xt = torch.as_tensor(x[s : s + _CHUNK], device=self._device)
+                xt = torch.tensor(x[s : s + _CHUNK], device=self._device)
                 v, j = self._learned_jacobians_t(xt)
                 vals[s : s + _CHUNK, :, self.n_affine :] = v.cpu().numpy()
                 jacs[s : s + _CHUNK, :, :, self.n_affine :] = j.cpu().numpy()
@@ -646,8 +646,8 @@ class Model:
             weights = self.mesh.vertex_masses(1.0)
         a, res = self._split_affine(x, u, weights)
         with torch.no_grad():
-            xt = torch.as_tensor(x, device=self._device)[None]
-            ut = torch.as_tensor(res, device=self._device)[None]
+            xt = torch.tensor(x, device=self._device)[None]
+            ut = torch.tensor(res, device=self._device)[None]
             z_raw = self._net.encode_normalized(xt, ut)[0]
             z = (self._Tinv @ z_raw).cpu().numpy()
         return np.concatenate([a, z])
@@ -741,7 +741,7 @@ def finalize_basis(net: LicromNet, mesh: Mesh, residuals: np.ndarray | None = No
     net64 = copy.deepcopy(net).to(device="cpu", dtype=torch.float64).eval()
     with torch.no_grad():
         wraw = np.concatenate(
-            [net64.raw_field(torch.as_tensor(x[s : s + _CHUNK])).numpy() for s in range(0, len(x), _CHUNK)]
+            [net64.raw_field(torch.tensor(x[s : s + _CHUNK])).numpy() for s in range(0, len(x), _CHUNK)]
         )  # (n, 3, r)
     mw = np.repeat(masses, 3)
     if config.affine:

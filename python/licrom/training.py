@@ -167,9 +167,9 @@ class _Bank:
         f32 = dict(dtype=torch.float32, device=device)
         mesh = data.mesh
         self.device = device
-        self.rest = torch.as_tensor(data.rest, **f32)
-        self.rest64 = torch.as_tensor(data.rest, dtype=torch.float64, device=device)
-        self.tets = torch.as_tensor(np.asarray(mesh.tets), dtype=torch.int64, device=device)
+        self.rest = torch.tensor(data.rest, **f32)
+        self.rest64 = torch.tensor(data.rest, dtype=torch.float64, device=device)
+        self.tets = torch.tensor(np.asarray(mesh.tets), dtype=torch.int64, device=device)
         vol = np.asarray(mesh.rest_volumes, dtype=np.float64)
         self.tet_cdf = torch.as_tensor(np.cumsum(vol) / vol.sum(), **f32)
         m = np.asarray(data.masses, dtype=np.float64)
@@ -437,6 +437,10 @@ def _lightning_classes() -> dict[str, Any]:
             self._t0 = 0.0
             self._t_train = None
 
+        @property
+        def state_key(self) -> str:
+            return "licrom.History"
+
         def state_dict(self) -> dict[str, Any]:
             return {"rows": self.rows}
 
@@ -598,6 +602,13 @@ def train(
 
         callbacks.append(ModelCheckpoint(dirpath=ckpt_dir, filename="epoch{epoch:04d}", auto_insert_metric_name=False,
                                          save_last=True, save_top_k=0, every_n_epochs=cfg.checkpoint_every))
+    import logging
+
+    quiet_loggers = [logging.getLogger(n) for n in ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.accelerators.cuda")]
+    old_levels = [lg.level for lg in quiet_loggers]
+    if not cfg.progress:
+        for lg in quiet_loggers:
+            lg.setLevel(logging.WARNING)
     old_matmul = torch.get_float32_matmul_precision()
     if accelerator == "gpu":
         torch.set_float32_matmul_precision("high")
@@ -639,6 +650,8 @@ def train(
             trainer.fit(module, train_dataloaders=train_loader, val_dataloaders=val_loader, ckpt_path=ckpt_path, weights_only=False)
         finally:
             torch.set_float32_matmul_precision(old_matmul)
+            for lg, level in zip(quiet_loggers, old_levels):
+                lg.setLevel(level)
         t_fit = time.perf_counter() - t_fit
 
     net = copy.deepcopy(module.net).to("cpu").float().eval()

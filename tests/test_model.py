@@ -1,0 +1,259 @@
+"""The learned-subspace model: affine modes, basis values and Jacobians, projection, encoder, file."""
+
+import zipfile
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from licrom import FileFormatError, Scene, ShapeError, meshes  # noqa: E402
+from licrom.errors import ConfigError  # noqa: E402
+from licrom.model import (  # noqa: E402
+    N_AFFINE,
+    LicromNet,
+    Model,
+    ModelConfig,
+    _affine_jacobians,
+    _affine_values,
+    apply_affine,
+    finalize_basis,
+    fit_affine,
+)
+from licrom.scene import Plane  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return meshes.box((0.2, 0.1, 0.1), resolution=4)
+
+
+def _random_model(mesh, r=3, seed=0, affine=True, finalize=True):
+    torch.manual_seed(seed)
+    net = LicromNet(ModelConfig(latent_dim=r, affine=affine))
+    x = np.asarray(mesh.vertices)
+    c = x.mean(axis=0)
+    net.set_normalization(c, float(np.abs(x - c).max()), 1e-3)
+    fin = finalize_basis(net, mesh) if finalize else None
+    scenes = [Scene(planes=(Plane(friction=0.3),)), Scene(planes=(Plane(friction=0.7),))]
+    return Model(net, mesh, scenes, finalization=fin, metadata={"note": "random"})
+
+
+# --- affine modes ------------------------------------------------------------------------
+def test_affine_mode_order(rng):
+    x = rng.normal(size=(5, 3))
+    a = _affine_values(x)
+    assert a.shape == (5, 3, N_AFFINE)
+    for c in range(9):
+        i, j = divmod(c, 3)
+        expect = np.zeros((5, 3))
+        expect[:, i] = x[:, j]
+        np.testing.assert_array_equal(a[:, :, c], expect)
+    for k in range(3):
+        np.testing.assert_array_equal(a[:, :, 9 + k], np.tile(np.eye(3)[k], (5, 1)))
+    # torch and numpy agree
+    np.testing.assert_allclose(_affine_values(torch.as_tensor(x)).numpy(), a)
+    j = _affine_jacobians(x)
+    assert j.shape == (5, 3, 3, N_AFFINE)
+    for c in range(9):
+        i, jj = divmod(c, 3)
+        assert j[0, i, jj, c] == 1.0 and j[0].sum(axis=(0, 1))[c] == 1.0
+    assert not j[..., 9:].any()
+
+
+def test_fit_affine_recovers_affine_field_and_is_orthogonal(mesh, rng):
+    x = np.asarray(mesh.vertices)
+    m = mesh.vertex_masses(1000.0)
+    a_true = rng.normal(size=(2, 12))
+    u = apply_affine(x, a_true)
+    np.testing.assert_allclose(fit_affine(x, u, m), a_true, atol=1e-12)
+    # the residual of a general field is mass-orthogonal to every affine mode
+    v = rng.normal(size=(len(x), 3))
+    res = v - apply_affine(x, fit_affine(x, v, m))
+    basis = _affine_values(x).reshape(-1, 12)
+    np.testing.assert_allclose(basis.T @ (np.repeat(m, 3) * res.ravel()), 0.0, atol=1e-12)
+    with pytest.raises(ShapeError):
+        fit_affine(x, u[:, :-1], m)
+
+
+# --- configuration -------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"latent_dim": 0}, {"latent_dim": 2.5}, {"field_layers": 1}, {"field_width": -3}, {"encoder_point_widths": ()},
+     {"encoder_fc_widths": (4, 0)}, {"affine": "yes"}],
+)
+def test_model_config_rejects_bad_values(kwargs):
+    with pytest.raises(ConfigError):
+        ModelConfig(**kwargs)
+
+
+def test_model_config_defaults_are_licrom():
+    c = ModelConfig()
+    assert (c.field_layers, c.field_width, c.affine) == (5, 60, True)
+    net = LicromNet(c)
+    linears = [m for m in net.field.mlp if isinstance(m, torch.nn.Linear)]
+    assert len(linears) == 5 and linears[0].in_features == 3 and linears[-1].out_features == 3 * c.latent_dim
+    assert all(isinstance(m, (torch.nn.Linear, torch.nn.ELU)) for m in net.field.mlp)
+    assert ModelConfig.from_dict(c.to_dict()) == c
+
+
+# --- the basis ---------------------------------------------------------------------------
+def test_values_shape_and_affine_block(mesh, rng):
+    model = _random_model(mesh, r=3)
+    assert (model.n_modes, model.n_learned, model.n_affine) == (15, 3, 12)
+    x = rng.uniform(-0.05, 0.05, size=(7, 3))
+    v = model.values(x)
+    assert v.shape == (7, 3, 15) and v.dtype == np.float64
+    np.testing.assert_array_equal(v[:, :, :12], _affine_values(x))
+    assert np.abs(v[:, :, 12:]).max() > 0
+
+
+def test_jacobians_match_finite_differences(mesh, rng):
+    model = _random_model(mesh, r=4)
+    x = rng.uniform(-0.08, 0.08, size=(6, 3)) * np.array([1.0, 0.5, 0.5])
+    vals, jac = model.values_and_jacobians(x)
+    assert jac.shape == (6, 3, 3, 16)
+    np.testing.assert_allclose(vals, model.values(x), rtol=1e-12, atol=1e-15)
+    h = 1e-6
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = h
+        fd = (model.values(x + e) - model.values(x - e)) / (2 * h)
+        np.testing.assert_allclose(jac[:, :, j, :], fd, rtol=1e-6, atol=1e-7 * np.abs(fd).max())
+    np.testing.assert_array_equal(model.jacobians(x), jac)
+
+
+def test_values_are_batched_across_chunks(mesh, rng):
+    from licrom import model as model_module
+
+    model = _random_model(mesh, r=2)
+    x = rng.uniform(-0.05, 0.05, size=(model_module._CHUNK + 7, 3))
+    v = model.values(x)
+    np.testing.assert_allclose(v[-7:], model.values(x[-7:]), rtol=1e-13, atol=1e-16)
+    _, j = model.values_and_jacobians(x[-3:])
+    np.testing.assert_allclose(model.jacobians(x)[-3:], j, rtol=1e-13, atol=1e-16)
+
+
+def test_bad_points_raise_shape_error(mesh):
+    model = _random_model(mesh, r=2)
+    with pytest.raises(ShapeError):
+        model.values(np.zeros((4, 2)))
+    with pytest.raises(ShapeError):
+        model.jacobians(np.full((1, 3), np.nan))
+
+
+def test_finalized_modes_are_mass_orthonormal_and_orthogonal_to_affine(mesh):
+    model = _random_model(mesh, r=3)
+    m = np.repeat(mesh.vertex_masses(1.0), 3)
+    b = model.values(mesh.vertices).reshape(-1, model.n_modes)
+    gram = b.T @ (m[:, None] * b)
+    np.testing.assert_allclose(gram[:12, 12:], 0.0, atol=1e-10 * np.abs(gram).max())
+    np.testing.assert_allclose(gram[12:, 12:], m.sum() / 3 * np.eye(3), rtol=1e-8, atol=1e-10)
+    # the span equals that of [affine | raw field]
+    raw = _random_model(mesh, r=3, finalize=False)
+    braw = raw.values(mesh.vertices).reshape(-1, raw.n_modes)
+    q, _ = np.linalg.qr(b)
+    np.testing.assert_allclose(q @ (q.T @ braw), braw, atol=1e-9 * np.abs(braw).max())
+
+
+def test_project_and_reconstruct(mesh, rng):
+    model = _random_model(mesh, r=3)
+    q_true = rng.normal(size=(4, model.n_modes)) * 1e-3
+    u = model.reconstruct(q_true)
+    assert u.shape == (4, mesh.n_vertices, 3)
+    np.testing.assert_allclose(model.project(u), q_true, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(model.project(u[1]), q_true[1], rtol=1e-8, atol=1e-12)
+    # the subspace is continuous: the same field sampled on another mesh projects to the same q
+    fine = meshes.box((0.2, 0.1, 0.1), resolution=6)
+    u_fine = model.reconstruct(q_true[0], mesh=fine)
+    np.testing.assert_allclose(model.project(u_fine, mesh=fine), q_true[0], rtol=1e-7, atol=1e-12)
+    with pytest.raises(ShapeError):
+        model.project(np.zeros((3, 3)))
+
+
+def test_encode_shapes(mesh, rng):
+    model = _random_model(mesh, r=3)
+    u = rng.normal(size=(mesh.n_vertices, 3)) * 1e-3
+    z = model.encode(mesh.vertices, u)
+    q = model.encode_q(mesh.vertices, u)
+    assert z.shape == (3,) and q.shape == (15,)
+    np.testing.assert_allclose(q[12:], z)
+    # the affine part of q is the mass-weighted fit
+    np.testing.assert_allclose(q[:12], fit_affine(mesh.vertices, u, mesh.vertex_masses(1.0)), rtol=1e-10, atol=1e-14)
+    with pytest.raises(ShapeError):
+        model.encode(mesh.vertices, u[:-1])
+
+
+def test_model_without_affine_modes(mesh, rng):
+    model = _random_model(mesh, r=3, affine=False)
+    assert model.n_modes == 3 and model.n_affine == 0
+    x = rng.uniform(-0.05, 0.05, size=(4, 3))
+    assert model.values(x).shape == (4, 3, 3) and model.jacobians(x).shape == (4, 3, 3, 3)
+    assert model.encode_q(mesh.vertices, np.zeros((mesh.n_vertices, 3))).shape == (3,)
+
+
+# --- the file ----------------------------------------------------------------------------
+def test_save_load_round_trip(mesh, tmp_path, rng):
+    model = _random_model(mesh, r=3, seed=4)
+    path = model.save(tmp_path / "m.lcm")
+    assert path == tmp_path / "m.lcm" and path.is_file()
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+    back = Model.load(path)
+    x = rng.uniform(-0.05, 0.05, size=(5, 3))
+    np.testing.assert_array_equal(back.values(x), model.values(x))
+    np.testing.assert_array_equal(back.jacobians(x), model.jacobians(x))
+    assert back.config == model.config and back.n_modes == model.n_modes
+    assert back.mesh.same_as(mesh)
+    assert back.scenes == model.scenes and back.default_scene == model.scenes[0]
+    assert back.metadata == {"note": "random"}
+    assert back.normalization == model.normalization
+    u = rng.normal(size=(mesh.n_vertices, 3)) * 1e-3
+    np.testing.assert_array_equal(back.encode(mesh.vertices, u), model.encode(mesh.vertices, u))
+    # the file is a plain npz: no pickle needed
+    with np.load(path, allow_pickle=False) as data:
+        assert "header_json" in data.files
+
+
+def test_load_rejects_truncated_foreign_and_unknown_files(mesh, tmp_path):
+    model = _random_model(mesh, r=2)
+    good = model.save(tmp_path / "good.lcm")
+    raw = good.read_bytes()
+    (tmp_path / "trunc.lcm").write_bytes(raw[: len(raw) // 2])
+    (tmp_path / "junk.lcm").write_bytes(b"this is not a model file at all")
+    with pytest.raises(FileFormatError):
+        Model.load(tmp_path / "trunc.lcm")
+    with pytest.raises(FileFormatError):
+        Model.load(tmp_path / "junk.lcm")
+    with pytest.raises(FileFormatError):
+        Model.load(tmp_path / "missing.lcm")
+    # a licrom file of another kind
+    from licrom import Trajectory
+
+    traj = Trajectory(mesh.vertices, mesh.tets, np.zeros((1, mesh.n_vertices, 3)), np.zeros((1, mesh.n_vertices, 3)), [0.0], Scene())
+    tpath = traj.save(tmp_path / "t.npz")
+    with pytest.raises(FileFormatError, match="trajectory"):
+        Model.load(tpath)
+
+    # unknown format version, and a file missing an array
+    def rewrite(name, edit_header=None, drop=None):
+        import json
+
+        with np.load(good, allow_pickle=False) as d:
+            arrays = {k: d[k] for k in d.files}
+        header = json.loads(str(arrays["header_json"]))
+        if edit_header:
+            edit_header(header)
+        arrays["header_json"] = np.array(json.dumps(header))
+        if drop:
+            arrays.pop(drop)
+        with open(tmp_path / name, "wb") as fh:
+            np.savez(fh, **arrays)
+        return tmp_path / name
+
+    with pytest.raises(FileFormatError, match="version"):
+        Model.load(rewrite("v99.lcm", edit_header=lambda h: h.update(version=99)))
+    with pytest.raises(FileFormatError):
+        Model.load(rewrite("noarr.lcm", drop="net/field.mlp.0.weight"))
+    with pytest.raises(FileFormatError):
+        Model.load(rewrite("badcfg.lcm", edit_header=lambda h: h["model_config"].update(latent_dim=5)))
+    assert zipfile.is_zipfile(good)

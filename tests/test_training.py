@@ -1,0 +1,243 @@
+"""Training data, the Lightning training loop, its files, reproducibility, resume and the CLI."""
+
+import csv
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("lightning")
+
+from licrom import ConfigError, FileFormatError, Trajectory, meshes  # noqa: E402
+from licrom.model import Model, ModelConfig, _affine_values  # noqa: E402
+from licrom.training import TrainConfig, evaluate, output_paths, train  # noqa: E402
+from licrom.training_data import (  # noqa: E402
+    TrainingData,
+    make_synthetic_trajectories,
+    relative_error,
+    split_by_trajectory,
+)
+
+# A tiny problem: a coarse box, four short trajectories, cheap epochs.
+TINY = dict(epochs=2, batch_frames=4, points_per_frame=128, encoder_points=64, val_points=64, progress=False)
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return meshes.box((0.2, 0.1, 0.1), resolution=3)
+
+
+@pytest.fixture(scope="module")
+def trajs(mesh):
+    return make_synthetic_trajectories(mesh, count=4, frames=10, seed=3, modes=3, rotation=True)
+
+
+@pytest.fixture(scope="module")
+def data_dir(trajs, tmp_path_factory):
+    d = tmp_path_factory.mktemp("data")
+    for k, t in enumerate(trajs):
+        t.save(d / f"traj_{k:03d}.npz", precision="float64")
+    return d
+
+
+# --- data --------------------------------------------------------------------------------
+def test_split_is_by_whole_trajectory():
+    train_idx, val_idx = split_by_trajectory(10, 0.2, seed=1)
+    assert len(val_idx) == 2 and sorted(train_idx + val_idx) == list(range(10))
+    assert split_by_trajectory(10, 0.2, seed=1) == (train_idx, val_idx)
+    assert split_by_trajectory(3, 0.0) == ([0, 1, 2], [])
+    assert split_by_trajectory(2, 0.1) == ([0], [1]) or split_by_trajectory(2, 0.1) == ([1], [0])
+    assert split_by_trajectory(5, val_indices=[4, 1]) == ([0, 2, 3], [1, 4])
+    with pytest.raises(ConfigError):
+        split_by_trajectory(3, val_indices=[0, 1, 2])
+    with pytest.raises(ConfigError):
+        split_by_trajectory(3, val_indices=[7])
+
+
+def test_training_data_removes_affine_part(data_dir, trajs, mesh):
+    d = TrainingData(data_dir, val_indices=[1])
+    assert d.names == [f"traj_{k:03d}" for k in range(4)]
+    assert d.train_indices == [0, 2, 3] and d.val_indices == [1]
+    assert len(d.train) == 30 and len(d.val) == 10
+    assert set(d.train.trajectory.tolist()) == {0, 1, 2} and d.val.names == ["traj_001"]
+    # every held-out frame comes from the held-out trajectory only
+    np.testing.assert_allclose(d.val.full_displacements(d.rest, slice(None)), trajs[1].displacements, atol=1e-6)
+    # residuals are mass-orthogonal to the affine modes
+    a = _affine_values(d.rest).reshape(-1, 12)
+    mw = np.repeat(d.masses, 3)
+    proj = d.train.residuals.reshape(len(d.train), -1).astype(np.float64) @ (mw[:, None] * a)
+    assert np.abs(proj).max() < 1e-5 * np.sqrt(d.train.norm2_residual.max() * mw.sum())
+    # statistics from the training frames
+    assert d.x_scale == pytest.approx(0.1)
+    assert d.u_scale > 0 and np.isfinite(d.u_scale)
+    s = d.summary()
+    assert s["validation"] == ["traj_001"] and s["train_frames"] == 30
+
+
+def test_training_data_refuses_mixed_meshes(trajs):
+    other = meshes.box((0.2, 0.1, 0.1), resolution=4)
+    t2 = make_synthetic_trajectories(other, count=1, frames=3)[0]
+    with pytest.raises(ConfigError, match="one rest mesh"):
+        TrainingData([trajs[0], t2])
+    moved = Trajectory(trajs[0].rest_positions + 1e-3, trajs[0].tets, trajs[0].displacements, trajs[0].velocities, trajs[0].times, trajs[0].scene)
+    with pytest.raises(ConfigError, match="one rest mesh"):
+        TrainingData([trajs[0], moved])
+
+
+def test_training_data_errors(tmp_path, trajs):
+    with pytest.raises(FileFormatError):
+        TrainingData(tmp_path)  # empty directory
+    with pytest.raises(FileFormatError):
+        TrainingData(tmp_path / "nope")
+    with pytest.raises(ConfigError):
+        TrainingData(trajs, frame_stride=0)
+
+
+def test_relative_error():
+    m = np.ones(2)
+    u = np.array([[1.0, 0, 0], [0, 0, 0]])
+    assert relative_error(u, u, m) == 0.0
+    assert relative_error(u, 0 * u, m) == pytest.approx(1.0)
+    assert relative_error(0 * u, 0 * u, m) == 0.0
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"epochs": 0}, {"lr": -1.0}, {"sample": "faces"}, {"device": "tpu"}, {"val_fraction": 1.0}, {"batch_frames": 1.5},
+     {"projection_weight": -1.0}, {"devices": 0}],
+)
+def test_train_config_rejects_bad_values(kwargs):
+    with pytest.raises(ConfigError):
+        TrainConfig(**kwargs)
+
+
+# --- training ----------------------------------------------------------------------------
+def test_train_writes_model_curves_plot_and_checkpoints(data_dir, tmp_path, mesh):
+    out = tmp_path / "m.lcm"
+    cfg = TrainConfig(**TINY, val_indices=(3,), seed=5)
+    model = train(data_dir, out, cfg, ModelConfig(latent_dim=3))
+    paths = output_paths(out)
+    for key in ("model", "csv", "png"):
+        assert paths[key].is_file(), key
+    assert (paths["checkpoints"] / "last.ckpt").is_file()
+    assert paths["png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(paths["csv"]) as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    for r in rows:
+        for k in ("train_loss", "val_loss", "val_proj_residual", "val_enc_residual", "val_proj_full", "train_seconds"):
+            assert np.isfinite(float(r[k])), k
+        assert float(r["val_proj_full"]) <= float(r["val_proj_residual"])
+    # learning rate decays
+    assert float(rows[1]["lr"]) < float(rows[0]["lr"])
+    assert model.n_modes == 15 and model.mesh.same_as(mesh)
+    meta = model.metadata
+    assert meta["data"]["validation"] == ["traj_003"] and meta["epochs_trained"] == 2
+    assert meta["train_config"]["seed"] == 5 and len(meta["history"]) == 2
+    assert model.default_scene == model.scenes[0]
+    back = Model.load(out)
+    x = mesh.vertices[:9]
+    np.testing.assert_array_equal(back.values(x), model.values(x))
+    np.testing.assert_array_equal(back.jacobians(x), model.jacobians(x))
+    assert back.metadata["data"] == meta["data"]
+    # the model is mass-orthonormal in its learned block on the rest mesh
+    b = model.values(mesh.vertices).reshape(-1, model.n_modes)
+    mw = np.repeat(mesh.vertex_masses(1.0), 3)
+    g = b.T @ (mw[:, None] * b)
+    np.testing.assert_allclose(g[12:, 12:], mw.sum() / 3 * np.eye(3), rtol=1e-6, atol=1e-9)
+
+
+def test_same_seed_same_result_on_cpu(trajs, tmp_path):
+    cfg = TrainConfig(**TINY, seed=11, device="cpu")
+    a = train(trajs, None, cfg, ModelConfig(latent_dim=2))
+    b = train(trajs, None, cfg, ModelConfig(latent_dim=2))
+    ha, hb = a.metadata["history"], b.metadata["history"]
+    assert [r["train_loss"] for r in ha] == [r["train_loss"] for r in hb]
+    assert ha[-1]["val_proj_residual"] == hb[-1]["val_proj_residual"]
+    for (ka, va), (kb, vb) in zip(a.net.state_dict().items(), b.net.state_dict().items()):
+        assert ka == kb and torch.equal(va, vb), ka
+    c = train(trajs, None, TrainConfig(**TINY, seed=12, device="cpu"), ModelConfig(latent_dim=2))
+    assert c.metadata["history"][-1]["train_loss"] != ha[-1]["train_loss"]
+
+
+def test_resume_continues_where_it_stopped(trajs, tmp_path, monkeypatch):
+    import licrom.training as tr
+
+    cfg = TrainConfig(**{**TINY, "epochs": 3}, seed=2)
+    full = train(trajs, None, cfg, ModelConfig(latent_dim=2))
+
+    # an interrupted run: stop gracefully after epoch 2 (its checkpoint is written)
+    real = tr._lightning_classes
+
+    def stopping():
+        classes = real()
+        base = classes["History"]
+
+        class StopAfterTwo(base):
+            def on_train_epoch_end(self, trainer, pl_module):
+                super().on_train_epoch_end(trainer, pl_module)
+                if trainer.current_epoch + 1 == 2:
+                    trainer.should_stop = True
+
+        return {**classes, "History": StopAfterTwo}
+
+    out = tmp_path / "run.lcm"
+    monkeypatch.setattr(tr, "_lightning_classes", stopping)
+    part = train(trajs, out, cfg, ModelConfig(latent_dim=2))
+    monkeypatch.setattr(tr, "_lightning_classes", real)
+    assert part.metadata["epochs_trained"] == 2
+    assert (output_paths(out)["checkpoints"] / "last.ckpt").is_file()
+
+    resumed = train(trajs, out, TrainConfig(**{**TINY, "epochs": 3}, seed=2, resume=True), ModelConfig(latent_dim=2))
+    hist = resumed.metadata["history"]
+    assert [r["epoch"] for r in hist] == [1, 2, 3]
+    # the same losses as the uninterrupted run: weights, optimiser, schedule, order and points restored
+    assert [r["train_loss"] for r in hist] == [r["train_loss"] for r in full.metadata["history"]]
+    for (ka, va), (kb, vb) in zip(full.net.state_dict().items(), resumed.net.state_dict().items()):
+        assert torch.equal(va, vb), ka
+    with open(output_paths(out)["csv"]) as fh:
+        assert len(list(csv.DictReader(fh))) == 3
+
+
+def test_encoder_against_exact_projection(tmp_path, capsys):
+    # residual exactly in a 3-dimensional space (no rotation): train a little, then compare
+    mesh = meshes.box((0.2, 0.1, 0.1), resolution=3)
+    trajs = make_synthetic_trajectories(mesh, count=3, frames=12, seed=0, modes=3, rotation=False)
+    cfg = TrainConfig(epochs=12, batch_frames=6, points_per_frame=256, encoder_points=128, val_points=128,
+                      lr=3e-3, val_fraction=0.0, progress=False, seed=0)
+    model = train(trajs, None, cfg, ModelConfig(latent_dim=3, encoder_point_widths=(32, 64), encoder_fc_widths=(32,)))
+    data = TrainingData(trajs, val_fraction=0.0, affine=True)
+    masses = data.masses
+    err_proj, err_enc, norm = 0.0, 0.0, 0.0
+    for t in trajs:
+        for f in range(1, t.n_frames, 3):
+            u = t.displacements[f]
+            q = model.project(u)
+            u_proj = model.reconstruct(q)
+            q_enc = model.encode_q(mesh.vertices, u)
+            np.testing.assert_allclose(q_enc[:12], q[:12], rtol=1e-8, atol=1e-12)  # same affine part
+            u_enc = model.reconstruct(q_enc)
+            res = u - model.reconstruct(np.concatenate([q[:12], np.zeros(3)]))
+            err_proj += np.einsum("ni,ni,n->", u - u_proj, u - u_proj, masses)
+            err_enc += np.einsum("ni,ni,n->", u - u_enc, u - u_enc, masses)
+            norm += np.einsum("ni,ni,n->", res, res, masses)
+    rel_proj, rel_enc = np.sqrt(err_proj / norm), np.sqrt(err_enc / norm)
+    with capsys.disabled():
+        print(f"\n  residual error on training frames: projection {100 * rel_proj:.2f} %, encoder {100 * rel_enc:.2f} %")
+    assert rel_proj <= rel_enc + 1e-9  # the exact projection is optimal in the mass norm
+    assert rel_proj < 0.9 and rel_enc < 1.0  # learned something in a few epochs
+    ev = evaluate(model, data, "train", points=128)
+    assert ev["frames"] == len(data.train) and ev["proj_residual"] <= ev["enc_residual"] + 1e-9
+
+
+def test_cli_train(data_dir, tmp_path):
+    from click.testing import CliRunner
+
+    from licrom.cli import cli
+
+    out = tmp_path / "cli.lcm"
+    res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(out), "--modes", "2", "--epochs", "1", "--points", "128",
+                                   "--batch-frames", "4", "--device", "cpu", "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert out.is_file() and "held-out projection error" in res.output
+    assert Model.load(out).n_learned == 2
