@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from .demo import DemoConfig
 from .errors import LicromError
 
 __all__ = ["main", "cli"]
@@ -186,6 +187,99 @@ def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_fra
     paths = output_paths(output)
     click.echo(f"wrote {paths['model']}, {paths['csv'].name}, {paths['png'].name}")
     click.echo(f"wall time {time.perf_counter() - start:.1f} s")
+
+
+@cli.command("compare")
+@click.argument("model_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--slope", type=float, multiple=True, help="Incline angle in degrees (repeatable) [the model's scene].")
+@click.option("--friction", "-mu", type=float, multiple=True, help="Coulomb coefficient (repeatable) [the model's scene].")
+@click.option("--mesh", "mesh_source", default=None,
+              help="Mesh to run on: a file, or cheese:RES / sphere:RES / box:RES [the model's mesh].")
+@click.option("--steps", type=int, default=150, show_default=True, help="Time steps.")
+@click.option("--cubature", type=int, default=1000, show_default=True, help="Cubature tets (naive scheme).")
+@click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
+@click.option("--device", default="cpu", show_default=True, help="Full simulation device: cpu, cuda or cuda:N.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Write filmstrips, error plot and summary.json here.")
+def compare_command(model_path, slope, friction, mesh_source, steps, cubature, solver, device, out) -> None:
+    """Run full and reduced side by side on scenes, and report how they differ.
+
+    Every (slope, friction) pair is one scene: the model's scene with that incline, the
+    object placed on it as in the model's scene. Prints per-scene error, centre-of-mass
+    error, stick/slip agreement, penetration and per-step time of both.
+    """
+    import json
+
+    from . import meshes
+    from .compare import run_comparison
+    from .cubature import Cubature
+    from .dataset import initial_state_between_planes
+    from .mesh import Mesh
+    from .model import Model
+    from .scene import Plane
+
+    model = Model.load(model_path)
+    base = model.default_scene
+    mesh = model.mesh
+    if mesh_source:
+        kind, _, res = mesh_source.partition(":")
+        mesh = meshes.PROCEDURAL[kind](resolution=int(res)) if kind in meshes.PROCEDURAL and res else Mesh.load(mesh_source)
+    planes = [base.planes[0]] if base.planes else []
+    if slope or friction:
+        default_mu = base.planes[0].friction if base.planes else 0.5
+        default_slope = base.planes[0].slope_deg if base.planes else 0.0
+        planes = [Plane.incline(s, m) for s in (slope or (default_slope,)) for m in (friction or (default_mu,))]
+    results = {}
+    comparisons = {}
+    for plane in planes:
+        # Keep the model scene's placement relative to its plane.
+        initial = base.initial
+        if base.planes:
+            initial = initial_state_between_planes(initial, base.planes[0], plane, mesh, base.material.density)
+        scene = base.replace(planes=(plane,), initial=initial)
+        label = f"slope {plane.slope_deg:.1f} deg, mu {plane.friction:g}"
+        cmp, full, reduced = run_comparison(model, scene, mesh, steps=steps, device=device, solver=solver,
+                                            cubature=Cubature.naive(mesh, cubature))
+        click.echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} + 12)\n{cmp.table()}")
+        results[label] = cmp.summary()
+        comparisons[label] = cmp
+        if out is not None:
+            from .render import filmstrip
+
+            filmstrip([full, reduced], ["full", "reduced"], Path(out) / f"filmstrip_{len(results)}.png", title=label)
+    if out is not None:
+        from .render import plot_errors
+
+        Path(out).mkdir(parents=True, exist_ok=True)
+        plot_errors(comparisons, Path(out) / "errors.png")
+        (Path(out) / "summary.json").write_text(json.dumps(results, indent=2))
+        click.echo(f"\nwrote {out}/summary.json, errors.png and filmstrips")
+
+
+DEMO_DEFAULTS = DemoConfig()
+
+
+@cli.command("demo")
+@click.option("--out", type=click.Path(file_okay=False), default=DEMO_DEFAULTS.out_dir, show_default=True,
+              help="Output folder.")
+@click.option("--resolution", type=int, default=DEMO_DEFAULTS.resolution, show_default=True, help="Cheese resolution.")
+@click.option("--epochs", type=int, default=DEMO_DEFAULTS.epochs, show_default=True, help="Training epochs.")
+@click.option("--modes", "-r", type=int, default=DEMO_DEFAULTS.modes, show_default=True, help="Learned modes r.")
+@click.option("--steps", type=int, default=DEMO_DEFAULTS.steps, show_default=True, help="Time steps per run.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress display.")
+def demo_command(out, resolution, epochs, modes, steps, quiet) -> None:
+    """The whole pipeline at small scale on the built-in cheese scene.
+
+    Full-space runs, training, and the reduced model on held-out slopes and friction
+    coefficients next to the full simulation; summary, filmstrips, error plot and VTU
+    series go to the output folder.
+    """
+    from dataclasses import replace
+
+    from .demo import run_demo
+
+    run_demo(replace(DEMO_DEFAULTS, out_dir=out, resolution=resolution, epochs=epochs, modes=modes, steps=steps),
+             progress=not quiet)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,6 +33,7 @@ from .scene import InitialState, Plane, Scene
 from .trajectory import TRAJECTORY_FORMAT_VERSION
 
 __all__ = [
+    "initial_state_between_planes",
     "generate_dataset",
     "report_dataset_spec",
     "DatasetSpec",
@@ -472,3 +473,20 @@ def report_dataset_spec(preset: str = "cheese", resolution: int | None = None, s
         initial_frame="plane",
         description="sphere bouncing down a 20 deg slope, mu 0.5",
     )
+
+
+def initial_state_between_planes(state: InitialState, source: Plane, target: Plane, mesh: Mesh, density: float) -> InitialState:
+    """Carry ``state``, given relative to ``source``, onto ``target`` (same pose relative to the plane).
+
+    The inverse of :func:`initial_state_on_plane` for ``source``, followed by it for ``target``.
+    """
+    masses = mesh.vertex_masses(density)
+    com = masses @ mesh.vertices / masses.sum()
+    rot, origin = _plane_frame(source)
+    flat = InitialState(
+        translation=tuple(rot.T @ (com + np.asarray(state.translation) - origin) - com),
+        rotation=_rotation_vector(rot.T @ state.rotation_matrix()),
+        velocity=tuple(rot.T @ np.asarray(state.velocity)),
+        angular_velocity=tuple(rot.T @ np.asarray(state.angular_velocity)),
+    )
+    return initial_state_on_plane(flat, target, mesh, density)
