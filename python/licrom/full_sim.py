@@ -1285,7 +1285,6 @@ class FullSim:
         x_now = self._x.numpy().copy()
         self._begin_step()  # overwrites self._x with x~; restore it
         self._x.assign(wp.array(x_now, dtype=wp.vec3d, device=self.device))
-        self._has_forces = False
         pos = x_now if positions is None else self._check_field("positions", positions)
         self._x_trial.assign(wp.array(pos, dtype=wp.vec3d, device=self.device))
         return self._x_trial
