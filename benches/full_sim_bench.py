@@ -5,9 +5,9 @@ on its largest face, and moving down the slope and into the plane at 0.5 m/s, so
 measured step has contact, friction (stick and slip) and elastic deformation. One warm-up
 step (kernel compilation, first allocations) is excluded; then ``--steps`` steps are timed.
 
-    python benches/full_sim_bench.py                      # cpu, resolutions 14 24 40
+    python benches/full_sim_bench.py                      # cpu, resolutions 15 24 40
     python benches/full_sim_bench.py --device cuda
-    python benches/full_sim_bench.py --resolutions 14 24 --steps 5
+    python benches/full_sim_bench.py --resolutions 15 24 --steps 5
 
 This is a measurement, not a test: nothing is asserted.
 """
@@ -76,8 +76,8 @@ def run(resolution: int, device: str, steps: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[14, 24, 40],
-                        help="cheese resolutions (14 ~ 5k, 24 ~ 20k, 40 ~ 100k tets)")
+    parser.add_argument("--resolutions", type=int, nargs="+", default=[15, 24, 40],
+                        help="cheese resolutions (15 ~ 6k, 24 ~ 22k, 40 ~ 105k tets)")
     parser.add_argument("--steps", type=int, default=5, help="timed steps per mesh after the warm-up step")
     args = parser.parse_args()
 
