@@ -154,9 +154,9 @@ class ContactParams:
             below the Coulomb limit), > 0. Large values make sticking stiff.
     """
 
-    normal_stiffness: float = 2.0e6
+    normal_stiffness: float = 1.0e7
     normal_damping: float = 0.0
-    friction_stiffness: float = 1.0e6
+    friction_stiffness: float = 1.0e7
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "normal_stiffness", _finite("ContactParams.normal_stiffness (N/m^3)", self.normal_stiffness, positive=True))
