@@ -436,6 +436,7 @@ def _lightning_classes() -> dict[str, Any]:
             self.rows: list[dict[str, Any]] = []
             self._t0 = 0.0
             self._t_train = None
+            self._lr = float("nan")
 
         @property
         def state_key(self) -> str:
@@ -450,6 +451,7 @@ def _lightning_classes() -> dict[str, Any]:
         def on_train_epoch_start(self, trainer, pl_module) -> None:
             self._t0 = time.perf_counter()
             self._t_train = None
+            self._lr = float(trainer.optimizers[0].param_groups[0]["lr"])
 
         def on_validation_epoch_start(self, trainer, pl_module) -> None:
             if not trainer.sanity_checking and self._t_train is None:
@@ -467,7 +469,7 @@ def _lightning_classes() -> dict[str, Any]:
                 "val_proj_full": get("val_proj_full"),
                 "val_enc_residual": get("val_enc"),
                 "val_enc_full": get("val_enc_full"),
-                "lr": float(trainer.optimizers[0].param_groups[0]["lr"]),
+                "lr": self._lr,
                 "train_seconds": self._t_train if self._t_train is not None else now - self._t0,
                 "epoch_seconds": now - self._t0,
             }
