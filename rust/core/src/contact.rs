@@ -148,7 +148,7 @@ impl ContactModel {
 
     /// Potential, gradient and Hessian at `x` of a point of area `area` (m^2)
     /// that started the step at `x_prev` with lagged normal force `normal_force`.
-    #[inline]
+    #[inline(always)]
     pub fn evaluate(&self, plane: &Plane, area: f64, normal_force: f64, x: &Vector3<f64>, x_prev: &Vector3<f64>) -> ContactEval {
         let mut out = ContactEval::default();
         let n = plane.normal;

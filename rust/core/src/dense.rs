@@ -5,6 +5,37 @@ use crate::simd::Madd;
 
 const LANES: usize = 8;
 
+/// Products `src[r] . x` of the `R` rows of `src` (`R x n`, row-major) with `x`.
+///
+/// The R dot products run interleaved: one dot alone is a chain of dependent
+/// additions, R of them keep the multiply-add units busy.
+#[inline(always)]
+pub fn rows_dot<M: Madd, const R: usize>(src: &[f64], x: &[f64]) -> [f64; R] {
+    let n = x.len();
+    debug_assert!(src.len() == R * n);
+    let blocks = n / LANES;
+    let mut acc = [[0.0; LANES]; R];
+    for b in 0..blocks {
+        let c0 = b * LANES;
+        let xb = &x[c0..c0 + LANES];
+        for (r, a) in acc.iter_mut().enumerate() {
+            let row = &src[r * n + c0..r * n + c0 + LANES];
+            for l in 0..LANES {
+                a[l] = M::madd(row[l], xb[l], a[l]);
+            }
+        }
+    }
+    let mut out = [0.0; R];
+    for (r, (o, a)) in out.iter_mut().zip(&acc).enumerate() {
+        let mut s = ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
+        for c in blocks * LANES..n {
+            s = M::madd(src[r * n + c], x[c], s);
+        }
+        *o = s;
+    }
+    out
+}
+
 /// `sum_i a[i] b[i]` over the common length.
 #[inline(always)]
 pub fn dot<M: Madd>(a: &[f64], b: &[f64]) -> f64 {

@@ -9,6 +9,7 @@ pub mod contact;
 mod dense;
 pub mod error;
 pub mod material;
+pub mod real;
 pub mod reduced;
 mod simd;
 pub mod solver;

@@ -6,10 +6,11 @@
 //! Piola-Kirchhoff stress is in Pa and the Hessian in Pa. The energy has no `log J`
 //! term, so everything stays finite for inverted elements (J <= 0).
 
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::svd3::{svd3, sym_eigen3};
+use crate::real::Real;
+use crate::svd3::{svd3_of, sym_eigen3_of, M3};
 
 /// A row-major `vec(F)` or stress vector.
 pub type Vec9 = SVector<f64, 9>;
@@ -146,46 +147,57 @@ impl StableNeoHookean {
     /// `2 dPsi/dI_C + dPsi/dJ s_k` and a flip `(u_a v_b^T + u_b v_a^T)/sqrt 2` with
     /// eigenvalue `2 dPsi/dI_C - dPsi/dJ s_k`.
     pub fn eigensystem(&self, f: &Matrix3<f64>) -> HessianEigensystem {
-        let d = svd3(f);
-        let s = d.s;
-        let ic = s.norm_squared();
+        let m: M3<f64> = std::array::from_fn(|i| std::array::from_fn(|j| f[(i, j)]));
+        let mut values = [0.0; 9];
+        let mut vectors = [[0.0; 9]; 9];
+        self.eigensystem_of(&m, &mut values, &mut vectors);
+        HessianEigensystem { values, vectors: vectors.map(Vec9::from) }
+    }
+
+    /// [`Self::eigensystem`] for any [`Real`]: eigenvalues and row-major unit
+    /// eigenvectors, in the same order. Written with plain loops (no closures
+    /// through `array::from_fn`) so that all of it inlines into vectorised callers.
+    #[inline(always)]
+    pub fn eigensystem_of<T: Real>(&self, f: &M3<T>, values: &mut [T; 9], vectors: &mut [[T; 9]; 9]) {
+        let (u, s, v) = svd3_of(f);
+        let ic = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
         let j = s[0] * s[1] * s[2];
-        let two_psi_i = self.mu * (1.0 - 1.0 / (ic + 1.0));
-        let four_psi_ii = 2.0 * self.mu / ((ic + 1.0) * (ic + 1.0));
-        let psi_j = self.lam * (j - self.alpha);
+        let (one, mu, lam) = (T::splat(1.0), T::splat(self.mu), T::splat(self.lam));
+        let ic1 = ic + one;
+        let two_psi_i = mu * (one - one / ic1);
+        let four_psi_ii = T::splat(2.0) * mu / (ic1 * ic1);
+        let psi_j = lam * (j - T::splat(self.alpha));
         // Hessian of psi w.r.t. the signed singular values.
-        let c = Vector3::new(s[1] * s[2], s[0] * s[2], s[0] * s[1]);
-        let mut a = s * s.transpose() * four_psi_ii + c * c.transpose() * self.lam;
-        for i in 0..3 {
-            a[(i, i)] += two_psi_i;
+        let c = [s[1] * s[2], s[0] * s[2], s[0] * s[1]];
+        let mut a = [[T::splat(0.0); 3]; 3];
+        for r in 0..3 {
             for k in 0..3 {
-                if k != i {
-                    a[(i, k)] += psi_j * s[3 - i - k];
-                }
+                let coupling = if r == k { two_psi_i } else { psi_j * s[3 - r - k] };
+                a[r][k] = four_psi_ii * s[r] * s[k] + lam * c[r] * c[k] + coupling;
             }
         }
-        let scaling = sym_eigen3(&a);
+        let (scaling, w) = sym_eigen3_of(&a);
 
-        let (u, v) = (d.u, d.v);
-        // vec(u_a v_b^T) in row-major order.
-        let outer = |a: usize, b: usize| Vec9::from_fn(|r, _| u[(r / 3, a)] * v[(r % 3, b)]);
-        let diag = [outer(0, 0), outer(1, 1), outer(2, 2)];
-        let mut values = [0.0; 9];
-        let mut vectors = [Vec9::zeros(); 9];
         for m in 0..3 {
-            values[m] = scaling.values[m];
-            let w = scaling.vectors.column(m);
-            vectors[m] = diag[0] * w[0] + diag[1] * w[1] + diag[2] * w[2];
+            values[m] = scaling[m];
+            // U diag(w_m) V^T, row-major.
+            for r in 0..9 {
+                let (i, j) = (r / 3, r % 3);
+                vectors[m][r] = u[i][0] * v[j][0] * w[0][m] + u[i][1] * v[j][1] * w[1][m] + u[i][2] * v[j][2] * w[2][m];
+            }
         }
-        let inv_sqrt2 = std::f64::consts::FRAC_1_SQRT_2;
+        let inv_sqrt2 = T::splat(std::f64::consts::FRAC_1_SQRT_2);
         for (m, (a, b, k)) in [(1, 2, 0), (0, 2, 1), (0, 1, 2)].into_iter().enumerate() {
-            let (ab, ba) = (outer(a, b), outer(b, a));
             values[3 + m] = two_psi_i + psi_j * s[k];
-            vectors[3 + m] = (ab - ba) * inv_sqrt2;
             values[6 + m] = two_psi_i - psi_j * s[k];
-            vectors[6 + m] = (ab + ba) * inv_sqrt2;
+            // (u_a v_b^T -+ u_b v_a^T) / sqrt 2, row-major.
+            for r in 0..9 {
+                let (i, j) = (r / 3, r % 3);
+                let (ab, ba) = (u[i][a] * v[j][b], u[i][b] * v[j][a]);
+                vectors[3 + m][r] = (ab - ba) * inv_sqrt2;
+                vectors[6 + m][r] = (ab + ba) * inv_sqrt2;
+            }
         }
-        HessianEigensystem { values, vectors }
     }
 
     /// Hessian with negative eigenvalues clamped to zero (PSD), Pa.
@@ -243,6 +255,7 @@ fn check_batch(fs: &[f64], out_len: usize, per_point: usize) -> Result<()> {
 mod tests {
     use super::*;
     use crate::testing::{fd_gradient, fd_jacobian, rel_err, Rng};
+    use nalgebra::Vector3;
 
     fn material() -> StableNeoHookean {
         StableNeoHookean::new(3.0e5, 1.2e6).unwrap()

@@ -25,9 +25,10 @@ use faer::{Accum, MatMut, MatRef, Par};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::contact::{ContactModel, Plane};
-use crate::dense::{combine_rows, dot};
+use crate::dense::{combine_rows, dot, rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::{mat3_row_major, vec9, StableNeoHookean};
+use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, Madd, WithMadd};
 
 /// Borrowed description of a reduced model; all arrays row-major (C order).
@@ -286,18 +287,15 @@ impl ReducedSystem {
         let n = self.n;
         let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
         let x0 = &self.contact_rest[3 * j..3 * j + 3];
-        Vector3::new(
-            x0[0] + dot::<M>(&w[..n], q),
-            x0[1] + dot::<M>(&w[n..2 * n], q),
-            x0[2] + dot::<M>(&w[2 * n..], q),
-        )
+        let wq = rows_dot::<M, 3>(w, q);
+        Vector3::new(x0[0] + wq[0], x0[1] + wq[1], x0[2] + wq[2])
     }
 
     #[inline(always)]
-    fn deformation_gradient<M: Madd>(g: &[f64], q: &[f64], n: usize) -> Matrix3<f64> {
-        let mut f = [0.0; 9];
-        for (a, fa) in f.iter_mut().enumerate() {
-            *fa = dot::<M>(&g[a * n..(a + 1) * n], q) + if a % 4 == 0 { 1.0 } else { 0.0 };
+    fn deformation_gradient<M: Madd>(g: &[f64], q: &[f64]) -> Matrix3<f64> {
+        let mut f = rows_dot::<M, 9>(g, q);
+        for a in [0, 4, 8] {
+            f[a] += 1.0;
         }
         mat3_row_major(&f)
     }
@@ -322,7 +320,7 @@ impl ReducedSystem {
         let mut e = 0.5 * inertia / (h * h) - dot::<M>(&self.gravity, q);
         let mut elastic = 0.0;
         for (g, &w) in self.jacobians.chunks_exact(9 * n).zip(&self.weights) {
-            let f = Self::deformation_gradient::<M>(g, q, n);
+            let f = Self::deformation_gradient::<M>(g, q);
             elastic = M::madd(w, self.material.energy(&f), elastic);
         }
         e += elastic;
@@ -375,34 +373,62 @@ impl ReducedSystem {
         // together they never exceed its 9 K + 3 C P rows.
         let (mut positive, mut clamped) = (0, 0);
         let total = ws.rows.len() / n;
-        for (g, &w) in self.jacobians.chunks_exact(9 * n).zip(&self.weights) {
-            if w == 0.0 {
-                continue;
+        // Cubature points go in groups of LANES through the eigensystem, which is
+        // latency-bound per point but vectorises across points.
+        let k_total = self.n_cubature();
+        let mut values = [Lanes::splat(0.0); 9];
+        let mut vectors = [[Lanes::splat(0.0); 9]; 9];
+        for k0 in (0..k_total).step_by(LANES) {
+            let group = LANES.min(k_total - k0);
+            let mut fs = [Matrix3::identity(); LANES];
+            // Lanes past the last point hold F = I, which is harmless.
+            let mut lanes = [[Lanes::splat(0.0); 3]; 3];
+            for (i, row) in lanes.iter_mut().enumerate() {
+                row[i] = Lanes::splat(1.0);
             }
-            let f = Self::deformation_gradient::<M>(g, q, n);
-            let p = vec9(&self.material.pk1(&f)) * w;
-            let p: &[f64; 9] = p.as_slice().try_into().expect("9 stress components");
-            let mut pos = [[0.0; 9]; 9];
-            let mut neg = [[0.0; 9]; 9];
-            let (mut n_pos, mut n_neg) = (0, 0);
-            if with_hessian {
-                let eig = self.material.eigensystem(&f);
-                for (lambda, v) in eig.values.iter().zip(&eig.vectors) {
-                    let (coef, count) = if *lambda > 0.0 { (&mut pos, &mut n_pos) } else { (&mut neg, &mut n_neg) };
-                    if *lambda != 0.0 {
-                        let s = (w * lambda.abs()).sqrt();
-                        for (c, e) in coef[*count].iter_mut().zip(v.iter()) {
-                            *c = s * e;
-                        }
-                        *count += 1;
+            for (l, f) in fs.iter_mut().enumerate().take(group) {
+                let k = k0 + l;
+                *f = Self::deformation_gradient::<M>(&self.jacobians[9 * n * k..9 * n * (k + 1)], q);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        lanes[i][j].0[l] = f[(i, j)];
                     }
                 }
             }
-            combine_rows::<M, 9>(g, &pos[..n_pos], &mut ws.rows[positive * n..], p, &mut ws.grad);
-            positive += n_pos;
-            if n_neg > 0 {
-                clamped += n_neg;
-                combine_rows::<M, 9>(g, &neg[..n_neg], &mut ws.rows[(total - clamped) * n..], p, &mut []);
+            if with_hessian {
+                self.material.eigensystem_of(&lanes, &mut values, &mut vectors);
+            }
+            for (l, f) in fs.iter().enumerate().take(group) {
+                let k = k0 + l;
+                let w = self.weights[k];
+                if w == 0.0 {
+                    continue;
+                }
+                let g = &self.jacobians[9 * n * k..9 * n * (k + 1)];
+                let p = vec9(&self.material.pk1(f)) * w;
+                let p: &[f64; 9] = p.as_slice().try_into().expect("9 stress components");
+                let mut pos = [[0.0; 9]; 9];
+                let mut neg = [[0.0; 9]; 9];
+                let (mut n_pos, mut n_neg) = (0, 0);
+                if with_hessian {
+                    for (lambda, v) in values.iter().zip(&vectors) {
+                        let lambda = lambda.0[l];
+                        let (coef, count) = if lambda > 0.0 { (&mut pos, &mut n_pos) } else { (&mut neg, &mut n_neg) };
+                        if lambda != 0.0 {
+                            let s = (w * lambda.abs()).sqrt();
+                            for (c, e) in coef[*count].iter_mut().zip(v) {
+                                *c = s * e.0[l];
+                            }
+                            *count += 1;
+                        }
+                    }
+                }
+                combine_rows::<M, 9>(g, &pos[..n_pos], &mut ws.rows[positive * n..], p, &mut ws.grad);
+                positive += n_pos;
+                if n_neg > 0 {
+                    clamped += n_neg;
+                    combine_rows::<M, 9>(g, &neg[..n_neg], &mut ws.rows[(total - clamped) * n..], p, &mut []);
+                }
             }
         }
         let n_planes = self.planes.len();
@@ -630,7 +656,7 @@ mod tests {
 
         let mut naive: Vec<f64> = model.mass.iter().map(|m| m / (h * h)).collect();
         for (g, w) in model.cubature_jacobians.chunks_exact(9 * n).zip(&model.cubature_weights) {
-            let f = ReducedSystem::deformation_gradient::<crate::simd::Separate>(g, &q, n);
+            let f = ReducedSystem::deformation_gradient::<crate::simd::Separate>(g, &q);
             let hp = model.material.projected_hessian(&f);
             for r in 0..n {
                 for c in 0..n {

@@ -1,0 +1,139 @@
+//! Benchmarks of the reduced step and of its per-point kernels.
+//!
+//! Scene: the synthetic block of `licrom_core::synthetic` (10 cm, E = 1e5 Pa,
+//! h = 10 ms, mu = 0.5, k_n = 2e6, k_f = 1e6), sunk to its resting depth,
+//! sliding at 0.3 m/s and slightly deformed (so the elastic solve has work to do
+//! without contact too); with contact points every one of them is in contact
+//! and slipping. Every measured iteration restores that state and takes one
+//! converged step (tolerance 1e-6 m/s). Sizes: r in {8, 20, 64} learned modes
+//! (+12 affine), K in {100, 1000, 5000} cubature points, C in {0, 1000} contact
+//! points, both solvers. The iteration counts of every configuration are printed
+//! first, since the time per step is roughly (iterations x cost per iteration).
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use licrom_core::reduced::ReducedSystem;
+use licrom_core::solver::{ReducedSolver, SolverKind, SolverSettings};
+use licrom_core::synthetic::{BlockModel, BlockScene};
+use licrom_core::StableNeoHookean;
+use nalgebra::Matrix3;
+
+const SLIDING_SPEED: f64 = 0.3;
+
+/// The benchmark state: resting depth, sliding, learned modes excited by 1 mm.
+fn state(model: &BlockModel) -> (Vec<f64>, Vec<f64>) {
+    let (mut q, qdot) = model.resting_state(SLIDING_SPEED);
+    for (i, qi) in q.iter_mut().enumerate().skip(12) {
+        *qi = 1e-3 * ((i * 7) % 5) as f64 / 4.0;
+    }
+    (q, qdot)
+}
+
+fn model(learned_modes: usize, cubature_points: usize, contact_points: usize) -> BlockModel {
+    BlockScene { learned_modes, cubature_points, contact_points, ..Default::default() }.build().expect("valid synthetic scene")
+}
+
+fn solver(model: &BlockModel, kind: SolverKind) -> ReducedSolver {
+    let system = ReducedSystem::new(&model.inputs()).expect("valid system");
+    let settings = SolverSettings { total_mass: model.total_mass, tolerance: 1e-6, max_iterations: 500, kind };
+    ReducedSolver::new(system, settings).expect("valid settings")
+}
+
+fn kind_name(kind: SolverKind) -> &'static str {
+    match kind {
+        SolverKind::Newton => "newton",
+        SolverKind::Prefactored => "prefactored",
+    }
+}
+
+fn reduced_step(c: &mut Criterion) {
+    let mut group = c.benchmark_group("reduced_step");
+    group.sample_size(10).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
+    for r in [8, 20, 64] {
+        for k in [100, 1000, 5000] {
+            for contacts in [0, 1000] {
+                for kind in [SolverKind::Newton, SolverKind::Prefactored] {
+                    let id = format!("{}/n{}_K{}_C{}", kind_name(kind), 12 + r, k, contacts);
+                    // Set up inside the closure: criterion only calls it when the id
+                    // passes the command-line filter.
+                    let mut setup = None;
+                    group.bench_function(BenchmarkId::from_parameter(&id), |b| {
+                        let (s, q, qdot) = setup.get_or_insert_with(|| {
+                            let m = model(r, k, contacts);
+                            let (q, qdot) = state(&m);
+                            let mut s = solver(&m, kind);
+                            s.set_state(&q, &qdot).expect("state");
+                            let report = s.step().expect("the benchmark step converges");
+                            eprintln!("{id}: {} iterations, residual {:.1e} m/s", report.iterations, report.residual);
+                            (s, q, qdot)
+                        });
+                        b.iter(|| {
+                            s.set_state(q, qdot).expect("state");
+                            black_box(s.step().expect("converges"))
+                        })
+                    });
+                }
+            }
+        }
+    }
+    group.finish();
+}
+
+/// Cost of one Newton iteration's pieces at the headline size n = 32, K = 1000, C = 1000.
+fn newton_pieces(c: &mut Criterion) {
+    let m = model(20, 1000, 1000);
+    let sys = ReducedSystem::new(&m.inputs()).expect("valid system");
+    let (q, qdot) = state(&m);
+    let mut start = sys.step_start();
+    sys.begin_step(&q, &qdot, &mut start);
+    let trial: Vec<f64> = q.iter().zip(&qdot).map(|(x, v)| x + m.scene.dt * v).collect();
+    let mut ws = sys.workspace();
+    let mut group = c.benchmark_group("newton_pieces_n32_K1000_C1000");
+    group.sample_size(10).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
+    group.bench_function("gradient_and_hessian", |b| b.iter(|| sys.assemble(&start, black_box(&trial), true, &mut ws)));
+    group.bench_function("gradient", |b| b.iter(|| sys.assemble(&start, black_box(&trial), false, &mut ws)));
+    group.bench_function("energy", |b| b.iter(|| black_box(sys.energy(&start, black_box(&trial)))));
+    group.finish();
+}
+
+/// Per-point material kernels on a batch of 1000 mildly deformed (some inverted) F.
+fn snh_per_point(c: &mut Criterion) {
+    let mat = StableNeoHookean::new(5.13e4, 8.97e4).expect("material");
+    let fs: Vec<Matrix3<f64>> = (0..1000)
+        .map(|i| {
+            let t = i as f64 * 0.618;
+            let mut f = Matrix3::new(
+                1.0 + 0.2 * t.sin(),
+                0.1 * (2.0 * t).cos(),
+                0.05 * t.cos(),
+                0.1 * (3.0 * t).sin(),
+                1.0 - 0.15 * t.cos(),
+                0.08 * (5.0 * t).sin(),
+                0.02 * t.sin(),
+                0.07 * (7.0 * t).cos(),
+                1.0 + 0.1 * (11.0 * t).sin(),
+            );
+            if i % 10 == 0 {
+                f.row_mut(2).neg_mut();
+            }
+            f
+        })
+        .collect();
+    let mut group = c.benchmark_group("snh_1000_points");
+    group.sample_size(10).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
+    group.bench_function("svd", |b| b.iter(|| fs.iter().map(|f| licrom_core::svd3::svd3(black_box(f)).s[2]).sum::<f64>()));
+    group.bench_function("eigensystem", |b| {
+        b.iter(|| fs.iter().map(|f| mat.eigensystem(black_box(f)).values[0]).sum::<f64>())
+    });
+    group.bench_function("projected_hessian", |b| {
+        b.iter(|| fs.iter().map(|f| mat.projected_hessian(black_box(f))[(0, 0)]).sum::<f64>())
+    });
+    group.bench_function("exact_hessian", |b| b.iter(|| fs.iter().map(|f| mat.hessian(black_box(f))[(0, 0)]).sum::<f64>()));
+    group.bench_function("pk1", |b| b.iter(|| fs.iter().map(|f| mat.pk1(black_box(f))[(0, 0)]).sum::<f64>()));
+    group.finish();
+}
+
+criterion_group!(benches, snh_per_point, newton_pieces, reduced_step);
+criterion_main!(benches);
