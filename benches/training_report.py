@@ -117,8 +117,11 @@ def pod_bounds(data, ranks: list[int], test=None) -> dict[int, dict[str, float]]
 _DATA: dict[str, Any] | None = None
 
 
-def _worker_init(args: argparse.Namespace, threads: int | None) -> None:
+def _worker_init(args: argparse.Namespace, threads: int | None, gpus: int = 0) -> None:
     global _DATA
+    if gpus > 1:  # spread the workers over the GPUs (before torch touches CUDA)
+        ident = mp.current_process()._identity
+        os.environ["CUDA_VISIBLE_DEVICES"] = str(((ident[0] - 1) if ident else 0) % gpus)
     import torch
 
     if threads:
@@ -137,6 +140,7 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
         epochs=job["epochs"], lr=job["lr"], seed=args.seed, device=args.device, devices=1, progress=args.progress,
         batch_frames=args.batch_frames, points_per_frame=args.points, projection_weight=job["projection_weight"],
         checkpoint_every=max(1, job["epochs"] // 10),
+        max_time_s=args.max_minutes * 60 if args.max_minutes else None,
     )
     out = job.get("out")
     t0 = time.perf_counter()
@@ -179,8 +183,13 @@ def run_jobs(jobs: list[dict], args: argparse.Namespace) -> list[dict]:
 
             torch.set_num_threads(threads)
         return [run_one(j) for j in jobs]
+    gpus = 0
+    if args.device != "cpu":
+        import torch
+
+        gpus = torch.cuda.device_count()
     ctx = mp.get_context("spawn")
-    with ctx.Pool(n, initializer=_worker_init, initargs=(args, threads)) as pool:
+    with ctx.Pool(n, initializer=_worker_init, initargs=(args, threads, gpus)) as pool:
         return pool.map(run_one, jobs, chunksize=1)
 
 
@@ -209,6 +218,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="training runs at once (processes)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads per run")
     ap.add_argument("--out", default="out/training_report")
+    ap.add_argument("--max-minutes", type=float, default=None, help="stop each training run after this long")
     ap.add_argument("--no-table", action="store_true", help="skip the table by r (sweep only)")
     ap.add_argument("--sweep", action="store_true")
     ap.add_argument("--sweep-epochs", type=int, default=100)

@@ -82,6 +82,8 @@ class TrainConfig:
         resume: continue from ``last.ckpt`` in the checkpoint directory when it exists.
         progress: show Lightning's progress bar.
         num_threads: CPU threads for torch (None: leave torch's setting).
+        max_time_s: stop (gracefully, after the current step) when training has run this
+            many seconds; None: no limit. The schedule still assumes ``epochs``.
     """
 
     epochs: int = 200
@@ -108,6 +110,7 @@ class TrainConfig:
     resume: bool = False
     progress: bool = True
     num_threads: int | None = None
+    max_time_s: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every"):
@@ -135,6 +138,8 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.devices must be 'auto' or an integer >= 1, got {self.devices!r}")
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
             raise ConfigError(f"TrainConfig.seed must be an integer >= 0, got {self.seed!r}")
+        if self.max_time_s is not None and (not isinstance(self.max_time_s, (int, float)) or not self.max_time_s > 0):
+            raise ConfigError(f"TrainConfig.max_time_s must be None or a positive number of seconds, got {self.max_time_s!r}")
         if self.num_threads is not None and (not isinstance(self.num_threads, int) or self.num_threads < 1):
             raise ConfigError(f"TrainConfig.num_threads must be None or an integer >= 1, got {self.num_threads!r}")
 
@@ -632,6 +637,7 @@ def train(
             num_sanity_val_steps=0,
             default_root_dir=str(ckpt_dir) if ckpt_dir else None,
             log_every_n_steps=1,
+            max_time=None if cfg.max_time_s is None else {"seconds": float(cfg.max_time_s)},
         )
         n_train = len(tdata.train)
         from torch.utils.data import DataLoader
