@@ -129,9 +129,11 @@ def test_values_are_batched_across_chunks(mesh, rng):
     model = _random_model(mesh, r=2)
     x = rng.uniform(-0.05, 0.05, size=(model_module._CHUNK + 7, 3))
     v = model.values(x)
-    np.testing.assert_allclose(v[-7:], model.values(x[-7:]), rtol=1e-13, atol=1e-16)
+    # the same numbers up to round-off (a BLAS may block a batch differently by its size)
+    np.testing.assert_allclose(v[-7:], model.values(x[-7:]), rtol=1e-10, atol=1e-12 * np.abs(v).max())
     _, j = model.values_and_jacobians(x[-3:])
-    np.testing.assert_allclose(model.jacobians(x)[-3:], j, rtol=1e-13, atol=1e-16)
+    jall = model.jacobians(x)
+    np.testing.assert_allclose(jall[-3:], j, rtol=1e-10, atol=1e-12 * np.abs(jall).max())
 
 
 def test_bad_points_raise_shape_error(mesh):
