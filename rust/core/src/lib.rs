@@ -10,6 +10,7 @@ mod dense;
 pub mod error;
 pub mod material;
 pub mod real;
+pub mod reconstruction;
 pub mod reduced;
 mod simd;
 pub mod solver;

@@ -1,0 +1,152 @@
+"""Rust core of licrom (compiled extension ``licrom._core``).
+
+Conventions: SI units; arrays are float64 (C-contiguous inputs are used as
+they are, other layouts are copied); ``vec(F)`` is row-major, index ``3*i + j``
+holds ``F[i, j]``. Bad inputs raise :class:`licrom.errors.ShapeError` (shape,
+dtype, NaN/inf), :class:`licrom.errors.ConfigError` (parameters out of range,
+mass matrix not symmetric positive definite); solver failures raise
+:class:`licrom.errors.SolverError`. Heavy calls release the GIL.
+
+Material: stable Neo-Hookean (Smith et al. 2018) with the SNH parameters
+``mu, lam`` (Pa, both > 0):
+``Psi(F) = mu/2 (I_C - 3) + lam/2 (J - alpha)^2 - mu/2 log(I_C + 1) - Psi_0``,
+``alpha = 1 + 3 mu / (4 lam)``, where the constant ``Psi_0`` makes the rest
+state (and every rotation) have zero energy. Valid for inverted F (J <= 0).
+"""
+
+import numpy as np
+import numpy.typing as npt
+
+Float64Array = npt.NDArray[np.float64]
+
+def snh_energy(F: Float64Array, mu: float, lam: float) -> Float64Array:
+    """Energy densities Psi(F), shape (p,), in J/m^3, of deformation gradients ``F`` (p, 3, 3)."""
+
+def snh_pk1(F: Float64Array, mu: float, lam: float) -> Float64Array:
+    """First Piola-Kirchhoff stresses dPsi/dF, shape (p, 3, 3), in Pa."""
+
+def snh_hessian(F: Float64Array, mu: float, lam: float, project: bool = True) -> Float64Array:
+    """Hessians d^2 Psi / d vec(F)^2, shape (p, 9, 9), in Pa (row-major vec).
+
+    With ``project`` the negative eigenvalues of the analytic eigensystem
+    (Smith, de Goes, Kim 2019) are clamped to zero, so each Hessian is PSD;
+    otherwise the exact, possibly indefinite, Hessian is returned.
+    """
+
+class ReducedCore:
+    """Reduced model, state ``(q, qdot)`` and time stepper of one simulation.
+
+    Each step minimises the incremental potential (backward Euler)
+    ``E(q) = 1/(2h^2) (q - qt)^T M (q - qt) - f.q + sum_k w_k Psi(I + G_k q)
+    + sum_j,p [penalty + damping + friction](X_j + W_j q)``, ``qt = q + h qdot``,
+    with penalty contact against each plane, normal damping while approaching
+    and implicit Coulomb friction with the normal force lagged from the start
+    of the step. Convergence measure: ``r = sqrt(D^T M D / total_mass) / h`` in
+    m/s for the search direction D; a step converges when r < tolerance.
+
+    Args:
+        mass: (n, n) reduced mass matrix ``W^T M W`` in kg, symmetric positive definite.
+        gravity_force: (n,) reduced gravity force ``W^T M g`` in N.
+        cubature_jacobians: (K, 9, n) ``G_k = d vec(F) / dq`` at the cubature points.
+        cubature_weights: (K,) weights w_k >= 0 in m^3.
+        mu: SNH shear parameter in Pa, > 0.
+        lam: SNH volume parameter in Pa, > 0.
+        contact_basis: (C, 3, n) basis rows W_j at the contact points.
+        contact_rest: (C, 3) rest positions X_j of the contact points in m.
+        contact_areas: (C,) boundary area a_j >= 0 carried by each contact point in m^2.
+        planes: (P, 5) rows ``[nx, ny, nz, d, friction]`` of half-spaces
+            ``n.x + d >= 0`` (the normal is normalised and d scaled with it).
+        normal_stiffness: k_n in N/m^3, >= 0.
+        normal_damping: k_d in N s/m^3, >= 0.
+        friction_stiffness: k_f in N s/m^3, >= 0.
+        dt: time step h in s, > 0.
+        total_mass: mass of the solid in kg, > 0 (normalises the convergence measure).
+        tolerance: convergence threshold on r in m/s, > 0.
+        max_iterations: search directions allowed per step, >= 1.
+        solver: ``"newton"`` (projected Newton, faer Cholesky, Armijo line search)
+            or ``"prefactored"`` (``M/h^2 + K(rest)`` factored once, same line search
+            and stopping rule).
+
+    K, C and P may be zero.
+    """
+
+    def __init__(
+        self,
+        mass: Float64Array,
+        gravity_force: Float64Array,
+        cubature_jacobians: Float64Array,
+        cubature_weights: Float64Array,
+        mu: float,
+        lam: float,
+        contact_basis: Float64Array,
+        contact_rest: Float64Array,
+        contact_areas: Float64Array,
+        planes: Float64Array,
+        normal_stiffness: float,
+        normal_damping: float,
+        friction_stiffness: float,
+        dt: float,
+        total_mass: float,
+        tolerance: float,
+        max_iterations: int,
+        solver: str = "newton",
+    ) -> None: ...
+    @property
+    def n_dofs(self) -> int:
+        """Number of reduced coordinates n."""
+    @property
+    def q(self) -> Float64Array:
+        """(n,) reduced coordinates (a copy)."""
+    @property
+    def qdot(self) -> Float64Array:
+        """(n,) reduced velocities per second (a copy)."""
+    def set_state(self, q: Float64Array, qdot: Float64Array) -> None:
+        """Replace the state with ``q`` (n,) and ``qdot`` (n,); contact forces read zero until the next step."""
+    def step(self) -> tuple[int, float]:
+        """Advance one time step; return (iterations, residual in m/s).
+
+        Raises:
+            SolverError: no convergence within ``max_iterations`` (attributes
+                ``iterations`` and ``residual``) or non-finite values; the state is
+                left unchanged.
+        """
+    def accept_last_iterate(self) -> None:
+        """After a step that did not converge, take its last iterate as the new
+        state (``qdot`` from the difference) as if it had converged.
+
+        Raises:
+            ConfigError: the previous call was not a step that failed to converge.
+        """
+    def energy(self, q: Float64Array) -> float:
+        """Incremental potential E(q) in J of a step starting from the current state."""
+    def gradient(self, q: Float64Array) -> Float64Array:
+        """(n,) gradient of E at ``q`` for a step starting from the current state."""
+    def hessian(self, q: Float64Array, project: bool = True) -> Float64Array:
+        """(n, n) Hessian of E at ``q`` for a step starting from the current state.
+
+        With ``project`` the elastic Hessians are PSD-projected (the matrix Newton
+        uses); otherwise it is the exact Hessian. Contact terms are always exact
+        (they are PSD).
+        """
+    def contact_forces(self) -> Float64Array:
+        """(C, 3) contact + friction force on each contact point in N (world frame),
+        minus the gradient of the contact potentials at the current state relative
+        to the start of the last step; zeros before any step."""
+
+class Reconstruction:
+    """Positions ``x = X + W q`` of N points.
+
+    Args:
+        basis: (N, 3, n) basis rows W at the points.
+        rest: (N, 3) rest positions X in m.
+    """
+
+    def __init__(self, basis: Float64Array, rest: Float64Array) -> None: ...
+    @property
+    def n_dofs(self) -> int:
+        """Number of reduced coordinates n."""
+    @property
+    def n_points(self) -> int:
+        """Number of points N."""
+    def positions(self, q: Float64Array) -> Float64Array:
+        """(N, 3) positions in m for reduced coordinates ``q`` (n,)."""

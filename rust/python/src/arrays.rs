@@ -1,0 +1,86 @@
+//! Validation of numpy inputs and construction of numpy outputs.
+
+use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+
+use crate::errors::{error, Kind};
+
+/// Python-style tuple text of a shape: `(5,)`, `(2, 3)`.
+pub fn shape_text(shape: &[usize]) -> String {
+    match shape {
+        [d] => format!("({d},)"),
+        _ => format!("({})", shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ")),
+    }
+}
+
+/// One expected dimension: a fixed size, or a free one with its symbol.
+#[derive(Debug, Clone, Copy)]
+pub enum Dim {
+    /// Exactly this size.
+    Is(usize),
+    /// Any size (e.g. "p" points).
+    Any(&'static str),
+}
+
+fn expected_text(dims: &[Dim]) -> String {
+    let parts: Vec<String> = dims
+        .iter()
+        .map(|d| match d {
+            Dim::Is(n) => n.to_string(),
+            Dim::Any(s) => s.to_string(),
+        })
+        .collect();
+    if parts.len() == 1 {
+        format!("({},)", parts[0])
+    } else {
+        format!("({})", parts.join(", "))
+    }
+}
+
+/// A validated float64 array copied into C order.
+pub struct Array {
+    /// Values in C (row-major) order.
+    pub data: Vec<f64>,
+    /// Its shape.
+    pub shape: Vec<usize>,
+}
+
+/// Checks that `obj` is a finite float64 numpy array of shape `dims` and copies
+/// it in C order (non-contiguous inputs are accepted).
+pub fn read(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Array> {
+    let py = obj.py();
+    let expected = expected_text(dims);
+    let Ok(untyped) = obj.cast::<PyUntypedArray>() else {
+        let type_name = obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
+        return Err(error(py, Kind::Shape, format!("{name} must be a float64 numpy array of shape {expected}, got a {type_name}")));
+    };
+    let dtype = untyped.dtype();
+    let Ok(array) = obj.cast::<PyArrayDyn<f64>>() else {
+        return Err(error(py, Kind::Shape, format!("{name} must be a float64 array of shape {expected}, got dtype {dtype}")));
+    };
+    let shape = untyped.shape().to_vec();
+    let matches = shape.len() == dims.len()
+        && shape.iter().zip(dims).all(|(s, d)| match d {
+            Dim::Is(n) => s == n,
+            Dim::Any(_) => true,
+        });
+    if !matches {
+        return Err(error(py, Kind::Shape, format!("{name} must have shape {expected}, got {}", shape_text(&shape))));
+    }
+    let readonly = array.try_readonly().map_err(|e| error(py, Kind::Shape, format!("{name} cannot be read: {e}")))?;
+    // `as_slice` also accepts Fortran order, so test for C order explicitly; other
+    // layouts are copied in logical (C) order.
+    let data: Vec<f64> = match readonly.as_slice() {
+        Ok(slice) if untyped.is_c_contiguous() => slice.to_vec(),
+        _ => readonly.as_array().iter().copied().collect(),
+    };
+    if !data.iter().all(|v| v.is_finite()) {
+        return Err(error(py, Kind::Shape, format!("{name} holds NaN or inf values")));
+    }
+    Ok(Array { data, shape })
+}
+
+/// A new numpy array of `shape` owning `data` (C order).
+pub fn write<'py>(py: Python<'py>, data: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    numpy::PyArray1::from_vec(py, data).reshape(shape.to_vec())
+}

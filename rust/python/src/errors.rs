@@ -1,0 +1,70 @@
+//! Conversion of core errors to licrom's own exception classes.
+
+use licrom_core::LicromError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+
+/// Exception families of `licrom.errors`.
+#[derive(Debug, Clone, Copy)]
+pub enum Kind {
+    /// `ShapeError`: wrong shape, dtype or non-finite values.
+    Shape,
+    /// `ConfigError`: parameter out of range.
+    Config,
+    /// `SolverError`: no convergence or non-finite values during a solve.
+    Solver,
+}
+
+impl Kind {
+    fn class_name(self) -> &'static str {
+        match self {
+            Kind::Shape => "ShapeError",
+            Kind::Config => "ConfigError",
+            Kind::Solver => "SolverError",
+        }
+    }
+}
+
+/// An instance of `licrom.errors.<kind>` with `message`; falls back to the
+/// built-in base class if the Python package cannot be imported.
+pub fn error(py: Python<'_>, kind: Kind, message: impl Into<String>) -> PyErr {
+    let message = message.into();
+    let class = py.import("licrom.errors").and_then(|m| m.getattr(kind.class_name()));
+    match class.and_then(|c| c.call1((message.clone(),))) {
+        Ok(instance) => PyErr::from_value(instance),
+        Err(_) => match kind {
+            Kind::Solver => PyRuntimeError::new_err(message),
+            _ => PyValueError::new_err(message),
+        },
+    }
+}
+
+/// The licrom exception for a core error. Non-convergence carries the
+/// `iterations` and `residual` (m/s) attributes.
+pub fn from_core(py: Python<'_>, e: LicromError) -> PyErr {
+    let kind = match e {
+        LicromError::ShapeMismatch { .. } | LicromError::NonFinite { .. } => Kind::Shape,
+        LicromError::InvalidParameter { .. } | LicromError::SingularMass { .. } => Kind::Config,
+        LicromError::NotConverged { .. } | LicromError::Diverged { .. } => Kind::Solver,
+    };
+    let err = error(py, kind, e.to_string());
+    if let LicromError::NotConverged { iterations, residual } = e {
+        let value = err.value(py);
+        // Attribute setting only fails on the built-in fallback, which then lacks them.
+        let _ = value.setattr("iterations", iterations);
+        let _ = value.setattr("residual", residual);
+    }
+    err
+}
+
+/// `Result` of the core mapped to a Python result.
+pub trait IntoPy<T> {
+    /// Maps the error with [`from_core`].
+    fn py_err(self, py: Python<'_>) -> PyResult<T>;
+}
+
+impl<T> IntoPy<T> for licrom_core::Result<T> {
+    fn py_err(self, py: Python<'_>) -> PyResult<T> {
+        self.map_err(|e| from_core(py, e))
+    }
+}

@@ -1,0 +1,20 @@
+//! Python bindings of licrom-core (module `licrom._core`): argument checks,
+//! conversions and GIL release; every numerical decision lives in the core.
+
+mod arrays;
+mod errors;
+mod material;
+mod reconstruction;
+mod reduced;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(material::snh_energy, m)?)?;
+    m.add_function(wrap_pyfunction!(material::snh_pk1, m)?)?;
+    m.add_function(wrap_pyfunction!(material::snh_hessian, m)?)?;
+    m.add_class::<reduced::ReducedCore>()?;
+    m.add_class::<reconstruction::Reconstruction>()?;
+    Ok(())
+}

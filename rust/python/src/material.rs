@@ -1,0 +1,57 @@
+//! Batch stable Neo-Hookean functions.
+
+use licrom_core::StableNeoHookean;
+use numpy::PyArrayDyn;
+use pyo3::prelude::*;
+
+use crate::arrays::{read, write, Dim};
+use crate::errors::IntoPy;
+
+const F_DIMS: [Dim; 3] = [Dim::Any("p"), Dim::Is(3), Dim::Is(3)];
+
+/// Material and validated deformation gradients `(p, 3, 3)`.
+fn inputs(py: Python<'_>, f: &Bound<'_, PyAny>, mu: f64, lam: f64) -> PyResult<(StableNeoHookean, Vec<f64>, usize)> {
+    let material = StableNeoHookean::new(mu, lam).py_err(py)?;
+    let f = read(f, "F", &F_DIMS)?;
+    Ok((material, f.data, f.shape[0]))
+}
+
+/// Energy densities Psi(F) (J/m^3) of `F` (p, 3, 3); zero at rest and for rotations.
+#[pyfunction]
+#[pyo3(signature = (F, mu, lam))]
+#[allow(non_snake_case)]
+pub fn snh_energy<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let (material, fs, p) = inputs(py, F, mu, lam)?;
+    let mut out = vec![0.0; p];
+    py.detach(|| material.energy_batch(&fs, &mut out)).py_err(py)?;
+    write(py, out, &[p])
+}
+
+/// First Piola-Kirchhoff stresses (Pa) of `F` (p, 3, 3).
+#[pyfunction]
+#[pyo3(signature = (F, mu, lam))]
+#[allow(non_snake_case)]
+pub fn snh_pk1<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let (material, fs, p) = inputs(py, F, mu, lam)?;
+    let mut out = vec![0.0; 9 * p];
+    py.detach(|| material.pk1_batch(&fs, &mut out)).py_err(py)?;
+    write(py, out, &[p, 3, 3])
+}
+
+/// Hessians d^2 Psi / d vec(F)^2 (Pa, row-major vec) of `F` (p, 3, 3), PSD-projected
+/// when `project`.
+#[pyfunction]
+#[pyo3(signature = (F, mu, lam, project = true))]
+#[allow(non_snake_case)]
+pub fn snh_hessian<'py>(
+    py: Python<'py>,
+    F: &Bound<'py, PyAny>,
+    mu: f64,
+    lam: f64,
+    project: bool,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let (material, fs, p) = inputs(py, F, mu, lam)?;
+    let mut out = vec![0.0; 81 * p];
+    py.detach(|| material.hessian_batch(&fs, project, &mut out)).py_err(py)?;
+    write(py, out, &[p, 9, 9])
+}
