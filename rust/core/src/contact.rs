@@ -40,7 +40,7 @@ impl Plane {
     /// Coulomb coefficient `friction >= 0`.
     pub fn new(normal: Vector3<f64>, offset: f64, friction: f64) -> Result<Self> {
         let length = normal.norm();
-        if !(length.is_finite() && length > 1e-12) || !offset.is_finite() {
+        if !(length.is_finite() && length > 1e-12 && offset.is_finite()) {
             return Err(LicromError::invalid(
                 "plane",
                 format!("needs a finite non-zero normal and a finite offset, got normal {:?}, offset {offset}", normal.as_slice()),

@@ -241,7 +241,7 @@ const LEVI_CIVITA: [(usize, usize, usize, f64); 6] =
     [(0, 1, 2, 1.0), (1, 2, 0, 1.0), (2, 0, 1, 1.0), (0, 2, 1, -1.0), (2, 1, 0, -1.0), (1, 0, 2, -1.0)];
 
 fn check_batch(fs: &[f64], out_len: usize, per_point: usize) -> Result<()> {
-    if fs.len() % 9 != 0 {
+    if !fs.len().is_multiple_of(9) {
         return Err(LicromError::shape("F", "(p, 3, 3)", format!("{} values", fs.len())));
     }
     let p = fs.len() / 9;

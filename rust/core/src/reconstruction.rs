@@ -16,7 +16,7 @@ impl Reconstruction {
     /// From `basis` (N x 3 x n, row-major) and `rest` (N x 3, m); `n >= 1`.
     pub fn new(basis: Vec<f64>, rest: Vec<f64>, n: usize) -> Result<Self> {
         let points = rest.len() / 3;
-        if n == 0 || rest.len() % 3 != 0 || basis.len() != points * 3 * n {
+        if n == 0 || !rest.len().is_multiple_of(3) || basis.len() != points * 3 * n {
             return Err(LicromError::shape("basis", format!("({points}, 3, n) with n >= 1"), format!("{} values", basis.len())));
         }
         check_finite("basis", &basis)?;
