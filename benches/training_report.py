@@ -135,7 +135,7 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
 
     assert _DATA is not None
     args = job["args"]
-    mcfg = ModelConfig(latent_dim=job["r"], field_width=job["width"])
+    mcfg = ModelConfig(latent_dim=job["r"], field_width=job["width"], fourier_features=job["fourier"], fourier_scale=args.fourier_scale)
     tcfg = TrainConfig(
         epochs=job["epochs"], lr=job["lr"], seed=args.seed, device=args.device, devices=1, progress=args.progress,
         batch_frames=args.batch_frames, points_per_frame=args.points, projection_weight=job["projection_weight"],
@@ -148,7 +148,7 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     hist = model.metadata["history"]
     dev = "cuda" if model.metadata["accelerator"] == "gpu" else "cpu"
-    res: dict[str, Any] = {k: job[k] for k in ("r", "width", "lr", "projection_weight", "epochs")}
+    res: dict[str, Any] = {k: job[k] for k in ("r", "width", "lr", "projection_weight", "fourier", "epochs")}
     res["train"] = evaluate(model, _DATA["val"], "train", device=dev)
     res["val"] = evaluate(model, _DATA["val"], "val", device=dev)
     res["test"] = evaluate(model, _DATA["test"], "val", device=dev) if _DATA["test"] is not None else None
@@ -209,6 +209,8 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=60)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--projection-weight", type=float, default=0.0)
+    ap.add_argument("--fourier-features", type=int, default=0)
+    ap.add_argument("--fourier-scale", type=float, default=1.0)
     ap.add_argument("--batch-frames", type=int, default=16)
     ap.add_argument("--points", type=int, default=2048)
     ap.add_argument("--frame-stride", type=int, default=1)
@@ -226,6 +228,7 @@ def main() -> None:
     ap.add_argument("--sweep-widths", type=int, nargs="+", default=[32, 60, 128])
     ap.add_argument("--sweep-lrs", type=float, nargs="+", default=[3e-4, 1e-3, 3e-3])
     ap.add_argument("--sweep-projection-weights", type=float, nargs="+", default=[0.0])
+    ap.add_argument("--sweep-fourier", type=int, nargs="+", default=[0], help="Fourier feature counts")
     ap.add_argument("--progress", action="store_true", help="Lightning progress bars")
     args = ap.parse_args()
 
@@ -260,11 +263,12 @@ def main() -> None:
     print(f"device {args.device} ({report['cuda_device'] or 'CPU'}), {args.jobs} job(s) at once")
 
     if not args.no_table:
-        jobs = [dict(args=args, r=r, width=args.width, lr=args.lr, projection_weight=args.projection_weight, epochs=args.epochs,
+        jobs = [dict(args=args, r=r, width=args.width, lr=args.lr, projection_weight=args.projection_weight, fourier=args.fourier_features, epochs=args.epochs,
                      out=str(out / f"model_r{r}.lcm")) for r in args.modes]
         results = run_jobs(jobs, args)
         report["table"] = results
-        print(f"\n## Reconstruction error by r (%, relative mass-weighted L2; {args.epochs} epochs, width {args.width}, lr {args.lr:g})\n")
+        print(f"\n## Reconstruction error by r (%, relative mass-weighted L2; {args.epochs} epochs, width {args.width}, lr {args.lr:g}, "
+              f"projection weight {args.projection_weight:g}, Fourier features {args.fourier_features})\n")
         print("| r | split | projection residual | encoder residual | projection full | encoder full | POD bound residual |")
         print("|---|---|---|---|---|---|---|")
         for res in results:
@@ -291,25 +295,25 @@ def main() -> None:
                   f"{pct(best[0])} ({best[1]}) |")
 
     if args.sweep:
-        grid = list(itertools.product(args.sweep_modes, args.sweep_widths, args.sweep_lrs, args.sweep_projection_weights))
-        jobs = [dict(args=args, r=r, width=w, lr=lr, projection_weight=pw, epochs=args.sweep_epochs, out=None) for r, w, lr, pw in grid]
+        grid = list(itertools.product(args.sweep_modes, args.sweep_widths, args.sweep_lrs, args.sweep_projection_weights, args.sweep_fourier))
+        jobs = [dict(args=args, r=r, width=w, lr=lr, projection_weight=pw, fourier=ff, epochs=args.sweep_epochs, out=None) for r, w, lr, pw, ff in grid]
         results = run_jobs(jobs, args)
         report["sweep"] = results
         print(f"\n## Sweep ({args.sweep_epochs} epochs each; picked by validation projection error of the residual)\n")
-        print("| r | width | lr | proj. weight | val proj residual | val enc residual | test proj residual | s/epoch |")
-        print("|---|---|---|---|---|---|---|---|")
+        print("| r | width | lr | proj. weight | Fourier | val proj residual | val enc residual | test proj residual | s/epoch |")
+        print("|---|---|---|---|---|---|---|---|---|")
         for res in sorted(results, key=lambda x: (x["r"], x["val"].get("proj_residual", np.inf))):
             t = res["test"]["proj_residual"] if res.get("test") else None
-            print(f"| {res['r']} | {res['width']} | {res['lr']:g} | {res['projection_weight']:g} | {pct(res['val']['proj_residual'])} | "
+            print(f"| {res['r']} | {res['width']} | {res['lr']:g} | {res['projection_weight']:g} | {res['fourier']} | {pct(res['val']['proj_residual'])} | "
                   f"{pct(res['val']['enc_residual'])} | {pct(t)} | {res['seconds_per_epoch_mean']:.3f} |")
         best = {}
         for res in results:
             b = best.get(res["r"])
             if b is None or res["val"]["proj_residual"] < b["val"]["proj_residual"]:
                 best[res["r"]] = res
-        report["sweep_best"] = {str(r): {k: b[k] for k in ("width", "lr", "projection_weight")} for r, b in best.items()}
+        report["sweep_best"] = {str(r): {k: b[k] for k in ("width", "lr", "projection_weight", "fourier")} for r, b in best.items()}
         for r, b in sorted(best.items()):
-            print(f"best for r = {r}: width {b['width']}, lr {b['lr']:g}, projection weight {b['projection_weight']:g} "
+            print(f"best for r = {r}: width {b['width']}, lr {b['lr']:g}, projection weight {b['projection_weight']:g}, Fourier {b['fourier']} "
                   f"(validation {pct(b['val']['proj_residual'])} %, POD bound {pct(pod[r]['val'])} %)")
 
     report["total_seconds"] = time.perf_counter() - t0

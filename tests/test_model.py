@@ -28,9 +28,9 @@ def mesh():
     return meshes.box((0.2, 0.1, 0.1), resolution=4)
 
 
-def _random_model(mesh, r=3, seed=0, affine=True, finalize=True):
+def _random_model(mesh, r=3, seed=0, affine=True, finalize=True, fourier=0):
     torch.manual_seed(seed)
-    net = LicromNet(ModelConfig(latent_dim=r, affine=affine))
+    net = LicromNet(ModelConfig(latent_dim=r, affine=affine, fourier_features=fourier))
     x = np.asarray(mesh.vertices)
     c = x.mean(axis=0)
     net.set_normalization(c, float(np.abs(x - c).max()), 1e-3)
@@ -80,7 +80,7 @@ def test_fit_affine_recovers_affine_field_and_is_orthogonal(mesh, rng):
 @pytest.mark.parametrize(
     "kwargs",
     [{"latent_dim": 0}, {"latent_dim": 2.5}, {"field_layers": 1}, {"field_width": -3}, {"encoder_point_widths": ()},
-     {"encoder_fc_widths": (4, 0)}, {"affine": "yes"}],
+     {"encoder_fc_widths": (4, 0)}, {"affine": "yes"}, {"fourier_features": -1}, {"fourier_scale": 0.0}],
 )
 def test_model_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
@@ -108,8 +108,9 @@ def test_values_shape_and_affine_block(mesh, rng):
     assert np.abs(v[:, :, 12:]).max() > 0
 
 
-def test_jacobians_match_finite_differences(mesh, rng):
-    model = _random_model(mesh, r=4)
+@pytest.mark.parametrize("fourier", [0, 8])
+def test_jacobians_match_finite_differences(mesh, rng, fourier):
+    model = _random_model(mesh, r=4, fourier=fourier)
     x = rng.uniform(-0.08, 0.08, size=(6, 3)) * np.array([1.0, 0.5, 0.5])
     vals, jac = model.values_and_jacobians(x)
     assert jac.shape == (6, 3, 3, 16)
@@ -195,8 +196,9 @@ def test_model_without_affine_modes(mesh, rng):
 
 
 # --- the file ----------------------------------------------------------------------------
-def test_save_load_round_trip(mesh, tmp_path, rng):
-    model = _random_model(mesh, r=3, seed=4)
+@pytest.mark.parametrize("fourier", [0, 6])
+def test_save_load_round_trip(mesh, tmp_path, rng, fourier):
+    model = _random_model(mesh, r=3, seed=4, fourier=fourier)
     path = model.save(tmp_path / "m.lcm")
     assert path == tmp_path / "m.lcm" and path.is_file()
     assert not list(tmp_path.glob(".*"))  # no temporary file left behind

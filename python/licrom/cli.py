@@ -146,10 +146,11 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
 @click.option("--width", type=int, default=None, help="Width of the neural field W(X) [60].")
 @click.option("--layers", type=int, default=None, help="Linear layers of the neural field W(X) [5].")
 @click.option("--projection-weight", type=float, default=None, help="Weight of the projection loss term [0: plain LiCROM].")
+@click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
-                  layers, projection_weight, resume, quiet) -> None:
+                  layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
     Prints the held-out errors and writes the model, OUTPUT.losses.csv, OUTPUT.losses.png
@@ -169,6 +170,8 @@ def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_fra
         mkw["field_width"] = width
     if layers is not None:
         mkw["field_layers"] = layers
+    if fourier is not None:
+        mkw["fourier_features"] = fourier
     model = train(data, output, TrainConfig(**tkw), ModelConfig(**mkw))
     meta = model.metadata
     final = meta.get("final", {})

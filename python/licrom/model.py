@@ -30,6 +30,7 @@ JSON header (no pickle) and loads without the training data.
 from __future__ import annotations
 
 import copy
+import math
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -74,6 +75,10 @@ class ModelConfig:
             ``field_layers - 1`` hidden ELU layers, then the 3 r output), >= 2.
             The default 5 with width 60 is LiCROM's network.
         field_width: width of the hidden layers of W(X).
+        fourier_features: F, random Fourier features of X fed to W(X) beside X itself
+            (0: plain LiCROM input).
+        fourier_scale: standard deviation of the Fourier frequencies, in cycles per unit
+            of normalised coordinate (the object spans about [-1, 1]).
         encoder_point_widths: widths of the shared per-point MLP of the PointNet
             encoder (applied to each sampled (X, u) point, ELU after each layer),
             before max pooling over the points.
@@ -86,6 +91,8 @@ class ModelConfig:
     latent_dim: int = 20
     field_layers: int = 5
     field_width: int = 60
+    fourier_features: int = 0
+    fourier_scale: float = 1.0
     encoder_point_widths: tuple[int, ...] = (64, 128, 256)
     encoder_fc_widths: tuple[int, ...] = (128,)
     affine: bool = True
@@ -99,6 +106,11 @@ class ModelConfig:
         object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
         object.__setattr__(self, "field_layers", positive_int("field_layers", self.field_layers, 2))
         object.__setattr__(self, "field_width", positive_int("field_width", self.field_width))
+        object.__setattr__(self, "fourier_features", positive_int("fourier_features", self.fourier_features, 0))
+        fs = self.fourier_scale
+        if isinstance(fs, bool) or not isinstance(fs, (int, float, np.floating)) or not np.isfinite(fs) or fs <= 0:
+            raise ConfigError(f"ModelConfig.fourier_scale must be a positive number, got {fs!r}")
+        object.__setattr__(self, "fourier_scale", float(fs))
         for name in ("encoder_point_widths", "encoder_fc_widths"):
             v = getattr(self, name)
             try:
@@ -218,13 +230,17 @@ def _xavier(module: nn.Module) -> None:
 class NeuralField(nn.Module):
     """W(X): an MLP ``R^3 -> R^(3 r)`` with ELU activations (C^1 in X), Xavier initialised.
 
-    Takes normalised points (..., 3) and returns (..., 3, r).
+    Takes normalised points (..., 3) and returns (..., 3, r). With ``fourier_features``
+    F > 0 the MLP reads ``[X, sin(2 pi B X), cos(2 pi B X)]`` (3 + 2F inputs) with a fixed
+    random ``B`` (F x 3, entries N(0, fourier_scale^2), a buffer saved with the weights):
+    smooth (C^inf) and a remedy for the MLP's bias towards low frequencies.
     """
 
-    def __init__(self, latent_dim: int, layers: int = 5, width: int = 60) -> None:
+    def __init__(self, latent_dim: int, layers: int = 5, width: int = 60, fourier_features: int = 0, fourier_scale: float = 1.0) -> None:
         super().__init__()
         self.latent_dim = latent_dim
-        dims = [3] + [width] * (layers - 1) + [3 * latent_dim]
+        self.register_buffer("fourier_matrix", torch.randn(fourier_features, 3) * fourier_scale)
+        dims = [3 + 2 * fourier_features] + [width] * (layers - 1) + [3 * latent_dim]
         mods: list[nn.Module] = []
         for k in range(layers):
             mods.append(nn.Linear(dims[k], dims[k + 1]))
@@ -234,6 +250,9 @@ class NeuralField(nn.Module):
         _xavier(self)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.fourier_matrix.shape[0]:
+            p = (2.0 * math.pi) * (x @ self.fourier_matrix.T)
+            x = torch.cat([x, torch.sin(p), torch.cos(p)], dim=-1)
         out = self.mlp(x)
         return out.reshape(*x.shape[:-1], 3, self.latent_dim)
 
@@ -279,7 +298,7 @@ class LicromNet(nn.Module):
         super().__init__()
         self.config = config
         self.encoder = PointNetEncoder(config.latent_dim, config.encoder_point_widths, config.encoder_fc_widths)
-        self.field = NeuralField(config.latent_dim, config.field_layers, config.field_width)
+        self.field = NeuralField(config.latent_dim, config.field_layers, config.field_width, config.fourier_features, config.fourier_scale)
         self.register_buffer("x_center", torch.zeros(3))
         self.register_buffer("x_scale", torch.ones(()))
         self.register_buffer("u_scale", torch.ones(()))
@@ -326,7 +345,7 @@ class LicromNet(nn.Module):
         r = phi.shape[-1]
         a = _affine_values(xh).reshape(-1, N_AFFINE)
         gram = a.T @ a + 1e-9 * len(xh) * torch.eye(N_AFFINE, dtype=a.dtype, device=a.device)
-        c = torch.linalg.solve(gram, a.T @ phi.reshape(-1, r))
+        c = torch.linalg.solve_ex(gram, a.T @ phi.reshape(-1, r))[0]
         return (phi.reshape(-1, r) - a @ c).reshape(phi.shape)
 
     def forward(self, points: torch.Tensor, displacements: torch.Tensor, encoder_points: int | None = None, projection_weight: float = 0.0) -> torch.Tensor:
@@ -350,7 +369,7 @@ class LicromNet(nn.Module):
             flat = phi.reshape(-1, phi.shape[-1])
             gram = flat.T @ flat
             gram = gram + 1e-8 * gram.diagonal().mean().clamp(min=1e-30) * torch.eye(len(gram), dtype=gram.dtype, device=gram.device)
-            zp = torch.linalg.solve(gram, flat.T @ target.reshape(len(target), -1).T).T
+            zp = torch.linalg.solve_ex(gram, flat.T @ target.reshape(len(target), -1).T)[0].T
             loss = loss + projection_weight * torch.mean((torch.einsum("pir,br->bpi", phi, zp) - target) ** 2)
         return loss
 
