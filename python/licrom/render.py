@@ -54,7 +54,7 @@ def filmstrip(
     picks = np.linspace(0, first.n_frames - 1, frames).round().astype(int)
     allx = np.concatenate([t.rest_positions[None] + t.displacements[picks] for t in trajectories]).reshape(-1, 3)
     lo, hi = allx.min(0), allx.max(0)
-    centre, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.1
+    centre, half = (lo + hi) / 2, (hi - lo).max() / 2 * 0.8
     light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     fig = plt.figure(figsize=(2.6 * frames, 2.6 * len(trajectories) + 0.4))
     for row, (traj, label) in enumerate(zip(trajectories, labels)):
