@@ -92,7 +92,10 @@ def test_model_config_defaults_are_licrom():
     assert (c.field_layers, c.field_width, c.affine) == (5, 60, True)
     net = LicromNet(c)
     linears = [m for m in net.field.mlp if isinstance(m, torch.nn.Linear)]
-    assert len(linears) == 5 and linears[0].in_features == 3 and linears[-1].out_features == 3 * c.latent_dim
+    assert len(linears) == 5 and linears[0].in_features == 3 + 2 * c.fourier_features
+    assert linears[-1].out_features == 3 * c.latent_dim and all(m.out_features == 60 for m in linears[:-1])
+    plain = LicromNet(ModelConfig(fourier_features=0))  # LiCROM's plain input
+    assert plain.field.mlp[0].in_features == 3
     assert all(isinstance(m, (torch.nn.Linear, torch.nn.ELU)) for m in net.field.mlp)
     assert ModelConfig.from_dict(c.to_dict()) == c
 

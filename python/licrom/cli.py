@@ -135,7 +135,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
               help="Model file to write (.lcm); the loss CSV/PNG and checkpoints go beside it.")
 @click.option("--modes", "-r", type=int, default=20, show_default=True, help="Learned modes r (12 affine modes come on top).")
 @click.option("--epochs", type=int, default=None, help="Passes over the training frames [TrainConfig default].")
-@click.option("--lr", type=float, default=None, help="Initial Adam learning rate [1e-3].")
+@click.option("--lr", type=float, default=None, help="Initial Adam learning rate [3e-3].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Training device (auto: CUDA when available).")
@@ -145,8 +145,8 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
 @click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
 @click.option("--width", type=int, default=None, help="Width of the neural field W(X) [60].")
 @click.option("--layers", type=int, default=None, help="Linear layers of the neural field W(X) [5].")
-@click.option("--projection-weight", type=float, default=None, help="Weight of the projection loss term [0: plain LiCROM].")
-@click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [0: plain LiCROM].")
+@click.option("--projection-weight", type=float, default=None, help="Weight of the projection loss term [1; 0: plain LiCROM].")
+@click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
