@@ -65,7 +65,8 @@ def split(count: int, val_fraction: float, test_fraction: float, seed: int) -> t
     n_val = max(1, int(round(val_fraction * count))) if val_fraction > 0 and count - n_test >= 2 else 0
     if n_test + n_val >= count:
         raise SystemExit(f"not enough trajectories ({count}) for {n_val} validation + {n_test} test")
-    test, val = sorted(perm[:n_test]), sorted(perm[n_test : n_test + n_val])
+    # validation first, so adding a test split leaves the validation set unchanged
+    val, test = sorted(perm[:n_val]), sorted(perm[n_val : n_val + n_test])
     train = sorted(perm[n_test + n_val :])
     return train, val, test
 
