@@ -14,7 +14,7 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use licrom_core::reduced::ReducedSystem;
+use licrom_core::reduced::{Hessian, ReducedSystem};
 use licrom_core::solver::{ReducedSolver, SolverKind, SolverSettings};
 use licrom_core::synthetic::{BlockModel, BlockScene};
 use licrom_core::StableNeoHookean;
@@ -92,8 +92,11 @@ fn newton_pieces(c: &mut Criterion) {
     let mut ws = sys.workspace();
     let mut group = c.benchmark_group("newton_pieces_n32_K1000_C1000");
     group.sample_size(10).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
-    group.bench_function("gradient_and_hessian", |b| b.iter(|| sys.assemble(&start, black_box(&trial), true, &mut ws)));
-    group.bench_function("gradient", |b| b.iter(|| sys.assemble(&start, black_box(&trial), false, &mut ws)));
+    group.bench_function("gradient_and_projected_hessian", |b| {
+        b.iter(|| sys.assemble(&start, black_box(&trial), Hessian::Projected, &mut ws))
+    });
+    group.bench_function("gradient_and_split_hessian", |b| b.iter(|| sys.assemble(&start, black_box(&trial), Hessian::Split, &mut ws)));
+    group.bench_function("gradient", |b| b.iter(|| sys.assemble(&start, black_box(&trial), Hessian::None, &mut ws)));
     group.bench_function("energy", |b| b.iter(|| black_box(sys.energy(&start, black_box(&trial)))));
     group.finish();
 }

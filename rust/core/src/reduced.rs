@@ -95,6 +95,18 @@ impl StepStart {
     }
 }
 
+/// What [`ReducedSystem::assemble`] computes besides the gradient.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Hessian {
+    /// Gradient only.
+    None,
+    /// The projected Hessian (`Workspace::hess`).
+    Projected,
+    /// The projected Hessian and its clamped part (`Workspace::hess_clamped`),
+    /// from which the exact Hessian follows.
+    Split,
+}
+
 /// Preallocated buffers of the evaluation, sized once per system.
 #[derive(Debug, Clone)]
 pub struct Workspace {
@@ -103,9 +115,10 @@ pub struct Workspace {
     /// Projected Hessian (elastic negative eigenvalues clamped to zero): n x n,
     /// symmetric positive definite.
     pub hess: Vec<f64>,
-    /// What the clamping removed, PSD: the exact Hessian is `hess - hess_clamped`.
+    /// What the clamping removed, PSD: the exact Hessian is `hess - hess_clamped`
+    /// (filled by [`Hessian::Split`] only).
     pub hess_clamped: Vec<f64>,
-    /// Whether `hess_clamped` is non-zero.
+    /// Whether some elastic eigenvalue was clamped (set by [`Hessian::Split`]).
     pub has_clamped: bool,
     /// Square-root rows: positive ones from the front, clamped ones from the back.
     rows: Vec<f64>,
@@ -335,31 +348,33 @@ impl ReducedSystem {
         e
     }
 
-    /// Gradient (into `ws.grad`) and, when `with_hessian`, the projected Hessian
-    /// and its clamped part (into `ws.hess`, `ws.hess_clamped`, full symmetric) of
-    /// E at `q`.
-    pub fn assemble(&self, start: &StepStart, q: &[f64], with_hessian: bool, ws: &mut Workspace) {
-        let (positive, clamped) = dispatch(AssembleKernel { sys: self, start, q, with_hessian, ws: &mut *ws });
-        if !with_hessian {
+    /// Gradient (into `ws.grad`) and the requested Hessian parts (into `ws.hess`,
+    /// `ws.hess_clamped`, full symmetric) of E at `q`.
+    pub fn assemble(&self, start: &StepStart, q: &[f64], hessian: Hessian, ws: &mut Workspace) {
+        let (positive, clamped) = dispatch(AssembleKernel { sys: self, start, q, hessian, ws: &mut *ws });
+        if hessian == Hessian::None {
             return;
         }
         let n = self.n;
         let total = ws.rows.len() / n;
         syrk_lower(&mut ws.hess, n, &ws.rows, positive, Accum::Replace);
-        syrk_lower(&mut ws.hess_clamped, n, &ws.rows[(total - clamped) * n..], clamped, Accum::Replace);
-        ws.has_clamped = clamped > 0;
+        if hessian == Hessian::Split {
+            syrk_lower(&mut ws.hess_clamped, n, &ws.rows[(total - clamped) * n..], clamped, Accum::Replace);
+            mirror_lower(&mut ws.hess_clamped, n);
+            ws.has_clamped = clamped > 0;
+        }
         let inv_h2 = 1.0 / (self.dt() * self.dt());
         for (h, m) in ws.hess.iter_mut().zip(&self.mass) {
             *h += m * inv_h2;
         }
         mirror_lower(&mut ws.hess, n);
-        mirror_lower(&mut ws.hess_clamped, n);
     }
 
     /// Per-point work of [`Self::assemble`]: gradient and the stacked square-root
     /// rows; returns how many positive and clamped rows were written.
     #[inline(always)]
-    fn assemble_impl<M: Madd>(&self, start: &StepStart, q: &[f64], with_hessian: bool, ws: &mut Workspace) -> (usize, usize) {
+    fn assemble_impl<M: Madd>(&self, start: &StepStart, q: &[f64], hessian: Hessian, ws: &mut Workspace) -> (usize, usize) {
+        let with_hessian = hessian != Hessian::None;
         let n = self.n;
         let inv_h2 = 1.0 / (self.dt() * self.dt());
         for i in 0..n {
@@ -425,7 +440,7 @@ impl ReducedSystem {
                 }
                 combine_rows::<M, 9>(g, &pos[..n_pos], &mut ws.rows[positive * n..], p, &mut ws.grad);
                 positive += n_pos;
-                if n_neg > 0 {
+                if n_neg > 0 && hessian == Hessian::Split {
                     clamped += n_neg;
                     combine_rows::<M, 9>(g, &neg[..n_neg], &mut ws.rows[(total - clamped) * n..], p, &mut []);
                 }
@@ -519,7 +534,7 @@ struct AssembleKernel<'a> {
     sys: &'a ReducedSystem,
     start: &'a StepStart,
     q: &'a [f64],
-    with_hessian: bool,
+    hessian: Hessian,
     ws: &'a mut Workspace,
 }
 
@@ -527,7 +542,7 @@ impl WithMadd for AssembleKernel<'_> {
     type Output = (usize, usize);
     #[inline(always)]
     fn run<M: Madd>(self) -> (usize, usize) {
-        self.sys.assemble_impl::<M>(self.start, self.q, self.with_hessian, self.ws)
+        self.sys.assemble_impl::<M>(self.start, self.q, self.hessian, self.ws)
     }
 }
 
@@ -622,7 +637,7 @@ mod tests {
         assert_eq!(regimes(&model, &sys, &start, &sticking).1, 0);
         assert!(regimes(&model, &sys, &start, &sticking).0 > 0);
         for q in [slipping, sticking] {
-            sys.assemble(&start, &q, true, &mut ws);
+            sys.assemble(&start, &q, Hessian::Split, &mut ws);
             let fd = fd_gradient(|x| sys.energy(&start, x), &q, 1e-8);
             assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-5, "gradient vs FD: {}", rel_err(&ws.grad, &fd, 1e-6));
             let mut hess = vec![0.0; n * n];
@@ -630,7 +645,7 @@ mod tests {
             let fd_h: Vec<f64> = fd_jacobian(
                 |x| {
                     let mut w = sys.workspace();
-                    sys.assemble(&start, x, false, &mut w);
+                    sys.assemble(&start, x, Hessian::None, &mut w);
                     w.grad
                 },
                 &q,
@@ -652,7 +667,7 @@ mod tests {
         let h = model.scene.dt;
         let q: Vec<f64> = (0..n).map(|i| q0[i] + h * qdot[i] + if i >= 12 { 0.02 } else { 0.0 }).collect();
         let mut ws = sys.workspace();
-        sys.assemble(&start, &q, true, &mut ws);
+        sys.assemble(&start, &q, Hessian::Split, &mut ws);
 
         let mut naive: Vec<f64> = model.mass.iter().map(|m| m / (h * h)).collect();
         for (g, w) in model.cubature_jacobians.chunks_exact(9 * n).zip(&model.cubature_weights) {
@@ -704,7 +719,7 @@ mod tests {
         let elastic = sys.energy(&start, &q) + gravity_work;
         assert!(elastic.abs() < 1e-12 * model.material.mu() * model.scene.size.powi(3), "elastic energy {elastic}");
         let mut ws = sys.workspace();
-        sys.assemble(&start, &q, false, &mut ws);
+        sys.assemble(&start, &q, Hessian::None, &mut ws);
         let force_scale = model.material.mu() * model.scene.size.powi(3) * 100.0;
         for (g, f) in ws.grad.iter().zip(&model.gravity_force) {
             assert!((g + f).abs() < 1e-10 * force_scale, "elastic force {}", g + f);

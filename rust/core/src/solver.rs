@@ -17,7 +17,7 @@
 
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::reduced::{ReducedSystem, StepStart, Workspace};
+use crate::reduced::{Hessian, ReducedSystem, StepStart, Workspace};
 
 /// How the search direction is computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -227,8 +227,12 @@ impl ReducedSolver {
     /// left in `self.ws.grad`) and returns its convergence measure r. `try_exact`:
     /// the previous step was taken in full (see the module documentation).
     fn direction(&mut self, iteration: usize, try_exact: bool) -> Result<f64> {
-        let newton = self.prefactor.is_none();
-        self.system.assemble(&self.current, &self.iterate, newton, &mut self.ws);
+        let hessian = match (&self.prefactor, try_exact) {
+            (Some(_), _) => Hessian::None,
+            (None, false) => Hessian::Projected,
+            (None, true) => Hessian::Split,
+        };
+        self.system.assemble(&self.current, &self.iterate, hessian, &mut self.ws);
         if !self.ws.grad.iter().all(|g| g.is_finite()) {
             return Err(LicromError::Diverged { iteration, what: "gradient" });
         }
@@ -241,7 +245,7 @@ impl ReducedSolver {
                 if !self.ws.hess.iter().chain(&self.ws.hess_clamped).all(|v| v.is_finite()) {
                     return Err(LicromError::Diverged { iteration, what: "Hessian" });
                 }
-                let exact = try_exact && self.ws.has_clamped && self.chol.factor_shifted(&self.ws.hess, -1.0, &self.ws.hess_clamped).is_ok();
+                let exact = hessian == Hessian::Split && self.ws.has_clamped && self.chol.factor_shifted(&self.ws.hess, -1.0, &self.ws.hess_clamped).is_ok();
                 // The projected Hessian is M/h^2 plus PSD terms, so this only fails
                 // through round-off; a growing share of M/h^2 restores definiteness.
                 let mut shift = 0.0;
@@ -348,7 +352,7 @@ impl ReducedSolver {
     /// Gradient of E at `q` for a step starting from the current state.
     pub fn gradient(&mut self, q: &[f64]) -> Result<&[f64]> {
         self.prepare_probe(q)?;
-        self.system.assemble(&self.probe, q, false, &mut self.ws);
+        self.system.assemble(&self.probe, q, Hessian::None, &mut self.ws);
         Ok(&self.ws.grad)
     }
 
@@ -356,7 +360,7 @@ impl ReducedSolver {
     /// current state; elastic parts PSD-projected when `project`.
     pub fn hessian(&mut self, q: &[f64], project: bool) -> Result<&[f64]> {
         self.prepare_probe(q)?;
-        self.system.assemble(&self.probe, q, true, &mut self.ws);
+        self.system.assemble(&self.probe, q, if project { Hessian::Projected } else { Hessian::Split }, &mut self.ws);
         if project {
             return Ok(&self.ws.hess);
         }
@@ -388,7 +392,7 @@ mod tests {
     /// |grad| relative to the size of the inertial and gravity terms.
     fn relative_gradient(s: &mut ReducedSolver) -> f64 {
         let q = s.q.clone();
-        s.system.assemble(&s.last, &q, false, &mut s.ws);
+        s.system.assemble(&s.last, &q, Hessian::None, &mut s.ws);
         let g: f64 = s.ws.grad.iter().map(|g| g * g).sum::<f64>().sqrt();
         let f: f64 = s.system.gravity().iter().map(|g| g * g).sum::<f64>().sqrt();
         g / f

@@ -1,0 +1,48 @@
+//! `ReducedSolver::step` must not allocate once warm: this test binary counts
+//! heap allocations with a wrapping global allocator.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use licrom_core::reduced::ReducedSystem;
+use licrom_core::solver::{ReducedSolver, SolverKind, SolverSettings};
+use licrom_core::synthetic::BlockScene;
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn steps_do_not_allocate() {
+    for kind in [SolverKind::Newton, SolverKind::Prefactored] {
+        let model = BlockScene { learned_modes: 6, cubature_points: 40, contact_points: 30, ..Default::default() }.build().unwrap();
+        let system = ReducedSystem::new(&model.inputs()).unwrap();
+        let settings = SolverSettings { total_mass: model.total_mass, tolerance: 1e-6, max_iterations: 500, kind };
+        let mut solver = ReducedSolver::new(system, settings).unwrap();
+        let (q, qdot) = model.resting_state(0.3);
+        solver.set_state(&q, &qdot).unwrap();
+        // The first step may fill lazily created buffers (matrix-product packing).
+        solver.step().unwrap();
+        let mut forces = vec![0.0; 3 * 30];
+        let before = ALLOCATIONS.load(Ordering::Relaxed);
+        for _ in 0..5 {
+            solver.set_state(&q, &qdot).unwrap();
+            solver.step().unwrap();
+        }
+        solver.contact_forces(&mut forces).unwrap();
+        assert_eq!(ALLOCATIONS.load(Ordering::Relaxed) - before, 0, "{kind:?} allocated while stepping");
+    }
+}
