@@ -173,6 +173,10 @@ def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_fra
     if fourier is not None:
         mkw["fourier_features"] = fourier
     model = train(data, output, TrainConfig(**tkw), ModelConfig(**mkw))
+    import os
+
+    if os.environ.get("LOCAL_RANK", "0") != "0" or os.environ.get("NODE_RANK", "0") != "0":
+        return  # another process of a multi-GPU run: rank 0 reports
     meta = model.metadata
     final = meta.get("final", {})
     split = meta.get("data", {})

@@ -420,12 +420,14 @@ def _lightning_classes() -> dict[str, Any]:
             phi = self.net.nonaffine_field(xs)
             val_loss = torch.mean((torch.einsum("pir,br->bpi", phi, z) - us / self.net.u_scale) ** 2)
             m = _evaluate_tensors(self.net, bank.rest64, bank.masses, bank.val, bank.val_norm2_res, bank.val_norm2_full, self.mcfg.affine, (idx, z))
-            # Every rank evaluates the whole (small) validation set: identical values, no sync needed.
-            self.log("val_loss", val_loss, prog_bar=False, batch_size=1)
-            self.log("val_proj", m["proj_residual"], prog_bar=True, batch_size=1)
-            self.log("val_proj_full", m["proj_full"], batch_size=1)
-            self.log("val_enc", m["enc_residual"], prog_bar=True, batch_size=1)
-            self.log("val_enc_full", m["enc_full"], batch_size=1)
+            # Every rank evaluates the whole (small) validation set: identical values; the
+            # sync (a mean of equal numbers) only keeps Lightning's bookkeeping consistent.
+            sync = self.trainer.world_size > 1
+            self.log("val_loss", val_loss, prog_bar=False, batch_size=1, sync_dist=sync)
+            self.log("val_proj", m["proj_residual"], prog_bar=True, batch_size=1, sync_dist=sync)
+            self.log("val_proj_full", m["proj_full"], batch_size=1, sync_dist=sync)
+            self.log("val_enc", m["enc_residual"], prog_bar=True, batch_size=1, sync_dist=sync)
+            self.log("val_enc_full", m["enc_full"], batch_size=1, sync_dist=sync)
 
         def configure_optimizers(self) -> Any:
             cfg = self.tcfg
