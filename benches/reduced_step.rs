@@ -101,7 +101,10 @@ fn newton_pieces(c: &mut Criterion) {
     group.finish();
 }
 
-/// Per-point material kernels on a batch of 1000 mildly deformed (some inverted) F.
+/// Per-point material kernels on a batch of 1000 mildly deformed (some inverted) F:
+/// one point at a time (`svd`, `eigensystem`, `projected_hessian`, `exact_hessian`,
+/// `pk1`), and the eight-lane batched projection used on the hot path
+/// (`projected_hessian_batched`, through the public batch helper).
 fn snh_per_point(c: &mut Criterion) {
     let mat = StableNeoHookean::new(5.13e4, 8.97e4).expect("material");
     let fs: Vec<Matrix3<f64>> = (0..1000)
@@ -132,6 +135,11 @@ fn snh_per_point(c: &mut Criterion) {
     });
     group.bench_function("projected_hessian", |b| {
         b.iter(|| fs.iter().map(|f| mat.projected_hessian(black_box(f))[(0, 0)]).sum::<f64>())
+    });
+    let flat: Vec<f64> = fs.iter().flat_map(|f| f.transpose().as_slice().to_vec()).collect();
+    let mut out = vec![0.0; 81 * fs.len()];
+    group.bench_function("projected_hessian_batched", |b| {
+        b.iter(|| mat.hessian_batch(black_box(&flat), true, &mut out).expect("valid batch"))
     });
     group.bench_function("exact_hessian", |b| b.iter(|| fs.iter().map(|f| mat.hessian(black_box(f))[(0, 0)]).sum::<f64>()));
     group.bench_function("pk1", |b| b.iter(|| fs.iter().map(|f| mat.pk1(black_box(f))[(0, 0)]).sum::<f64>()));
