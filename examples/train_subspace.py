@@ -11,16 +11,13 @@ held-out frame and the encoder's latent for the same frame.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
-
-import licrom  # noqa: E402
-from licrom.model import ModelConfig  # noqa: E402
-from licrom.training_data import TrainingData, relative_error  # noqa: E402
+import licrom
+from licrom.model import ModelConfig
+from licrom.training_data import TrainingData, relative_error
 
 
 def main() -> None:

@@ -5,22 +5,20 @@ import zipfile
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+import torch
 
-from licrom import FileFormatError, Scene, ShapeError, meshes  # noqa: E402
-from licrom.errors import ConfigError  # noqa: E402
-from licrom.model import (  # noqa: E402
-    N_AFFINE,
+from licrom import FileFormatError, Scene, ShapeError, meshes
+from licrom.errors import ConfigError
+from licrom.basis import N_AFFINE, affine_jacobians, affine_values
+from licrom.model import (
     LicromNet,
     Model,
     ModelConfig,
-    _affine_jacobians,
-    _affine_values,
     apply_affine,
     finalize_basis,
     fit_affine,
 )
-from licrom.scene import Plane  # noqa: E402
+from licrom.scene import Plane
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +40,7 @@ def _random_model(mesh, r=3, seed=0, affine=True, finalize=True, fourier=0):
 # --- affine modes ------------------------------------------------------------------------
 def test_affine_mode_order(rng):
     x = rng.normal(size=(5, 3))
-    a = _affine_values(x)
+    a = affine_values(x)
     assert a.shape == (5, 3, N_AFFINE)
     for c in range(9):
         i, j = divmod(c, 3)
@@ -52,8 +50,8 @@ def test_affine_mode_order(rng):
     for k in range(3):
         np.testing.assert_array_equal(a[:, :, 9 + k], np.tile(np.eye(3)[k], (5, 1)))
     # torch and numpy agree
-    np.testing.assert_allclose(_affine_values(torch.as_tensor(x)).numpy(), a)
-    j = _affine_jacobians(x)
+    np.testing.assert_allclose(affine_values(torch.as_tensor(x)).numpy(), a)
+    j = affine_jacobians(x)
     assert j.shape == (5, 3, 3, N_AFFINE)
     for c in range(9):
         i, jj = divmod(c, 3)
@@ -70,7 +68,7 @@ def test_fit_affine_recovers_affine_field_and_is_orthogonal(mesh, rng):
     # the residual of a general field is mass-orthogonal to every affine mode
     v = rng.normal(size=(len(x), 3))
     res = v - apply_affine(x, fit_affine(x, v, m))
-    basis = _affine_values(x).reshape(-1, 12)
+    basis = affine_values(x).reshape(-1, 12)
     np.testing.assert_allclose(basis.T @ (np.repeat(m, 3) * res.ravel()), 0.0, atol=1e-12)
     with pytest.raises(ShapeError):
         fit_affine(x, u[:, :-1], m)
@@ -107,7 +105,7 @@ def test_values_shape_and_affine_block(mesh, rng):
     x = rng.uniform(-0.05, 0.05, size=(7, 3))
     v = model.values(x)
     assert v.shape == (7, 3, 15) and v.dtype == np.float64
-    np.testing.assert_array_equal(v[:, :, :12], _affine_values(x))
+    np.testing.assert_array_equal(v[:, :, :12], affine_values(x))
     assert np.abs(v[:, :, 12:]).max() > 0
 
 

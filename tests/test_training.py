@@ -5,13 +5,13 @@ import csv
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("lightning")
+import torch
 
-from licrom import ConfigError, FileFormatError, Trajectory, meshes  # noqa: E402
-from licrom.model import Model, ModelConfig, _affine_values  # noqa: E402
-from licrom.training import TrainConfig, evaluate, output_paths, train  # noqa: E402
-from licrom.training_data import (  # noqa: E402
+from licrom import ConfigError, FileFormatError, Trajectory, meshes
+from licrom.basis import affine_values
+from licrom.model import Model, ModelConfig
+from licrom.training import TrainConfig, evaluate, output_paths, train
+from licrom.training_data import (
     TrainingData,
     make_synthetic_trajectories,
     relative_error,
@@ -63,7 +63,7 @@ def test_training_data_removes_affine_part(data_dir, trajs, mesh):
     # every held-out frame comes from the held-out trajectory only
     np.testing.assert_allclose(d.val.full_displacements(d.rest, slice(None)), trajs[1].displacements, atol=1e-6)
     # residuals are mass-orthogonal to the affine modes
-    a = _affine_values(d.rest).reshape(-1, 12)
+    a = affine_values(d.rest).reshape(-1, 12)
     mw = np.repeat(d.masses, 3)
     proj = d.train.residuals.reshape(len(d.train), -1).astype(np.float64) @ (mw[:, None] * a)
     assert np.abs(proj).max() < 1e-5 * np.sqrt(d.train.norm2_residual.max() * mw.sum())

@@ -30,6 +30,7 @@ _LAZY = {
     "Cubature": ".cubature",
     "ReducedSim": ".reduced_sim",
     "Model": ".model",
+    "ModelConfig": ".model",
     "train": ".training",
     "TrainConfig": ".training",
     "compare": ".compare",
@@ -76,6 +77,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .cubature import Cubature
     from .dataset import generate_dataset, report_dataset_spec
     from .full_sim import FullSim
-    from .model import Model
+    from .model import Model, ModelConfig
     from .reduced_sim import ReducedSim
     from .training import TrainConfig, train

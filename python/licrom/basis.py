@@ -27,6 +27,8 @@ __all__ = [
     "AffineBasis",
     "MeshBasis",
     "StackedBasis",
+    "N_AFFINE",
+    "AFFINE_JACOBIAN",
     "affine_values",
     "affine_jacobians",
     "check_basis_output",
@@ -52,28 +54,42 @@ def _points(points: np.ndarray) -> np.ndarray:
     return p
 
 
-def affine_values(points: np.ndarray) -> np.ndarray:
-    """(p, 3, 12) values of the affine modes.
+N_AFFINE = 12
+
+
+def _affine_jacobian_constant() -> np.ndarray:
+    out = np.zeros((3, 3, N_AFFINE))
+    for c in range(9):
+        i, j = divmod(c, 3)
+        out[i, j, c] = 1.0
+    out.setflags(write=False)
+    return out
+
+
+AFFINE_JACOBIAN = _affine_jacobian_constant()
+"""(3, 3, 12) constant ``dW_ic/dX_j`` of the affine modes."""
+
+
+def affine_values(points):
+    """(p, 3, 12) values of the affine modes at (p, 3) points (numpy or torch in, same out).
 
     Mode ``c < 9`` is ``X_j e_i`` with ``(i, j) = divmod(c, 3)`` (entry ``A_ij`` of a
     linear map ``A X``); modes 9, 10, 11 are the translations ``e_0, e_1, e_2``.
     """
-    p = _points(points)
-    out = np.zeros((len(p), 3, 12))
+    if hasattr(points, "new_zeros"):  # a torch tensor: stay on its device and dtype
+        out = points.new_zeros((points.shape[0], 3, N_AFFINE))
+    else:
+        points = _points(points)
+        out = np.zeros((len(points), 3, N_AFFINE))
     for i in range(3):
-        out[:, i, 3 * i : 3 * i + 3] = p
+        out[:, i, 3 * i : 3 * i + 3] = points
         out[:, i, 9 + i] = 1.0
     return out
 
 
 def affine_jacobians(points: np.ndarray) -> np.ndarray:
     """(p, 3, 3, 12) spatial derivatives of :func:`affine_values` (constant)."""
-    p = _points(points)
-    out = np.zeros((len(p), 3, 3, 12))
-    for c in range(9):
-        i, j = divmod(c, 3)
-        out[:, i, j, c] = 1.0
-    return out
+    return np.broadcast_to(AFFINE_JACOBIAN, (len(_points(points)), 3, 3, N_AFFINE)).copy()
 
 
 def check_basis_output(name: str, array: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

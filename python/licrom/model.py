@@ -42,6 +42,7 @@ import torch
 from torch import nn
 
 from ._io import check_version, load_npz, save_npz
+from .basis import AFFINE_JACOBIAN, N_AFFINE, affine_values
 from .errors import ConfigError, FileFormatError, ShapeError
 from .mesh import Mesh
 from .scene import Scene
@@ -53,11 +54,9 @@ __all__ = [
     "PointNetEncoder",
     "NeuralField",
     "MODEL_FORMAT_VERSION",
-    "N_AFFINE",
 ]
 
 MODEL_FORMAT_VERSION = 1
-N_AFFINE = 12
 # Points evaluated per batch by values()/jacobians() (bounds peak memory, not speed).
 _CHUNK = 16384
 
@@ -138,41 +137,6 @@ class ModelConfig:
             return cls(**d)
         except TypeError as exc:
             raise ConfigError(f"unknown or missing ModelConfig fields: {exc}") from exc
-
-
-# ----------------------------------------------------------------------------------------
-# affine modes (same column order as the reduced simulator's AffineBasis)
-# ----------------------------------------------------------------------------------------
-def _affine_values(points: np.ndarray | torch.Tensor) -> Any:
-    """(p, 3, 12) values of the affine modes at ``points`` (p, 3); numpy or torch in, same out."""
-    if isinstance(points, torch.Tensor):
-        p = points.shape[0]
-        out = points.new_zeros((p, 3, N_AFFINE))
-        for i in range(3):
-            out[:, i, 3 * i : 3 * i + 3] = points
-            out[:, i, 9 + i] = 1.0
-        return out
-    x = np.asarray(points, dtype=np.float64)
-    out = np.zeros((len(x), 3, N_AFFINE))
-    for i in range(3):
-        out[:, i, 3 * i : 3 * i + 3] = x
-        out[:, i, 9 + i] = 1.0
-    return out
-
-
-def _affine_jacobian_constant() -> np.ndarray:
-    """(3, 3, 12) constant ``d A_ic / d X_j`` of the affine modes."""
-    out = np.zeros((3, 3, N_AFFINE))
-    for c in range(9):
-        i, j = divmod(c, 3)
-        out[i, j, c] = 1.0
-    return out
-
-
-def _affine_jacobians(points: np.ndarray) -> np.ndarray:
-    """(p, 3, 3, 12) Jacobians ``J[p, i, j, c] = d A_ic / d X_j`` of the affine modes."""
-    n = len(np.asarray(points))
-    return np.broadcast_to(_affine_jacobian_constant(), (n, 3, 3, N_AFFINE)).copy()
 
 
 def fit_affine(points: np.ndarray, displacements: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -344,7 +308,7 @@ class LicromNet(nn.Module):
         if not self.config.affine:
             return phi
         r = phi.shape[-1]
-        a = _affine_values(xh).reshape(-1, N_AFFINE)
+        a = affine_values(xh).reshape(-1, N_AFFINE)
         gram = a.T @ a + 1e-9 * len(xh) * torch.eye(N_AFFINE, dtype=a.dtype, device=a.device)
         c = torch.linalg.solve_ex(gram, a.T @ phi.reshape(-1, r))[0]
         return (phi.reshape(-1, r) - a @ c).reshape(phi.shape)
@@ -458,7 +422,7 @@ class Model:
         self._C = torch.as_tensor(self._fin.affine_correction, dtype=torch.float64, device=dev)
         self._T = torch.as_tensor(self._fin.transform, dtype=torch.float64, device=dev)
         self._Tinv = torch.as_tensor(self._fin.transform_inv, dtype=torch.float64, device=dev)
-        self._dA = torch.as_tensor(_affine_jacobian_constant(), dtype=torch.float64, device=dev)
+        self._dA = torch.as_tensor(AFFINE_JACOBIAN, dtype=torch.float64, device=dev)
 
     def to(self, device: str | torch.device) -> Model:
         """Evaluate on ``device`` ("cpu", "cuda", ...) from now on; returns self."""
@@ -519,7 +483,7 @@ class Model:
     def _learned_values_t(self, x: torch.Tensor) -> torch.Tensor:
         w = self._net.raw_field(x)
         if self.affine:
-            w = w - torch.einsum("pic,cr->pir", _affine_values(x), self._C)
+            w = w - torch.einsum("pic,cr->pir", affine_values(x), self._C)
         return w @ self._T
 
     def _learned_jacobians_t(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -537,7 +501,7 @@ class Model:
         val = net.u_scale * val
         jac = (net.u_scale / net.x_scale) * jac.permute(0, 1, 3, 2)  # (p, 3, 3, r): [i, j, c]
         if self.affine:
-            val = val - torch.einsum("pic,cr->pir", _affine_values(x), self._C)
+            val = val - torch.einsum("pic,cr->pir", affine_values(x), self._C)
             jac = jac - torch.einsum("ijc,cr->ijr", self._dA, self._C)[None]
         return val @ self._T, jac @ self._T
 
@@ -546,7 +510,7 @@ class Model:
         x = _as_points(points)
         out = np.empty((len(x), 3, self.n_modes))
         if self.affine:
-            out[:, :, :N_AFFINE] = _affine_values(x)
+            out[:, :, :N_AFFINE] = affine_values(x)
         with torch.no_grad():
             for s in range(0, len(x), _CHUNK):
                 xt = torch.tensor(x[s : s + _CHUNK], device=self._device)
@@ -566,8 +530,8 @@ class Model:
         vals = np.empty((len(x), 3, self.n_modes))
         jacs = np.empty((len(x), 3, 3, self.n_modes))
         if self.affine:
-            vals[:, :, :N_AFFINE] = _affine_values(x)
-            jacs[:, :, :, :N_AFFINE] = _affine_jacobian_constant()
+            vals[:, :, :N_AFFINE] = affine_values(x)
+            jacs[:, :, :, :N_AFFINE] = AFFINE_JACOBIAN
         with torch.no_grad():
             for s in range(0, len(x), _CHUNK):
                 xt = torch.tensor(x[s : s + _CHUNK], device=self._device)
@@ -765,7 +729,7 @@ def finalize_basis(net: LicromNet, mesh: Mesh, residuals: np.ndarray | None = No
         )  # (n, 3, r)
     mw = np.repeat(masses, 3)
     if config.affine:
-        a = _affine_values(x).reshape(-1, N_AFFINE)
+        a = affine_values(x).reshape(-1, N_AFFINE)
         gram_a = a.T @ (mw[:, None] * a)
         c = np.linalg.solve(gram_a, a.T @ (mw[:, None] * wraw.reshape(-1, r)))
         wp = wraw.reshape(-1, r) - a @ c

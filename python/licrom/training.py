@@ -39,7 +39,8 @@ import torch
 
 from ._io import atomic_path
 from .errors import ConfigError
-from .model import N_AFFINE, LicromNet, Model, ModelConfig, _affine_values, finalize_basis
+from .basis import N_AFFINE, affine_values
+from .model import LicromNet, Model, ModelConfig, finalize_basis
 from .training_data import TrainingData, TrajectorySource
 
 __all__ = ["TrainConfig", "train", "evaluate", "output_paths", "plot_losses"]
@@ -216,7 +217,7 @@ def _orthogonalized_vertex_field(net: LicromNet, rest64: torch.Tensor, masses: t
     w = w.reshape(-1, r)
     if affine:
         mw = masses.repeat_interleave(3)
-        a = _affine_values(rest64).reshape(-1, N_AFFINE)
+        a = affine_values(rest64).reshape(-1, N_AFFINE)
         gram = a.T @ (mw[:, None] * a)
         c = torch.linalg.solve(gram, a.T @ (mw[:, None] * w))
         w = w - a @ c
