@@ -422,7 +422,7 @@ class Model:
         self._C = torch.as_tensor(self._fin.affine_correction, dtype=torch.float64, device=dev)
         self._T = torch.as_tensor(self._fin.transform, dtype=torch.float64, device=dev)
         self._Tinv = torch.as_tensor(self._fin.transform_inv, dtype=torch.float64, device=dev)
-        self._dA = torch.as_tensor(AFFINE_JACOBIAN, dtype=torch.float64, device=dev)
+        self._dA = torch.tensor(AFFINE_JACOBIAN, dtype=torch.float64, device=dev)
 
     def to(self, device: str | torch.device) -> Model:
         """Evaluate on ``device`` ("cpu", "cuda", ...) from now on; returns self."""
