@@ -316,7 +316,7 @@ class Mesh:
         except meshio.ReadError as exc:
             raise FileFormatError(f"cannot read mesh '{p}': {exc}. Accepted formats: {_TET_FORMATS}") from exc
         except (Exception, SystemExit) as exc:  # meshio raises many types on truncated or corrupt files
-            detail = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
+            detail = " ".join(chatter.getvalue().split()).removeprefix("Error: ") or f"{type(exc).__name__}: {exc}"
             raise FileFormatError(f"cannot read mesh '{p}' (truncated or corrupt?): {detail}") from None
         blocks = [c.data for c in m.cells if c.type == "tetra"]
         if not blocks:
