@@ -37,7 +37,7 @@ fn model(learned_modes: usize, cubature_points: usize, contact_points: usize) ->
 
 fn solver(model: &BlockModel, kind: SolverKind) -> ReducedSolver {
     let system = ReducedSystem::new(&model.inputs()).expect("valid system");
-    let settings = SolverSettings { total_mass: model.total_mass, tolerance: 1e-6, max_iterations: 500, kind };
+    let settings = SolverSettings::new(model.total_mass, 1e-6, 500, kind);
     ReducedSolver::new(system, settings).expect("valid settings")
 }
 

@@ -10,24 +10,32 @@
 //! against plane p ([`crate::contact`]). Units: q is dimensionless or m depending
 //! on the mode; E in J, gradient in J per unit of q.
 //!
-//! The Hessian is assembled in two PSD parts. The projected Hessian is
-//! `M/h^2 + B^T B`, where B stacks, per cubature point, `sqrt(w_k lambda_i) e_i^T G_k`
-//! for the positive eigenpairs of the SNH Hessian, and per contact point the
-//! square-root factors of its rank-one terms times W_j. The negative eigenpairs
-//! go, with `|lambda_i|`, into a second stack N, so that the exact Hessian is
-//! `M/h^2 + B^T B - N^T N` at almost no extra cost. Forming the rows is a pass
-//! over each G_k while it sits in L1; the products are large symmetric products
-//! done by faer's blocked kernels, far faster than K separate 9-row updates of
-//! the n x n matrix.
+//! **Layout.** The cubature Jacobians of the points with `w_k > 0` (points of
+//! zero weight are dropped) are stored in groups of [`LANES`] points, each group
+//! as `[i][a][lane]` (column i of `G_k`, component a of `vec(F)`). One pass over
+//! a group forms the eight deformation gradients with vertical multiply-adds
+//! (`F[a][lane] += G[i][a][lane] q_i`, no horizontal sums), the stress and energy
+//! run eight points per instruction, and the gradient `G_k^T P_k` accumulates
+//! per lane until one final reduction.
+//!
+//! **Hessian.** It is assembled in parts, so that the solver can refresh them
+//! at different rates: the elastic part `B^T B`, where B stacks, per cubature
+//! point, `sqrt(w_k lambda_i) e_i^T G_k` for the positive eigenpairs of the SNH
+//! Hessian (negative ones, with `|lambda_i|`, go into a second stack N, so that
+//! the exact elastic Hessian is `B^T B - N^T N`), and the contact part, the same
+//! product over the square-root factors of the contact points' rank-one terms
+//! times `W_j`, formed only for points that touch a plane or carry a lagged
+//! normal force. The rows are written eight at a time (one per lane) into a
+//! column-major stack and multiplied by faer's blocked symmetric kernels.
 
 use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
 use faer::{Accum, MatMut, MatRef, Par};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use crate::contact::{ContactModel, Plane};
 use crate::dense::{combine_rows, dot, rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::material::{mat3_row_major, vec9, StableNeoHookean};
+use crate::material::StableNeoHookean;
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, Madd, WithMadd};
 
@@ -68,12 +76,19 @@ pub struct ReducedSystem {
     n: usize,
     mass: Vec<f64>,
     gravity: Vec<f64>,
-    jacobians: Vec<f64>,
-    weights: Vec<f64>,
+    /// Number of cubature points given (zero weights included).
+    n_cubature: usize,
+    /// Jacobians of the points with w > 0 in groups of LANES (see the module
+    /// documentation); the last group is padded with G = 0, w = 0.
+    packed: Vec<f64>,
+    /// Weights of the packed points, `LANES` per group.
+    packed_weights: Vec<f64>,
     material: StableNeoHookean,
     contact_basis: Vec<f64>,
     contact_rest: Vec<f64>,
     areas: Vec<f64>,
+    /// Contact points with a non-zero area (the others carry no force).
+    contact_points: Vec<usize>,
     planes: Vec<Plane>,
     contact: ContactModel,
 }
@@ -86,6 +101,9 @@ pub struct StepStart {
     qtilde: Vec<f64>,
     x_prev: Vec<f64>,
     normal_force: Vec<f64>,
+    /// `-f . qt`: the part of E that does not depend on q, left out of
+    /// [`ReducedSystem::evaluate`] so that energy differences keep their digits.
+    offset: f64,
 }
 
 impl StepStart {
@@ -120,12 +138,29 @@ pub struct Workspace {
     pub hess_clamped: Vec<f64>,
     /// Whether some elastic eigenvalue was clamped (set by [`Hessian::Split`]).
     pub has_clamped: bool,
-    /// Square-root rows: positive ones from the front, clamped ones from the back.
+    /// Contact part of the Hessian (scratch of [`ReducedSystem::assemble`]).
+    contact_hess: Vec<f64>,
+    /// Elastic square-root rows, column-major with column stride `row_stride`:
+    /// positive ones in `rows`, clamped ones in `clamped_rows`.
     rows: Vec<f64>,
+    clamped_rows: Vec<f64>,
+    row_stride: usize,
+    /// Contact square-root rows, row-major, up to 3 per point and plane.
+    contact_rows: Vec<f64>,
     contact_coef: Vec<[f64; 3]>,
+    /// Per-lane partial sums of the elastic gradient, n.
+    lane_grad: Vec<[f64; LANES]>,
 }
 
 impl Workspace {
+    /// The elastic part of the gradient of the last [`ReducedSystem::evaluate`]
+    /// with gradient into `out` (n).
+    pub fn elastic_gradient(&self, out: &mut [f64]) {
+        for (o, a) in out.iter_mut().zip(&self.lane_grad) {
+            *o = ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
+        }
+    }
+
     /// The exact Hessian `hess - hess_clamped` into `out` (n x n).
     pub fn exact_hessian(&self, out: &mut [f64]) {
         for ((o, a), b) in out.iter_mut().zip(&self.hess).zip(&self.hess_clamped) {
@@ -134,15 +169,24 @@ impl Workspace {
     }
 }
 
-/// `dst (lower triangle) = op(B^T B)` for the `count` rows of `rows` (row-major, width n).
-fn syrk_lower(dst: &mut [f64], n: usize, rows: &[f64], count: usize, accum: Accum) {
-    if count == 0 {
+/// `dst (lower triangle) = op(B^T B)` for the `count` rows of the row-major `rows` (width n).
+fn syrk_rows(dst: &mut [f64], n: usize, rows: &[f64], count: usize, accum: Accum) {
+    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_row_major_slice(&rows[..count * n], count, n)), accum);
+}
+
+/// `dst (lower triangle) = op(B^T B)` for the first `count` rows of the
+/// column-major `rows` with column stride `stride`.
+fn syrk_columns(dst: &mut [f64], n: usize, rows: &[f64], stride: usize, count: usize, accum: Accum) {
+    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_column_major_slice_with_stride(rows, count, n, stride)), accum);
+}
+
+fn syrk_lower(dst: &mut [f64], n: usize, b: Option<MatRef<'_, f64>>, accum: Accum) {
+    let Some(b) = b else {
         if accum == Accum::Replace {
             dst.fill(0.0);
         }
         return;
-    }
-    let b = MatRef::from_row_major_slice(&rows[..count * n], count, n);
+    };
     let a = MatMut::from_column_major_slice_mut(dst, n, n);
     triangular_matmul(
         a,
@@ -158,12 +202,21 @@ fn syrk_lower(dst: &mut [f64], n: usize, rows: &[f64], count: usize, accum: Accu
 }
 
 /// Copies the lower triangle of the n x n column-major `a` to its upper triangle.
-fn mirror_lower(a: &mut [f64], n: usize) {
+pub(crate) fn mirror_lower(a: &mut [f64], n: usize) {
     for c in 0..n {
         for r in c + 1..n {
             a[r * n + c] = a[c * n + r];
         }
     }
+}
+
+/// Adds `B^T B` for the `count` row-major rows (width n) to the full symmetric `dst`.
+pub(crate) fn add_gram(dst: &mut [f64], n: usize, rows: &[f64], count: usize) {
+    if count == 0 {
+        return;
+    }
+    syrk_rows(dst, n, rows, count, Accum::Add);
+    mirror_lower(dst, n);
 }
 
 fn check_len(name: &str, data: &[f64], expected: usize, shape: impl FnOnce() -> String) -> Result<()> {
@@ -172,6 +225,26 @@ fn check_len(name: &str, data: &[f64], expected: usize, shape: impl FnOnce() -> 
     } else {
         Err(LicromError::shape(name, shape(), format!("{} values", data.len())))
     }
+}
+
+/// The eight deformation gradients of a packed group, `F[a][lane]`.
+#[inline(always)]
+fn group_deformation<M: Madd>(group: &[f64], q: &[f64]) -> [[f64; LANES]; 9] {
+    let mut f = [[0.0; LANES]; 9];
+    for (i, g) in group.chunks_exact(9 * LANES).enumerate() {
+        let qi = q[i];
+        for a in 0..9 {
+            for l in 0..LANES {
+                f[a][l] = M::madd(g[a * LANES + l], qi, f[a][l]);
+            }
+        }
+    }
+    for a in [0, 4, 8] {
+        for l in 0..LANES {
+            f[a][l] += 1.0;
+        }
+    }
+    f
 }
 
 impl ReducedSystem {
@@ -207,15 +280,32 @@ impl ReducedSystem {
         }
         let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
         let mass = symmetrized_spd(inp.mass, n)?;
+        let kept: Vec<usize> = (0..k).filter(|&i| inp.cubature_weights[i] > 0.0).collect();
+        let groups = kept.len().div_ceil(LANES);
+        let mut packed = vec![0.0; groups * n * 9 * LANES];
+        let mut packed_weights = vec![0.0; groups * LANES];
+        for (slot, &point) in kept.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            packed_weights[slot] = inp.cubature_weights[point];
+            let src = &inp.cubature_jacobians[9 * n * point..9 * n * (point + 1)];
+            let dst = &mut packed[g * n * 9 * LANES..(g + 1) * n * 9 * LANES];
+            for i in 0..n {
+                for a in 0..9 {
+                    dst[(i * 9 + a) * LANES + l] = src[a * n + i];
+                }
+            }
+        }
         Ok(Self {
             n,
             mass,
             gravity: inp.gravity_force.to_vec(),
-            jacobians: inp.cubature_jacobians.to_vec(),
-            weights: inp.cubature_weights.to_vec(),
+            n_cubature: k,
+            packed,
+            packed_weights,
             material: inp.material,
             contact_basis: inp.contact_basis.to_vec(),
             contact_rest: inp.contact_rest.to_vec(),
+            contact_points: (0..c).filter(|&j| inp.contact_areas[j] > 0.0).collect(),
             areas: inp.contact_areas.to_vec(),
             planes: inp.planes.to_vec(),
             contact,
@@ -229,7 +319,7 @@ impl ReducedSystem {
 
     /// Number of cubature points K.
     pub fn n_cubature(&self) -> usize {
-        self.weights.len()
+        self.n_cubature
     }
 
     /// Number of contact points C.
@@ -252,6 +342,16 @@ impl ReducedSystem {
         &self.gravity
     }
 
+    /// Whether the model has contact points with area and planes (friction and
+    /// contact terms can be non-zero).
+    pub fn has_contact(&self) -> bool {
+        !self.contact_points.is_empty() && !self.planes.is_empty()
+    }
+
+    fn groups(&self) -> usize {
+        self.packed_weights.len() / LANES
+    }
+
     /// Zeroed start-of-step buffers for this system.
     pub fn step_start(&self) -> StepStart {
         let c = self.n_contacts();
@@ -260,20 +360,27 @@ impl ReducedSystem {
             qtilde: vec![0.0; self.n],
             x_prev: vec![0.0; 3 * c],
             normal_force: vec![0.0; c * self.planes.len()],
+            offset: 0.0,
         }
     }
 
-    /// Buffers for [`Self::assemble`].
+    /// Buffers for [`Self::assemble`] and the other evaluations.
     pub fn workspace(&self) -> Workspace {
         let n = self.n;
-        let max_rows = 9 * self.n_cubature() + 3 * self.n_contacts() * self.planes.len();
+        let row_stride = 9 * LANES * self.groups();
+        let contact_rows = 3 * self.contact_points.len() * self.planes.len();
         Workspace {
             grad: vec![0.0; n],
             hess: vec![0.0; n * n],
             hess_clamped: vec![0.0; n * n],
             has_clamped: false,
-            rows: vec![0.0; max_rows * n],
+            contact_hess: vec![0.0; n * n],
+            rows: vec![0.0; row_stride * n],
+            clamped_rows: vec![0.0; row_stride * n],
+            row_stride,
+            contact_rows: vec![0.0; contact_rows * n],
             contact_coef: vec![[0.0; 3]; 3 * self.planes.len()],
+            lane_grad: vec![[0.0; LANES]; n],
         }
     }
 
@@ -285,6 +392,7 @@ impl ReducedSystem {
         for ((t, qi), vi) in start.qtilde.iter_mut().zip(q).zip(qdot) {
             *t = qi + h * vi;
         }
+        start.offset = -dot::<crate::simd::Separate>(&self.gravity, &start.qtilde);
         let n_planes = self.planes.len();
         for j in 0..self.n_contacts() {
             let x = self.contact_position::<crate::simd::Separate>(j, q);
@@ -304,45 +412,105 @@ impl ReducedSystem {
         Vector3::new(x0[0] + wq[0], x0[1] + wq[1], x0[2] + wq[2])
     }
 
-    #[inline(always)]
-    fn deformation_gradient<M: Madd>(g: &[f64], q: &[f64]) -> Matrix3<f64> {
+    #[cfg(test)]
+    fn deformation_gradient<M: Madd>(g: &[f64], q: &[f64]) -> nalgebra::Matrix3<f64> {
         let mut f = rows_dot::<M, 9>(g, q);
         for a in [0, 4, 8] {
             f[a] += 1.0;
         }
-        mat3_row_major(&f)
+        crate::material::mat3_row_major(&f)
     }
 
     /// Incremental potential E(q), J.
     pub fn energy(&self, start: &StepStart, q: &[f64]) -> f64 {
-        dispatch(EnergyKernel { sys: self, start, q })
+        dispatch(EvaluateKernel { sys: self, start, q, lane_grad: &mut [], grad: &mut [] }) + start.offset
     }
 
+    /// `E(q) - E0` (J) with the constant `E0 = -f . qt` of the step left out, so
+    /// that differences of nearby values keep their digits; with `with_gradient`
+    /// also the gradient (into `ws.grad`).
+    pub fn evaluate(&self, start: &StepStart, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
+        let (lane_grad, grad): (&mut [[f64; LANES]], &mut [f64]) =
+            if with_gradient { (&mut ws.lane_grad, &mut ws.grad) } else { (&mut [], &mut []) };
+        dispatch(EvaluateKernel { sys: self, start, q, lane_grad, grad })
+    }
+
+    /// Energy (shifted as in [`Self::evaluate`]) and, when `grad` is not empty,
+    /// the gradient; `lane_grad` (n, or empty) is scratch.
     #[inline(always)]
-    fn energy_impl<M: Madd>(&self, start: &StepStart, q: &[f64]) -> f64 {
+    fn evaluate_impl<M: Madd>(&self, start: &StepStart, q: &[f64], lane_grad: &mut [[f64; LANES]], grad: &mut [f64]) -> f64 {
         let n = self.n;
-        let h = self.dt();
+        let with_gradient = !grad.is_empty();
+        let inv_h2 = 1.0 / (self.dt() * self.dt());
+        // Inertia and gravity, relative to the inertial target.
         let mut inertia = 0.0;
+        let mut work = 0.0;
         for i in 0..n {
             let mut md = 0.0;
             for j in 0..n {
                 md = M::madd(self.mass[i * n + j], q[j] - start.qtilde[j], md);
             }
-            inertia = M::madd(q[i] - start.qtilde[i], md, inertia);
+            let d = q[i] - start.qtilde[i];
+            inertia = M::madd(d, md, inertia);
+            work = M::madd(self.gravity[i], d, work);
+            if with_gradient {
+                grad[i] = md * inv_h2 - self.gravity[i];
+            }
         }
-        let mut e = 0.5 * inertia / (h * h) - dot::<M>(&self.gravity, q);
-        let mut elastic = 0.0;
-        for (g, &w) in self.jacobians.chunks_exact(9 * n).zip(&self.weights) {
-            let f = Self::deformation_gradient::<M>(g, q);
-            elastic = M::madd(w, self.material.energy(&f), elastic);
+        let mut e = 0.5 * inertia * inv_h2 - work;
+
+        // Elasticity, eight points at a time.
+        if with_gradient {
+            lane_grad.fill([0.0; LANES]);
         }
-        e += elastic;
+        let mut elastic = [0.0; LANES];
+        let group_len = n * 9 * LANES;
+        for (group, weights) in self.packed.chunks_exact(group_len).zip(self.packed_weights.chunks_exact(LANES)) {
+            let f = group_deformation::<M>(group, q);
+            let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            for l in 0..LANES {
+                elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
+            }
+            if with_gradient {
+                for row in p.iter_mut() {
+                    for l in 0..LANES {
+                        row[l] *= weights[l];
+                    }
+                }
+                for (g, acc) in group.chunks_exact(9 * LANES).zip(lane_grad.iter_mut()) {
+                    for a in 0..9 {
+                        for l in 0..LANES {
+                            acc[l] = M::madd(g[a * LANES + l], p[a][l], acc[l]);
+                        }
+                    }
+                }
+            }
+        }
+        e += ((elastic[0] + elastic[4]) + (elastic[1] + elastic[5])) + ((elastic[2] + elastic[6]) + (elastic[3] + elastic[7]));
+        if with_gradient {
+            for (g, a) in grad.iter_mut().zip(lane_grad.iter()) {
+                *g += ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
+            }
+        }
+
+        // Contact.
         let n_planes = self.planes.len();
-        for j in 0..self.n_contacts() {
+        if n_planes == 0 {
+            return e;
+        }
+        for &j in &self.contact_points {
             let x = self.contact_position::<M>(j, q);
             let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
+            let mut g3 = Vector3::zeros();
             for (p, plane) in self.planes.iter().enumerate() {
-                e += self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp).energy;
+                let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
+                e += c.energy;
+                g3 += c.gradient;
+            }
+            if with_gradient && g3 != Vector3::zeros() {
+                let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+                let g3: &[f64; 3] = g3.as_slice().try_into().expect("3 components");
+                combine_rows::<M, 3>(w, &[], &mut [], g3, grad);
             }
         }
         e
@@ -351,124 +519,225 @@ impl ReducedSystem {
     /// Gradient (into `ws.grad`) and the requested Hessian parts (into `ws.hess`,
     /// `ws.hess_clamped`, full symmetric) of E at `q`.
     pub fn assemble(&self, start: &StepStart, q: &[f64], hessian: Hessian, ws: &mut Workspace) {
-        let (positive, clamped) = dispatch(AssembleKernel { sys: self, start, q, hessian, ws: &mut *ws });
+        self.evaluate(start, q, true, ws);
         if hessian == Hessian::None {
             return;
         }
-        let n = self.n;
-        let total = ws.rows.len() / n;
-        syrk_lower(&mut ws.hess, n, &ws.rows, positive, Accum::Replace);
-        if hessian == Hessian::Split {
-            syrk_lower(&mut ws.hess_clamped, n, &ws.rows[(total - clamped) * n..], clamped, Accum::Replace);
-            mirror_lower(&mut ws.hess_clamped, n);
-            ws.has_clamped = clamped > 0;
-        }
+        let split = hessian == Hessian::Split;
+        let mut hess = std::mem::take(&mut ws.hess);
+        let mut clamped = std::mem::take(&mut ws.hess_clamped);
+        let mut contact = std::mem::take(&mut ws.contact_hess);
+        let has_clamped = self.elastic_hessian(q, ws, &mut hess, split.then_some(&mut clamped[..]));
+        self.contact_hessian(start, q, ws, &mut contact);
         let inv_h2 = 1.0 / (self.dt() * self.dt());
-        for (h, m) in ws.hess.iter_mut().zip(&self.mass) {
-            *h += m * inv_h2;
+        for ((h, m), c) in hess.iter_mut().zip(&self.mass).zip(&contact) {
+            *h += m * inv_h2 + c;
         }
-        mirror_lower(&mut ws.hess, n);
+        ws.hess = hess;
+        ws.hess_clamped = clamped;
+        ws.contact_hess = contact;
+        if split {
+            ws.has_clamped = has_clamped;
+        }
     }
 
-    /// Per-point work of [`Self::assemble`]: gradient and the stacked square-root
-    /// rows; returns how many positive and clamped rows were written.
-    #[inline(always)]
-    fn assemble_impl<M: Madd>(&self, start: &StepStart, q: &[f64], hessian: Hessian, ws: &mut Workspace) -> (usize, usize) {
-        let with_hessian = hessian != Hessian::None;
+    /// Elastic part of the Hessian at `q`: the PSD projection (negative
+    /// eigenvalues of every point's SNH Hessian clamped to zero) into
+    /// `projected`, and what the clamping removed (PSD) into `clamped` when
+    /// given, both n x n full symmetric. Returns whether anything was clamped.
+    pub fn elastic_hessian(&self, q: &[f64], ws: &mut Workspace, projected: &mut [f64], clamped: Option<&mut [f64]>) -> bool {
+        let split = clamped.is_some();
+        let (positive, negative) = dispatch(ElasticRowsKernel { sys: self, q, split, ws: &mut *ws });
         let n = self.n;
-        let inv_h2 = 1.0 / (self.dt() * self.dt());
-        for i in 0..n {
-            let mut md = 0.0;
-            for j in 0..n {
-                md = M::madd(self.mass[i * n + j], q[j] - start.qtilde[j], md);
-            }
-            ws.grad[i] = md * inv_h2 - self.gravity[i];
+        syrk_columns(projected, n, &ws.rows, ws.row_stride, positive, Accum::Replace);
+        mirror_lower(projected, n);
+        if let Some(clamped) = clamped {
+            syrk_columns(clamped, n, &ws.clamped_rows, ws.row_stride, negative, Accum::Replace);
+            mirror_lower(clamped, n);
         }
-        // Positive rows fill `ws.rows` from the front, clamped ones from the back;
-        // together they never exceed its 9 K + 3 C P rows.
-        let (mut positive, mut clamped) = (0, 0);
-        let total = ws.rows.len() / n;
-        // Cubature points go in groups of LANES through the eigensystem, which is
-        // latency-bound per point but vectorises across points.
-        let k_total = self.n_cubature();
+        negative > 0
+    }
+
+    /// Square-root rows of the elastic Hessian, eight (one per lane) per group
+    /// and eigenmode, skipping modes that no lane of the group needs; returns
+    /// the numbers of positive and clamped rows written.
+    #[inline(always)]
+    fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, ws: &mut Workspace) -> (usize, usize) {
+        let n = self.n;
+        let stride = ws.row_stride;
+        let group_len = n * 9 * LANES;
+        let (mut positive, mut negative) = (0, 0);
         let mut values = [Lanes::splat(0.0); 9];
         let mut vectors = [[Lanes::splat(0.0); 9]; 9];
-        for k0 in (0..k_total).step_by(LANES) {
-            let group = LANES.min(k_total - k0);
-            let mut fs = [Matrix3::identity(); LANES];
-            // Lanes past the last point hold F = I, which is harmless.
+        let mut pos_coef = [[[0.0; LANES]; 9]; 9];
+        let mut neg_coef = [[[0.0; LANES]; 9]; 9];
+        for (group, weights) in self.packed.chunks_exact(group_len).zip(self.packed_weights.chunks_exact(LANES)) {
+            let f = group_deformation::<M>(group, q);
             let mut lanes = [[Lanes::splat(0.0); 3]; 3];
-            for (i, row) in lanes.iter_mut().enumerate() {
-                row[i] = Lanes::splat(1.0);
+            for a in 0..9 {
+                lanes[a / 3][a % 3] = Lanes(f[a]);
             }
-            for (l, f) in fs.iter_mut().enumerate().take(group) {
-                let k = k0 + l;
-                *f = Self::deformation_gradient::<M>(&self.jacobians[9 * n * k..9 * n * (k + 1)], q);
-                for i in 0..3 {
-                    for j in 0..3 {
-                        lanes[i][j].0[l] = f[(i, j)];
+            self.material.eigensystem_of(&lanes, &mut values, &mut vectors);
+            let (mut n_pos, mut n_neg) = (0, 0);
+            for (lambda, v) in values.iter().zip(&vectors) {
+                let mut sp = [0.0; LANES];
+                let mut sn = [0.0; LANES];
+                let (mut any_pos, mut any_neg) = (false, false);
+                for l in 0..LANES {
+                    let s = (weights[l] * lambda.0[l].abs()).sqrt();
+                    if lambda.0[l] > 0.0 {
+                        sp[l] = s;
+                        any_pos |= s > 0.0;
+                    } else {
+                        sn[l] = s;
+                        any_neg |= s > 0.0;
                     }
                 }
-            }
-            if with_hessian {
-                self.material.eigensystem_of(&lanes, &mut values, &mut vectors);
-            }
-            for (l, f) in fs.iter().enumerate().take(group) {
-                let k = k0 + l;
-                let w = self.weights[k];
-                if w == 0.0 {
-                    continue;
-                }
-                let g = &self.jacobians[9 * n * k..9 * n * (k + 1)];
-                let p = vec9(&self.material.pk1(f)) * w;
-                let p: &[f64; 9] = p.as_slice().try_into().expect("9 stress components");
-                let mut pos = [[0.0; 9]; 9];
-                let mut neg = [[0.0; 9]; 9];
-                let (mut n_pos, mut n_neg) = (0, 0);
-                if with_hessian {
-                    for (lambda, v) in values.iter().zip(&vectors) {
-                        let lambda = lambda.0[l];
-                        let (coef, count) = if lambda > 0.0 { (&mut pos, &mut n_pos) } else { (&mut neg, &mut n_neg) };
-                        if lambda != 0.0 {
-                            let s = (w * lambda.abs()).sqrt();
-                            for (c, e) in coef[*count].iter_mut().zip(v) {
-                                *c = s * e.0[l];
-                            }
-                            *count += 1;
+                if any_pos {
+                    for a in 0..9 {
+                        for l in 0..LANES {
+                            pos_coef[n_pos][a][l] = sp[l] * v[a].0[l];
                         }
                     }
+                    n_pos += 1;
                 }
-                combine_rows::<M, 9>(g, &pos[..n_pos], &mut ws.rows[positive * n..], p, &mut ws.grad);
-                positive += n_pos;
-                if n_neg > 0 && hessian == Hessian::Split {
-                    clamped += n_neg;
-                    combine_rows::<M, 9>(g, &neg[..n_neg], &mut ws.rows[(total - clamped) * n..], p, &mut []);
+                if split && any_neg {
+                    for a in 0..9 {
+                        for l in 0..LANES {
+                            neg_coef[n_neg][a][l] = sn[l] * v[a].0[l];
+                        }
+                    }
+                    n_neg += 1;
                 }
             }
+            for (i, g) in group.chunks_exact(9 * LANES).enumerate() {
+                let column = i * stride;
+                for (coef, count, base, out) in [
+                    (&pos_coef, n_pos, positive, &mut ws.rows),
+                    (&neg_coef, n_neg, negative, &mut ws.clamped_rows),
+                ] {
+                    for (b, c) in coef.iter().take(count).enumerate() {
+                        let mut v = [0.0; LANES];
+                        for a in 0..9 {
+                            for l in 0..LANES {
+                                v[l] = M::madd(c[a][l], g[a * LANES + l], v[l]);
+                            }
+                        }
+                        let at = column + base + b * LANES;
+                        out[at..at + LANES].copy_from_slice(&v);
+                    }
+                }
+            }
+            positive += n_pos * LANES;
+            negative += n_neg * LANES;
         }
+        (positive, negative)
+    }
+
+    /// Contact part of the Hessian at `q` (PSD, n x n full symmetric) into `out`,
+    /// from the points that touch a plane or carry a lagged normal force.
+    pub fn contact_hessian(&self, start: &StepStart, q: &[f64], ws: &mut Workspace, out: &mut [f64]) {
+        let count = dispatch(ContactRowsKernel { sys: self, start, q, ws: &mut *ws });
+        syrk_rows(out, self.n, &ws.contact_rows, count, Accum::Replace);
+        mirror_lower(out, self.n);
+    }
+
+    #[inline(always)]
+    fn contact_rows_impl<M: Madd>(&self, start: &StepStart, q: &[f64], ws: &mut Workspace) -> usize {
+        let n = self.n;
         let n_planes = self.planes.len();
-        for j in 0..self.n_contacts() {
+        let mut rows = 0;
+        if n_planes == 0 {
+            return 0;
+        }
+        for &j in &self.contact_points {
             let x = self.contact_position::<M>(j, q);
             let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
-            let mut grad = Vector3::zeros();
             let mut count = 0;
             for (p, plane) in self.planes.iter().enumerate() {
                 let e = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
-                grad += e.gradient;
-                if with_hessian {
-                    for t in 0..e.hessian.len {
-                        let d = e.hessian.dir[t] * e.hessian.coef[t].sqrt();
-                        ws.contact_coef[count] = [d.x, d.y, d.z];
-                        count += 1;
-                    }
+                for t in 0..e.hessian.len {
+                    let d = e.hessian.dir[t] * e.hessian.coef[t].sqrt();
+                    ws.contact_coef[count] = [d.x, d.y, d.z];
+                    count += 1;
                 }
             }
-            let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
-            let grad: &[f64; 3] = grad.as_slice().try_into().expect("3 components");
-            combine_rows::<M, 3>(w, &ws.contact_coef[..count], &mut ws.rows[positive * n..], grad, &mut ws.grad);
-            positive += count;
+            if count > 0 {
+                let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+                combine_rows::<M, 3>(w, &ws.contact_coef[..count], &mut ws.contact_rows[rows * n..], &[0.0; 3], &mut []);
+                rows += count;
+            }
         }
-        (positive, clamped)
+        rows
+    }
+
+    /// Stick correction of a Newton direction `dir` taken from `q`: the slipping
+    /// contact points whose slip the step would reverse or bring into the stick
+    /// region (where the friction force falls below the Coulomb limit) are modelled
+    /// as sticking. For each, the square-root rows of the Hessian change
+    /// `c T - (mu f_n / s)(T - t t^T)` (PSD: `c > mu f_n / s` while slipping) go to the
+    /// switch rows, and `W_j^T t (c s - mu f_n)` (stick force minus slip force) is
+    /// added to `rhs`. Returns the number of rows; [`Self::add_switch_rows`] adds
+    /// their product to a Hessian.
+    pub fn stick_switch(&self, start: &StepStart, q: &[f64], dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
+        dispatch(StickKernel { sys: self, start, q, dir, ws, rhs })
+    }
+
+    /// Adds the product of the first `count` switch rows of [`Self::stick_switch`]
+    /// to the full symmetric `hess`.
+    pub fn add_switch_rows(&self, ws: &Workspace, count: usize, hess: &mut [f64]) {
+        add_gram(hess, self.n, &ws.contact_rows, count);
+    }
+
+    #[inline(always)]
+    fn stick_impl<M: Madd>(&self, start: &StepStart, q: &[f64], dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
+        let n = self.n;
+        let n_planes = self.planes.len();
+        let h = self.dt();
+        let mut rows = 0;
+        for &j in &self.contact_points {
+            let area = self.areas[j];
+            let c = area * self.contact.friction_stiffness / h;
+            if c <= 0.0 || (0..n_planes).all(|p| start.normal_force[j * n_planes + p] <= 0.0) {
+                continue;
+            }
+            let x = self.contact_position::<M>(j, q);
+            let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+            let wd = rows_dot::<M, 3>(w, dir);
+            let wd = Vector3::new(wd[0], wd[1], wd[2]);
+            let dx = x - Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
+            let mut count = 0;
+            let mut force = Vector3::zeros();
+            for (p, plane) in self.planes.iter().enumerate() {
+                let cap = plane.friction() * start.normal_force[j * n_planes + p];
+                if cap <= 0.0 {
+                    continue;
+                }
+                let nrm = plane.normal();
+                let delta = dx - nrm * nrm.dot(&dx);
+                let slip = delta.norm();
+                if c * slip <= cap {
+                    continue;
+                }
+                let t = delta / slip;
+                let moved = delta + wd - nrm * nrm.dot(&wd);
+                if t.dot(&moved) >= cap / c {
+                    continue;
+                }
+                let b = nrm.cross(&t);
+                let (st, sb) = (c.sqrt(), (c - cap / slip).max(0.0).sqrt());
+                ws.contact_coef[count] = [st * t.x, st * t.y, st * t.z];
+                ws.contact_coef[count + 1] = [sb * b.x, sb * b.y, sb * b.z];
+                count += 2;
+                force += t * (c * slip - cap);
+            }
+            if count > 0 {
+                let f: &[f64; 3] = force.as_slice().try_into().expect("3 components");
+                combine_rows::<M, 3>(w, &ws.contact_coef[..count], &mut ws.contact_rows[rows * n..], f, rhs);
+                rows += count;
+            }
+        }
+        rows
     }
 
     /// Contact force (N, world frame) on each contact point at `q`: minus the
@@ -489,60 +758,73 @@ impl ReducedSystem {
     /// Elastic stiffness at the rest configuration `K = sum_k w_k G_k^T H(I) G_k`
     /// (into `ws.hess`, full symmetric), Pa m^3 per unit of q squared.
     pub fn rest_stiffness(&self, ws: &mut Workspace) {
-        let n = self.n;
-        // H(I) is the same for every point: factor it once.
-        let eig = self.material.eigensystem(&Matrix3::identity());
-        let mut modes = [[0.0; 9]; 9];
-        let mut count = 0;
-        for (lambda, v) in eig.values.iter().zip(&eig.vectors) {
-            if *lambda > 0.0 {
-                for (c, e) in modes[count].iter_mut().zip(v.iter()) {
-                    *c = lambda.sqrt() * e;
-                }
-                count += 1;
-            }
-        }
-        let mut rows = 0;
-        for (g, &w) in self.jacobians.chunks_exact(9 * n).zip(&self.weights) {
-            let mut coef = modes;
-            for row in coef.iter_mut().take(count) {
-                row.iter_mut().for_each(|c| *c *= w.sqrt());
-            }
-            combine_rows::<crate::simd::Separate, 9>(g, &coef[..count], &mut ws.rows[rows * n..], &[0.0; 9], &mut []);
-            rows += count;
-        }
-        syrk_lower(&mut ws.hess, n, &ws.rows, rows, Accum::Replace);
-        mirror_lower(&mut ws.hess, n);
+        let rest = vec![0.0; self.n];
+        let mut hess = std::mem::take(&mut ws.hess);
+        self.elastic_hessian(&rest, ws, &mut hess, None);
+        ws.hess = hess;
     }
 }
 
-struct EnergyKernel<'a> {
+struct EvaluateKernel<'a> {
     sys: &'a ReducedSystem,
     start: &'a StepStart,
     q: &'a [f64],
+    lane_grad: &'a mut [[f64; LANES]],
+    grad: &'a mut [f64],
 }
 
-impl WithMadd for EnergyKernel<'_> {
+impl WithMadd for EvaluateKernel<'_> {
     type Output = f64;
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
-        self.sys.energy_impl::<M>(self.start, self.q)
+        self.sys.evaluate_impl::<M>(self.start, self.q, self.lane_grad, self.grad)
     }
 }
 
-struct AssembleKernel<'a> {
+struct ElasticRowsKernel<'a> {
     sys: &'a ReducedSystem,
-    start: &'a StepStart,
     q: &'a [f64],
-    hessian: Hessian,
+    split: bool,
     ws: &'a mut Workspace,
 }
 
-impl WithMadd for AssembleKernel<'_> {
+impl WithMadd for ElasticRowsKernel<'_> {
     type Output = (usize, usize);
     #[inline(always)]
     fn run<M: Madd>(self) -> (usize, usize) {
-        self.sys.assemble_impl::<M>(self.start, self.q, self.hessian, self.ws)
+        self.sys.elastic_rows_impl::<M>(self.q, self.split, self.ws)
+    }
+}
+
+struct ContactRowsKernel<'a> {
+    sys: &'a ReducedSystem,
+    start: &'a StepStart,
+    q: &'a [f64],
+    ws: &'a mut Workspace,
+}
+
+impl WithMadd for ContactRowsKernel<'_> {
+    type Output = usize;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> usize {
+        self.sys.contact_rows_impl::<M>(self.start, self.q, self.ws)
+    }
+}
+
+struct StickKernel<'a> {
+    sys: &'a ReducedSystem,
+    start: &'a StepStart,
+    q: &'a [f64],
+    dir: &'a [f64],
+    ws: &'a mut Workspace,
+    rhs: &'a mut [f64],
+}
+
+impl WithMadd for StickKernel<'_> {
+    type Output = usize;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> usize {
+        self.sys.stick_impl::<M>(self.start, self.q, self.dir, self.ws, self.rhs)
     }
 }
 

@@ -1,15 +1,53 @@
-//! Time stepping of the reduced model: Newton on the incremental potential with
-//! a PSD-projected Hessian and Armijo backtracking, or the prefactored scheme
-//! that reuses one factorisation of `M/h^2 + K(rest)` for every iteration.
+//! Time stepping of the reduced model: minimisation of the incremental
+//! potential by Newton's method with a PSD Hessian, a stick correction for
+//! friction and a line search, or the prefactored scheme that reuses one
+//! factorisation of `M/h^2 + K(rest)` for every iteration.
 //!
-//! Newton uses the PSD-projected Hessian (elastic eigenvalues clamped at zero)
-//! by default. Projection makes the model Hessian wrong wherever it clamps,
-//! which near rest (twist modes with eigenvalues about zero) turns Newton's
-//! quadratic convergence into a linear one. So once the previous iteration took
-//! the full step (the quadratic model is trustworthy there) and some eigenvalue
-//! was clamped, the exact Hessian is tried first; it is used when its Cholesky
-//! factorisation succeeds, the projected one otherwise. Either way the direction
-//! is a descent direction and the line search guards the step.
+//! **Initial guess.** `q_t + h qdot_t + h^2 a`, with `a` the acceleration of the
+//! previous step (`(qdot_t - qdot_{t-1}) / h`), or gravity alone (`M^-1 f`) on the
+//! first step after a new state. A body that rests, slides steadily or sticks is
+//! then almost at the solution before the first iteration, with its contact
+//! points in the right friction regime.
+//!
+//! **Hessian.** `M/h^2 + K_elastic + K_contact`. The contact part is formed at
+//! every iterate from the points that touch a plane or carry a lagged normal
+//! force: it holds the stiff terms (penalty, stick friction) and changes with
+//! the contact state. The elastic part (PSD-projected SNH Hessians at the
+//! cubature points) is the expensive one and changes slowly; with
+//! [`ElasticHessian::Lagged`] it is kept from step to step and assembled again
+//! only after a new state or when it has drifted: after each step `s` the
+//! secant error of the elastic part, `g_el(x + s) - g_el(x) - K_el s`, is mapped
+//! through the last factored matrix, and when it would make up more than
+//! [`ELASTIC_DRIFT`] of the next direction (a linear rate worse than that) the
+//! elastic Hessian is assembled at the new iterate. The iteration is then a
+//! chord (quasi-) Newton method on the elastic part: every matrix is positive
+//! definite, so each direction is a descent direction, the fixed point is the
+//! same minimiser, and the convergence measure
+//! below is taken on its direction. [`ElasticHessian::EveryIteration`] gives
+//! plain Newton. Where the projection clamped some eigenvalue, and the previous
+//! iteration took the full step (the quadratic model is trustworthy there), the
+//! exact elastic Hessian is tried first; it is used when the total factors, the
+//! projected one otherwise (near rest the clamped twist modes would turn
+//! Newton's quadratic convergence into a linear one).
+//!
+//! **Stick correction.** Coulomb friction makes the potential nearly non-smooth:
+//! its curvature jumps from `a k_f / h` (stick) to almost nothing (slip) over a
+//! slip of `mu f_n h / (a k_f)`, typically a fraction of a micrometre. A Newton
+//! step from the slip side sees no curvature along the slip and overshoots, and
+//! backtracking then crawls. So, when the direction would carry slipping points
+//! through the stick region, the system is solved again with those points
+//! modelled as sticking (a low-rank change of the Hessian and the right-hand
+//! side), and that step is taken when it decreases E enough.
+//!
+//! **Line search.** Armijo sufficient decrease, plus a curvature test: a full
+//! step that overshoots the minimum along the line (the slope at the trial
+//! point turned positive beyond [`CURVATURE`] of the initial one), typical where
+//! friction switches between stick and slip, is bracketed and the line minimum
+//! located by safeguarded secant steps on the slope; otherwise the step is
+//! halved until E decreases. Near convergence, where the decrease of E hides in
+//! its round-off, a step at the line minimum (small slope) is accepted. Every
+//! trial point is evaluated with its gradient, which becomes the next
+//! iteration's gradient when the trial is accepted.
 //!
 //! Convergence is measured on the search direction `Delta` as the velocity
 //! `r = sqrt(Delta^T M Delta / m_total) / h` (m/s), invariant to the choice of
@@ -22,7 +60,8 @@ use crate::reduced::{Hessian, ReducedSystem, StepStart, Workspace};
 /// How the search direction is computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SolverKind {
-    /// Full Newton: assemble and factor the projected Hessian every iteration.
+    /// Newton: factor `M/h^2 + K_elastic + K_contact` every iteration (the
+    /// elastic part refreshed as [`SolverSettings::elastic_hessian`] says).
     Newton,
     /// Factor `M/h^2 + K(rest)` once and iterate `Delta = -A^-1 grad`.
     Prefactored,
@@ -39,6 +78,28 @@ impl std::str::FromStr for SolverKind {
     }
 }
 
+/// When Newton assembles the elastic part of the Hessian.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ElasticHessian {
+    /// At every iterate (plain Newton).
+    EveryIteration,
+    /// Kept across iterations and steps; assembled again when the iteration
+    /// slows down or after a new state (see the module documentation).
+    #[default]
+    Lagged,
+}
+
+impl std::str::FromStr for ElasticHessian {
+    type Err = LicromError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "every_iteration" => Ok(Self::EveryIteration),
+            "lagged" => Ok(Self::Lagged),
+            other => Err(LicromError::invalid("elastic_hessian", format!("must be 'lagged' or 'every_iteration', got '{other}'"))),
+        }
+    }
+}
+
 /// Solver parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SolverSettings {
@@ -50,6 +111,15 @@ pub struct SolverSettings {
     pub max_iterations: usize,
     /// Direction scheme.
     pub kind: SolverKind,
+    /// Refresh rule of the elastic Hessian (Newton only).
+    pub elastic_hessian: ElasticHessian,
+}
+
+impl SolverSettings {
+    /// Settings with the default elastic Hessian rule.
+    pub fn new(total_mass: f64, tolerance: f64, max_iterations: usize, kind: SolverKind) -> Self {
+        Self { total_mass, tolerance, max_iterations, kind, elastic_hessian: ElasticHessian::default() }
+    }
 }
 
 /// Outcome of a converged step.
@@ -61,12 +131,45 @@ pub struct StepReport {
     pub residual: f64,
 }
 
+/// Work done by the solver since it was created (or [`ReducedSolver::reset_stats`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SolverStats {
+    /// Steps attempted.
+    pub steps: usize,
+    /// Search directions computed.
+    pub iterations: usize,
+    /// Energy and gradient evaluations (initial guesses and line-search trials).
+    pub evaluations: usize,
+    /// Assemblies of the elastic Hessian.
+    pub elastic_hessians: usize,
+    /// Stick-corrected directions solved.
+    pub stick_solves: usize,
+    /// Stick-corrected steps taken.
+    pub stick_steps: usize,
+}
+
+fn trace() -> bool {
+    static T: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *T.get_or_init(|| std::env::var_os("LICROM_TRACE").is_some())
+}
+
 /// Armijo sufficient-decrease constant.
 const ARMIJO: f64 = 1e-4;
+/// `|phi'(alpha)| <= CURVATURE |phi'(0)|` accepts a step at the line minimum.
+const CURVATURE: f64 = 0.5;
+/// Secant steps locating an overshot line minimum.
+const MAX_SECANT: usize = 8;
 /// Backtracking halvings before the line search gives up.
 const MAX_HALVINGS: usize = 40;
 /// Energy differences below this many ulps of the energy scale are round-off.
 const ROUNDOFF_ULPS: f64 = 64.0;
+/// Relative energy increase still taken as round-off when the slope shows
+/// that the trial point is at the line minimum.
+const NOISE: f64 = 1e-10;
+/// The lagged elastic Hessian is assembled again when its error along the last
+/// step makes up more than this share of the next direction (see
+/// [`ReducedSolver::elastic_drift`]).
+pub const ELASTIC_DRIFT: f64 = 0.1;
 
 /// State `(q, qdot)` of a reduced model and the preallocated machinery to step it.
 #[derive(Debug)]
@@ -75,6 +178,9 @@ pub struct ReducedSolver {
     settings: SolverSettings,
     q: Vec<f64>,
     qdot: Vec<f64>,
+    /// Velocity before the last step (valid if `has_prev`), for the initial guess.
+    qdot_prev: Vec<f64>,
+    has_prev: bool,
     /// `h^2 M^-1 f`: the gravity part of the initial guess.
     free_fall: Vec<f64>,
     /// Start of the step in progress.
@@ -92,9 +198,29 @@ pub struct ReducedSolver {
     /// Factor of `M/h^2 + K(rest)` for the prefactored scheme.
     prefactor: Option<Cholesky>,
     iterate: Vec<f64>,
+    /// Gradient at `iterate`, and its elastic part.
+    grad: Vec<f64>,
+    grad_elastic: Vec<f64>,
     trial: Vec<f64>,
+    trial_grad: Vec<f64>,
+    trial_grad_elastic: Vec<f64>,
+    /// The step from the previous iterate (valid from the second iteration).
+    step_taken: Vec<f64>,
     dir: Vec<f64>,
+    /// Stick-corrected direction and its right-hand side.
+    alt: Vec<f64>,
+    /// Elastic Hessian, projected and clamped parts (valid if `elastic_valid`).
+    elastic: Vec<f64>,
+    elastic_clamped: Vec<f64>,
+    has_clamped: bool,
+    elastic_valid: bool,
+    /// Whether the last direction used the exact elastic Hessian.
+    used_exact: bool,
+    contact: Vec<f64>,
+    /// The matrix last factored into `chol`.
+    hess: Vec<f64>,
     mass_over_h2: Vec<f64>,
+    stats: SolverStats,
 }
 
 impl ReducedSolver {
@@ -125,24 +251,42 @@ impl ReducedSolver {
                 Some(a)
             }
         };
+        let zeros = vec![0.0; n];
+        let square = vec![0.0; n * n];
         Ok(Self {
             current: system.step_start(),
             probe: system.step_start(),
             last: system.step_start(),
             has_last: false,
-            failed: vec![0.0; n],
+            failed: zeros.clone(),
             has_failed: false,
             settings,
-            q: vec![0.0; n],
-            qdot: vec![0.0; n],
+            q: zeros.clone(),
+            qdot: zeros.clone(),
+            qdot_prev: zeros.clone(),
+            has_prev: false,
             free_fall,
             ws,
             chol,
             prefactor,
-            iterate: vec![0.0; n],
-            trial: vec![0.0; n],
-            dir: vec![0.0; n],
+            iterate: zeros.clone(),
+            grad: zeros.clone(),
+            grad_elastic: zeros.clone(),
+            trial: zeros.clone(),
+            trial_grad: zeros.clone(),
+            trial_grad_elastic: zeros.clone(),
+            step_taken: zeros.clone(),
+            dir: zeros.clone(),
+            alt: zeros,
+            elastic: square.clone(),
+            elastic_clamped: square.clone(),
+            has_clamped: false,
+            elastic_valid: false,
+            used_exact: false,
+            contact: square.clone(),
+            hess: square,
             mass_over_h2,
+            stats: SolverStats::default(),
             system,
         })
     }
@@ -167,6 +311,16 @@ impl ReducedSolver {
         &self.qdot
     }
 
+    /// Work counters.
+    pub fn stats(&self) -> SolverStats {
+        self.stats
+    }
+
+    /// Zeroes the work counters.
+    pub fn reset_stats(&mut self) {
+        self.stats = SolverStats::default();
+    }
+
     fn check_state(&self, name: &str, v: &[f64]) -> Result<()> {
         let n = self.system.n_dofs();
         if v.len() != n {
@@ -175,7 +329,8 @@ impl ReducedSolver {
         check_finite(name, v)
     }
 
-    /// Replaces the state. Contact forces read zero until the next step.
+    /// Replaces the state. Contact forces read zero until the next step; the
+    /// next step starts from the free-fall guess and a fresh elastic Hessian.
     pub fn set_state(&mut self, q: &[f64], qdot: &[f64]) -> Result<()> {
         self.check_state("q", q)?;
         self.check_state("qdot", qdot)?;
@@ -183,6 +338,8 @@ impl ReducedSolver {
         self.qdot.copy_from_slice(qdot);
         self.has_last = false;
         self.has_failed = false;
+        self.has_prev = false;
+        self.elastic_valid = false;
         Ok(())
     }
 
@@ -191,20 +348,41 @@ impl ReducedSolver {
     /// [`Self::accept_last_iterate`].
     pub fn step(&mut self) -> Result<StepReport> {
         self.has_failed = false;
+        self.stats.steps += 1;
         let n = self.system.n_dofs();
         let h = self.system.dt();
         self.system.begin_step(&self.q, &self.qdot, &mut self.current);
         for i in 0..n {
-            self.iterate[i] = self.q[i] + h * self.qdot[i] + self.free_fall[i];
+            let accel = if self.has_prev { h * (self.qdot[i] - self.qdot_prev[i]) } else { self.free_fall[i] };
+            self.iterate[i] = self.q[i] + h * self.qdot[i] + accel;
         }
-        let mut energy = self.system.energy(&self.current, &self.iterate);
+        let mut energy = self.system.evaluate(&self.current, &self.iterate, true, &mut self.ws);
+        self.grad.copy_from_slice(&self.ws.grad);
+        self.ws.elastic_gradient(&mut self.grad_elastic);
+        self.stats.evaluations += 1;
         if !energy.is_finite() {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
         }
         let mut residual = f64::INFINITY;
         let mut full_step = false;
         for iteration in 1..=self.settings.max_iterations {
+            self.stats.iterations += 1;
+            if !self.grad.iter().all(|g| g.is_finite()) {
+                return Err(LicromError::Diverged { iteration, what: "gradient" });
+            }
+            if self.prefactor.is_none() {
+                let refresh = match self.settings.elastic_hessian {
+                    ElasticHessian::EveryIteration => true,
+                    ElasticHessian::Lagged => !self.elastic_valid || (iteration > 1 && self.elastic_drift() > ELASTIC_DRIFT),
+                };
+                if refresh {
+                    self.refresh_elastic();
+                }
+            }
             residual = self.direction(iteration, full_step)?;
+            if trace() {
+                eprintln!("  it {iteration} r {residual:.3e} full {full_step} hess {} E {energy:.15e} evals {}", self.stats.elastic_hessians, self.stats.evaluations);
+            }
             if residual < self.settings.tolerance {
                 for (x, d) in self.iterate.iter_mut().zip(&self.dir) {
                     *x += d;
@@ -212,8 +390,18 @@ impl ReducedSolver {
                 self.finish_step();
                 return Ok(StepReport { iterations: iteration, residual });
             }
+            if self.prefactor.is_none() && self.system.has_contact() {
+                if let Some(e) = self.stick_step(energy) {
+                    energy = e;
+                    full_step = true;
+                    continue;
+                }
+            }
             match self.line_search(energy) {
                 Some((e, alpha)) => {
+                    if trace() {
+                        eprintln!("    ls alpha {alpha:.4e} dE {:.3e}", e - energy);
+                    }
                     energy = e;
                     full_step = alpha == 1.0;
                 }
@@ -223,70 +411,234 @@ impl ReducedSolver {
         Err(self.fail(self.settings.max_iterations, residual))
     }
 
-    /// Computes the search direction at `self.iterate` into `self.dir` (gradient
-    /// left in `self.ws.grad`) and returns its convergence measure r. `try_exact`:
+    fn refresh_elastic(&mut self) {
+        self.has_clamped = self.system.elastic_hessian(&self.iterate, &mut self.ws, &mut self.elastic, Some(&mut self.elastic_clamped));
+        self.elastic_valid = true;
+        self.stats.elastic_hessians += 1;
+    }
+
+    /// Computes the search direction at `self.iterate` into `self.dir` from the
+    /// gradient `self.grad` and returns its convergence measure r. `try_exact`:
     /// the previous step was taken in full (see the module documentation).
     fn direction(&mut self, iteration: usize, try_exact: bool) -> Result<f64> {
-        let hessian = match (&self.prefactor, try_exact) {
-            (Some(_), _) => Hessian::None,
-            (None, false) => Hessian::Projected,
-            (None, true) => Hessian::Split,
-        };
-        self.system.assemble(&self.current, &self.iterate, hessian, &mut self.ws);
-        if !self.ws.grad.iter().all(|g| g.is_finite()) {
-            return Err(LicromError::Diverged { iteration, what: "gradient" });
-        }
-        for (d, g) in self.dir.iter_mut().zip(&self.ws.grad) {
+        for (d, g) in self.dir.iter_mut().zip(&self.grad) {
             *d = -g;
         }
         match &mut self.prefactor {
             Some(a) => a.solve_in_place(&mut self.dir),
             None => {
-                if !self.ws.hess.iter().chain(&self.ws.hess_clamped).all(|v| v.is_finite()) {
+                self.system.contact_hessian(&self.current, &self.iterate, &mut self.ws, &mut self.contact);
+                let exact = try_exact && self.has_clamped;
+                self.used_exact = exact;
+                for i in 0..self.hess.len() {
+                    let clamped = if exact { self.elastic_clamped[i] } else { 0.0 };
+                    self.hess[i] = self.mass_over_h2[i] + (self.elastic[i] - clamped) + self.contact[i];
+                }
+                if !self.hess.iter().all(|v| v.is_finite()) {
                     return Err(LicromError::Diverged { iteration, what: "Hessian" });
                 }
-                let exact = hessian == Hessian::Split && self.ws.has_clamped && self.chol.factor_shifted(&self.ws.hess, -1.0, &self.ws.hess_clamped).is_ok();
+                let mut factored = self.chol.factor_shifted(&self.hess, 0.0, &self.mass_over_h2).is_ok();
+                if !factored && exact {
+                    self.used_exact = false;
+                    for (h, c) in self.hess.iter_mut().zip(&self.elastic_clamped) {
+                        *h += c;
+                    }
+                    factored = self.chol.factor_shifted(&self.hess, 0.0, &self.mass_over_h2).is_ok();
+                }
                 // The projected Hessian is M/h^2 plus PSD terms, so this only fails
                 // through round-off; a growing share of M/h^2 restores definiteness.
-                let mut shift = 0.0;
-                while !exact && self.chol.factor_shifted(&self.ws.hess, shift, &self.mass_over_h2).is_err() {
-                    shift = if shift == 0.0 { 1e-8 } else { shift * 10.0 };
-                    if shift > 1e8 {
+                let mut shift = 1e-8;
+                while !factored {
+                    factored = self.chol.factor_shifted(&self.hess, shift, &self.mass_over_h2).is_ok();
+                    if factored {
+                        for (h, m) in self.hess.iter_mut().zip(&self.mass_over_h2) {
+                            *h += shift * m;
+                        }
+                    }
+                    shift *= 10.0;
+                    if shift > 1e9 {
                         return Err(LicromError::Diverged { iteration, what: "Hessian factorisation" });
                     }
                 }
                 self.chol.solve_in_place(&mut self.dir);
             }
         }
-        let h = self.system.dt();
-        let n = self.system.n_dofs();
-        let mass = self.system.mass();
-        let mut norm2 = 0.0;
-        for i in 0..n {
-            let row: f64 = (0..n).map(|j| mass[i * n + j] * self.dir[j]).sum();
-            norm2 += self.dir[i] * row;
-        }
-        let r = (norm2.max(0.0) / self.settings.total_mass).sqrt() / h;
+        let r = self.velocity_norm(&self.dir);
         if !r.is_finite() {
             return Err(LicromError::Diverged { iteration, what: "search direction" });
         }
         Ok(r)
     }
 
-    /// Armijo backtracking from `self.iterate` along `self.dir`; moves the
-    /// iterate and returns the new energy and the step length taken, or `None`
-    /// when no step decreases E beyond round-off.
-    fn line_search(&mut self, energy: f64) -> Option<(f64, f64)> {
-        let slope: f64 = self.ws.grad.iter().zip(&self.dir).map(|(g, d)| g * d).sum();
-        let mut alpha = 1.0;
-        for _ in 0..MAX_HALVINGS {
-            for ((t, x), d) in self.trial.iter_mut().zip(&self.iterate).zip(&self.dir) {
-                *t = x + alpha * d;
+    /// `sqrt(d^T M d / m_total) / h`, m/s.
+    fn velocity_norm(&self, d: &[f64]) -> f64 {
+        let n = self.system.n_dofs();
+        let mass = self.system.mass();
+        let mut norm2 = 0.0;
+        for i in 0..n {
+            let row: f64 = (0..n).map(|j| mass[i * n + j] * d[j]).sum();
+            norm2 += d[i] * row;
+        }
+        (norm2.max(0.0) / self.settings.total_mass).sqrt() / self.system.dt()
+    }
+
+    /// The stick correction of `self.dir` (see the module documentation): when
+    /// some slipping contact points would be carried through the stick region,
+    /// solves again with them sticking and takes that full step if it decreases
+    /// E enough. Returns the new energy when the step was taken.
+    fn stick_step(&mut self, energy: f64) -> Option<f64> {
+        self.alt.copy_from_slice(&self.grad);
+        let rows = self.system.stick_switch(&self.current, &self.iterate, &self.dir, &mut self.ws, &mut self.alt);
+        if rows == 0 {
+            return None;
+        }
+        self.stats.stick_solves += 1;
+        if trace() {
+            eprintln!("    stick rows {rows}");
+        }
+        self.system.add_switch_rows(&self.ws, rows, &mut self.hess);
+        if self.chol.factor_shifted(&self.hess, 0.0, &self.mass_over_h2).is_err() {
+            return None;
+        }
+        for a in self.alt.iter_mut() {
+            *a = -*a;
+        }
+        self.chol.solve_in_place(&mut self.alt);
+        let slope: f64 = self.grad.iter().zip(&self.alt).map(|(g, d)| g * d).sum();
+        if !(slope.is_finite() && slope < 0.0) {
+            return None;
+        }
+        for ((t, x), d) in self.trial.iter_mut().zip(&self.iterate).zip(&self.alt) {
+            *t = x + d;
+        }
+        let e = self.evaluate_trial();
+        let slack = ROUNDOFF_ULPS * f64::EPSILON * energy.abs().max(e.abs());
+        if e.is_finite() && e <= energy + ARMIJO * slope + slack {
+            self.stats.stick_steps += 1;
+            self.accept_trial();
+            Some(e)
+        } else {
+            None
+        }
+    }
+
+    /// Energy and gradient at `self.trial` (gradient into `self.trial_grad`).
+    fn evaluate_trial(&mut self) -> f64 {
+        self.stats.evaluations += 1;
+        let e = self.system.evaluate(&self.current, &self.trial, true, &mut self.ws);
+        self.trial_grad.copy_from_slice(&self.ws.grad);
+        self.ws.elastic_gradient(&mut self.trial_grad_elastic);
+        e
+    }
+
+    fn accept_trial(&mut self) {
+        for ((s, t), x) in self.step_taken.iter_mut().zip(&self.trial).zip(&self.iterate) {
+            *s = t - x;
+        }
+        std::mem::swap(&mut self.iterate, &mut self.trial);
+        std::mem::swap(&mut self.grad, &mut self.trial_grad);
+        std::mem::swap(&mut self.grad_elastic, &mut self.trial_grad_elastic);
+    }
+
+    /// How far the lagged elastic Hessian is off along the last step `s`: the
+    /// secant error `e = g_el(x + s) - g_el(x) - K_el s` measured as the part of
+    /// the next direction it causes, `|A^-1 e|_M / |s|_M`, with `A` the last
+    /// matrix factored. Zero where no step was taken yet.
+    fn elastic_drift(&mut self) -> f64 {
+        let n = self.system.n_dofs();
+        let den = self.velocity_norm(&self.step_taken);
+        if den <= 0.0 || !den.is_finite() {
+            return 0.0;
+        }
+        for i in 0..n {
+            let mut ks = 0.0;
+            for j in 0..n {
+                let k = self.elastic[i * n + j] - if self.used_exact { self.elastic_clamped[i * n + j] } else { 0.0 };
+                ks += k * self.step_taken[j];
             }
-            let e = self.system.energy(&self.current, &self.trial);
-            let slack = ROUNDOFF_ULPS * f64::EPSILON * energy.abs().max(e.abs());
-            if e.is_finite() && e <= energy + ARMIJO * alpha * slope + slack {
-                std::mem::swap(&mut self.iterate, &mut self.trial);
+            self.alt[i] = self.grad_elastic[i] - self.trial_grad_elastic[i] - ks;
+        }
+        // After `accept_trial`, `trial_grad_elastic` holds the previous iterate's.
+        self.chol.solve_in_place(&mut self.alt);
+        self.velocity_norm(&self.alt) / den
+    }
+
+    /// `phi(alpha) = E(x + alpha d)` and `phi'(alpha)` at `x + alpha d`, the point left in `self.trial`.
+    fn line_trial(&mut self, alpha: f64) -> (f64, f64) {
+        for ((t, x), d) in self.trial.iter_mut().zip(&self.iterate).zip(&self.dir) {
+            *t = x + alpha * d;
+        }
+        let e = self.evaluate_trial();
+        let slope = self.trial_grad.iter().zip(&self.dir).map(|(g, d)| g * d).sum();
+        (e, slope)
+    }
+
+    /// Line search from `self.iterate` along `self.dir` (see the module
+    /// documentation); moves the iterate and returns the new energy and the step
+    /// length taken, or `None` when no step decreases E beyond round-off.
+    fn line_search(&mut self, e0: f64) -> Option<(f64, f64)> {
+        let d0: f64 = self.grad.iter().zip(&self.dir).map(|(g, d)| g * d).sum();
+        let ok = |a: f64, e: f64, d: f64| {
+            if !e.is_finite() {
+                return false;
+            }
+            let scale = e0.abs().max(e.abs());
+            if e <= e0 + ARMIJO * a * d0 + ROUNDOFF_ULPS * f64::EPSILON * scale {
+                return true;
+            }
+            // Near convergence the decrease hides in the round-off of E; there a
+            // step at the line minimum (small slope) is taken.
+            e <= e0 + NOISE * scale && d.is_finite() && d.abs() <= CURVATURE * d0.abs()
+        };
+        let (e1, d1) = self.line_trial(1.0);
+        let good1 = ok(1.0, e1, d1);
+        if good1 && d1 <= CURVATURE * d0.abs() {
+            self.accept_trial();
+            return Some((e1, 1.0));
+        }
+        let mut hi = 1.0;
+        if d1.is_finite() && d1 > 0.0 {
+            // Overshoot: the line minimum lies in (0, 1); bracket it by secant steps.
+            let mut best = good1.then_some((1.0, e1));
+            let (mut lo, mut dlo, mut dhi) = (0.0, d0, d1);
+            let mut last = 1.0;
+            for _ in 0..MAX_SECANT {
+                let width = hi - lo;
+                let a = (lo - dlo * width / (dhi - dlo)).clamp(lo + 0.05 * width, hi - 0.05 * width);
+                let (e, d) = self.line_trial(a);
+                last = a;
+                let good = ok(a, e, d);
+                if good && best.is_none_or(|(_, eb)| e < eb) {
+                    best = Some((a, e));
+                }
+                if good && d.abs() <= CURVATURE * d0.abs() {
+                    self.accept_trial();
+                    return Some((e, a));
+                }
+                if good && d < 0.0 {
+                    (lo, dlo) = (a, d);
+                } else if d.is_finite() && d > 0.0 {
+                    (hi, dhi) = (a, d);
+                } else {
+                    break;
+                }
+            }
+            if let Some((a, e)) = best {
+                if a != last {
+                    self.line_trial(a);
+                }
+                self.accept_trial();
+                return Some((e, a));
+            }
+        } else if good1 {
+            self.accept_trial();
+            return Some((e1, 1.0));
+        }
+        let mut alpha = 0.5 * hi;
+        for _ in 0..MAX_HALVINGS {
+            let (e, d) = self.line_trial(alpha);
+            if ok(alpha, e, d) {
+                self.accept_trial();
                 return Some((e, alpha));
             }
             alpha *= 0.5;
@@ -296,9 +648,11 @@ impl ReducedSolver {
 
     fn finish_step(&mut self) {
         let h = self.system.dt();
+        std::mem::swap(&mut self.qdot_prev, &mut self.qdot);
         for ((v, x), q) in self.qdot.iter_mut().zip(&self.iterate).zip(&self.q) {
             *v = (x - q) / h;
         }
+        self.has_prev = true;
         self.q.copy_from_slice(&self.iterate);
         std::mem::swap(&mut self.last, &mut self.current);
         self.has_last = true;
@@ -379,7 +733,7 @@ mod tests {
 
     fn solver(model: &BlockModel, kind: SolverKind, tolerance: f64, max_iterations: usize) -> ReducedSolver {
         let system = ReducedSystem::new(&model.inputs()).unwrap();
-        let settings = SolverSettings { total_mass: model.total_mass, tolerance, max_iterations, kind };
+        let settings = SolverSettings::new(model.total_mass, tolerance, max_iterations, kind);
         ReducedSolver::new(system, settings).unwrap()
     }
 
@@ -512,7 +866,7 @@ mod tests {
         assert_eq!(s.hessian(&[0.0; 13], false).unwrap().len(), 169);
         assert!("gauss-seidel".parse::<SolverKind>().is_err());
         let system = ReducedSystem::new(&model.inputs()).unwrap();
-        let settings = SolverSettings { total_mass: 1.0, tolerance: 1e-6, max_iterations: 0, kind: SolverKind::Newton };
+        let settings = SolverSettings::new(1.0, 1e-6, 0, SolverKind::Newton);
         assert!(ReducedSolver::new(system, settings).is_err());
     }
 }

@@ -30,7 +30,7 @@ fn steps_do_not_allocate() {
     for kind in [SolverKind::Newton, SolverKind::Prefactored] {
         let model = BlockScene { learned_modes: 6, cubature_points: 40, contact_points: 30, ..Default::default() }.build().unwrap();
         let system = ReducedSystem::new(&model.inputs()).unwrap();
-        let settings = SolverSettings { total_mass: model.total_mass, tolerance: 1e-6, max_iterations: 500, kind };
+        let settings = SolverSettings::new(model.total_mass, 1e-6, 500, kind);
         let mut solver = ReducedSolver::new(system, settings).unwrap();
         let (q, qdot) = model.resting_state(0.3);
         solver.set_state(&q, &qdot).unwrap();

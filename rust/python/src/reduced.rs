@@ -2,7 +2,7 @@
 
 use licrom_core::contact::Plane;
 use licrom_core::reduced::{ReducedInputs, ReducedSystem};
-use licrom_core::solver::{ReducedSolver, SolverKind, SolverSettings};
+use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings};
 use licrom_core::StableNeoHookean;
 use nalgebra::Vector3;
 use numpy::PyArrayDyn;
@@ -23,7 +23,7 @@ impl ReducedCore {
     #[pyo3(signature = (
         mass, gravity_force, cubature_jacobians, cubature_weights, mu, lam, contact_basis, contact_rest,
         contact_areas, planes, normal_stiffness, normal_damping, friction_stiffness, dt, total_mass,
-        tolerance, max_iterations, solver = "newton"
+        tolerance, max_iterations, solver = "newton", elastic_hessian = "lagged"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -46,8 +46,10 @@ impl ReducedCore {
         tolerance: f64,
         max_iterations: i64,
         solver: &str,
+        elastic_hessian: &str,
     ) -> PyResult<Self> {
         let kind: SolverKind = solver.parse().py_err(py)?;
+        let elastic_hessian: ElasticHessian = elastic_hessian.parse().py_err(py)?;
         if max_iterations < 1 {
             return Err(error(py, Kind::Config, format!("max_iterations must be an integer >= 1, got {max_iterations}")));
         }
@@ -87,7 +89,7 @@ impl ReducedCore {
             friction_stiffness,
             dt,
         };
-        let settings = SolverSettings { total_mass, tolerance, max_iterations: max_iterations as usize, kind };
+        let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(total_mass, tolerance, max_iterations as usize, kind) };
         let inner = py.detach(|| ReducedSystem::new(&inputs).and_then(|system| ReducedSolver::new(system, settings))).py_err(py)?;
         Ok(Self { inner })
     }
@@ -123,6 +125,27 @@ impl ReducedCore {
         let solver = &mut self.inner;
         let report = py.detach(|| solver.step()).py_err(py)?;
         Ok((report.iterations, report.residual))
+    }
+
+    /// Work counters since construction (or the last `reset_stats`): steps,
+    /// iterations, evaluations, elastic_hessians, stick_solves, stick_steps.
+    fn stats(&self) -> std::collections::HashMap<&'static str, usize> {
+        let s = self.inner.stats();
+        [
+            ("steps", s.steps),
+            ("iterations", s.iterations),
+            ("evaluations", s.evaluations),
+            ("elastic_hessians", s.elastic_hessians),
+            ("stick_solves", s.stick_solves),
+            ("stick_steps", s.stick_steps),
+        ]
+        .into_iter()
+        .collect()
+    }
+
+    /// Zeroes the work counters.
+    fn reset_stats(&mut self) {
+        self.inner.reset_stats();
     }
 
     /// Takes the last iterate of a step that just failed to converge as the state.
