@@ -37,7 +37,7 @@ use crate::dense::{combine_rows, dot, rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
 use crate::real::{Lanes, Real, LANES};
-use crate::simd::{dispatch, Madd, WithMadd};
+use crate::simd::{dispatch, Madd, WithMadd, F8};
 
 /// Borrowed description of a reduced model; all arrays row-major (C order).
 #[derive(Debug, Clone, Copy)]
@@ -227,6 +227,12 @@ fn check_len(name: &str, data: &[f64], expected: usize, shape: impl FnOnce() -> 
     }
 }
 
+/// The eight values of `s` from `at`.
+#[inline(always)]
+fn lanes_at(s: &[f64], at: usize) -> &F8 {
+    s[at..at + LANES].try_into().expect("eight lanes")
+}
+
 /// The eight deformation gradients of a packed group, `F[a][lane]`.
 #[inline(always)]
 fn group_deformation<M: Madd>(group: &[f64], q: &[f64]) -> [[f64; LANES]; 9] {
@@ -234,9 +240,7 @@ fn group_deformation<M: Madd>(group: &[f64], q: &[f64]) -> [[f64; LANES]; 9] {
     for (i, g) in group.chunks_exact(9 * LANES).enumerate() {
         let qi = q[i];
         for a in 0..9 {
-            for l in 0..LANES {
-                f[a][l] = M::madd(g[a * LANES + l], qi, f[a][l]);
-            }
+            f[a] = M::madd8_splat(qi, lanes_at(g, a * LANES), f[a]);
         }
     }
     for a in [0, 4, 8] {
@@ -478,11 +482,11 @@ impl ReducedSystem {
                     }
                 }
                 for (g, acc) in group.chunks_exact(9 * LANES).zip(lane_grad.iter_mut()) {
+                    let mut v = *acc;
                     for a in 0..9 {
-                        for l in 0..LANES {
-                            acc[l] = M::madd(g[a * LANES + l], p[a][l], acc[l]);
-                        }
+                        v = M::madd8(lanes_at(g, a * LANES), &p[a], v);
                     }
+                    *acc = v;
                 }
             }
         }
@@ -619,9 +623,7 @@ impl ReducedSystem {
                     for (b, c) in coef.iter().take(count).enumerate() {
                         let mut v = [0.0; LANES];
                         for a in 0..9 {
-                            for l in 0..LANES {
-                                v[l] = M::madd(c[a][l], g[a * LANES + l], v[l]);
-                            }
+                            v = M::madd8(&c[a], lanes_at(g, a * LANES), v);
                         }
                         let at = column + base + b * LANES;
                         out[at..at + LANES].copy_from_slice(&v);

@@ -2,7 +2,9 @@
 //! and tests: the 12 affine modes plus `r` smooth analytic modes
 //! `u(X) = d sin(k.X + phi)`, exact mass matrix from a grid of sample points,
 //! random interior cubature points with equal weights, and contact points spread
-//! over the bottom face (all of them touch the ground when the block rests).
+//! over the bottom face (all of them touch the ground when the block rests) or
+//! over all six faces. The ground is the plane through the origin, level or
+//! inclined about the y axis.
 
 use nalgebra::Vector3;
 
@@ -30,8 +32,13 @@ pub struct BlockScene {
     pub lam: f64,
     /// Time step, s.
     pub dt: f64,
-    /// Coulomb coefficient of the ground plane z = 0.
+    /// Coulomb coefficient of the ground plane.
     pub friction: f64,
+    /// Slope of the ground plane about the y axis, degrees: its normal is
+    /// `(sin a, 0, cos a)`, so that it descends towards +x.
+    pub incline: f64,
+    /// Contact points on all six faces (else on the bottom face only).
+    pub contact_on_all_faces: bool,
     /// k_n, N/m^3.
     pub normal_stiffness: f64,
     /// k_d, N s/m^3.
@@ -56,6 +63,8 @@ impl Default for BlockScene {
             lam: 8.97e4,
             dt: 0.01,
             friction: 0.5,
+            incline: 0.0,
+            contact_on_all_faces: false,
             normal_stiffness: 2.0e6,
             normal_damping: 0.0,
             friction_stiffness: 1.0e6,
@@ -216,12 +225,24 @@ impl BlockScene {
         let c = self.contact_points;
         let mut contact_basis = vec![0.0; c * 3 * n];
         let mut contact_rest = vec![0.0; c * 3];
-        for (chunk, rest) in contact_basis.chunks_exact_mut(3 * n).zip(contact_rest.chunks_exact_mut(3)) {
-            let x = [l * rng.next(), l * rng.next(), 0.0];
+        for (j, (chunk, rest)) in contact_basis.chunks_exact_mut(3 * n).zip(contact_rest.chunks_exact_mut(3)).enumerate() {
+            let (u, v) = (l * rng.next(), l * rng.next());
+            let x = if self.contact_on_all_faces {
+                // Face j mod 6: the axis it is normal to and which side.
+                let (axis, side) = (j % 3, if (j / 3) % 2 == 0 { 0.0 } else { l });
+                let mut x = [u, v, 0.0];
+                x.swap(2, axis);
+                x[axis] = side;
+                x
+            } else {
+                [u, v, 0.0]
+            };
             basis.values(x, chunk);
             rest.copy_from_slice(&x);
         }
-        let contact_areas = vec![l * l / c.max(1) as f64; c];
+        let faces = if self.contact_on_all_faces { 6.0 } else { 1.0 };
+        let contact_areas = vec![faces * l * l / c.max(1) as f64; c];
+        let slope = self.incline.to_radians();
         Ok(BlockModel {
             scene: *self,
             mass,
@@ -231,7 +252,7 @@ impl BlockScene {
             contact_basis,
             contact_rest,
             contact_areas,
-            planes: vec![Plane::new(Vector3::z(), 0.0, self.friction)?],
+            planes: vec![Plane::new(Vector3::new(slope.sin(), 0.0, slope.cos()), 0.0, self.friction)?],
             material: StableNeoHookean::new(self.mu, self.lam)?,
             total_mass,
         })
@@ -263,8 +284,34 @@ impl BlockModel {
         }
     }
 
+    /// The block at rest, turned about the y axis by `tilt` degrees (turning
+    /// it by the plane's incline lays its bottom face flat on the plane), with
+    /// its lowest corner `height` (m) above the plane: `(q, qdot)`.
+    pub fn dropped_state(&self, tilt: f64, height: f64) -> (Vec<f64>, Vec<f64>) {
+        let s = &self.scene;
+        let n = self.n_dofs();
+        let (sin, cos) = tilt.to_radians().sin_cos();
+        let r = nalgebra::Matrix3::new(cos, 0.0, sin, 0.0, 1.0, 0.0, -sin, 0.0, cos);
+        let normal = self.planes[0].normal();
+        let lowest = (0..8)
+            .map(|c| {
+                let corner = Vector3::new((c & 1) as f64, ((c >> 1) & 1) as f64, ((c >> 2) & 1) as f64) * s.size;
+                normal.dot(&(r * corner))
+            })
+            .fold(f64::INFINITY, f64::min);
+        let lift = (height - lowest - self.planes[0].offset()) / normal.z;
+        let mut q = vec![0.0; n];
+        for i in 0..3 {
+            for j in 0..3 {
+                q[3 * j + i] = r[(i, j)] - if i == j { 1.0 } else { 0.0 };
+            }
+        }
+        q[11] = lift;
+        (q, vec![0.0; n])
+    }
+
     /// State of the block sunk to the depth where the penalty carries its weight,
-    /// moving at `speed` (m/s) along x: `(q, qdot)`.
+    /// moving at `speed` (m/s) along x: `(q, qdot)` (level ground).
     pub fn resting_state(&self, speed: f64) -> (Vec<f64>, Vec<f64>) {
         let s = &self.scene;
         let n = self.n_dofs();
