@@ -52,9 +52,9 @@ def filmstrip(
     plt = _matplotlib()
     first = trajectories[0]
     picks = np.linspace(0, first.n_frames - 1, frames).round().astype(int)
-    allx = np.concatenate([t.rest_positions[None] + t.displacements[picks] for t in trajectories]).reshape(-1, 3)
-    lo, hi = allx.min(0), allx.max(0)
-    centre, half = (lo + hi) / 2, (hi - lo).max() / 2 * 0.8
+    # The camera follows the object: each panel is centred on the mean of the shown frames'
+    # positions and spans 1.6 x the rest shape's largest extent.
+    half = 0.8 * float(np.ptp(first.rest_positions, axis=0).max())
     light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     fig = plt.figure(figsize=(2.6 * frames, 2.6 * len(trajectories) + 0.4))
     for row, (traj, label) in enumerate(zip(trajectories, labels)):
@@ -62,6 +62,7 @@ def filmstrip(
         for col, f in enumerate(picks):
             ax = fig.add_subplot(len(trajectories), frames, row * frames + col + 1, projection="3d")
             x = traj.positions(f)
+            centre = np.mean([t.positions(f).mean(axis=0) for t in trajectories], axis=0)
             tri = x[faces]
             nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -77,7 +78,7 @@ def filmstrip(
             ax.set_zlim(centre[2] - half, centre[2] + half)
             ax.view_init(elev=18, azim=-70)
             ax.set_axis_off()
-            ax.set_title(f"{label}  t={traj.times[f]:.2f}s", fontsize=8)
+            ax.set_title(f"{label}  t={traj.times[f]:.2f}s\ncentre ({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) m", fontsize=7)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
