@@ -32,7 +32,7 @@ use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructu
 use faer::{Accum, MatMut, MatRef, Par};
 use nalgebra::Vector3;
 
-use crate::contact::{ContactModel, Plane};
+use crate::contact::{ContactModel, Plane, RankOneTerms};
 use crate::dense::{combine_rows, dot, rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
@@ -140,14 +140,22 @@ pub struct Workspace {
     pub has_clamped: bool,
     /// Contact part of the Hessian (scratch of [`ReducedSystem::assemble`]).
     contact_hess: Vec<f64>,
-    /// Elastic square-root rows, column-major with column stride `row_stride`:
+    /// Elastic square-root rows of `chunk` groups of cubature points at a time,
+    /// column-major with column stride `row_stride`:
     /// positive ones in `rows`, clamped ones in `clamped_rows`.
     rows: Vec<f64>,
     clamped_rows: Vec<f64>,
     row_stride: usize,
-    /// Contact square-root rows, row-major, up to 3 per point and plane.
+    chunk: usize,
+    /// Contact square-root rows, row-major, up to 3 per point and plane (and
+    /// the rows taken out by an incremental update).
     contact_rows: Vec<f64>,
+    contact_rows_out: Vec<f64>,
     contact_coef: Vec<[f64; 3]>,
+    contact_coef_out: Vec<[f64; 3]>,
+    /// Hessian terms of every contact point with area and plane, from the last
+    /// [`ReducedSystem::evaluate`] with gradient.
+    contact_terms: Vec<RankOneTerms>,
     /// Per-lane partial sums of the elastic gradient, n.
     lane_grad: Vec<[f64; LANES]>,
 }
@@ -171,16 +179,17 @@ impl Workspace {
 
 /// `dst (lower triangle) = op(B^T B)` for the `count` rows of the row-major `rows` (width n).
 fn syrk_rows(dst: &mut [f64], n: usize, rows: &[f64], count: usize, accum: Accum) {
-    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_row_major_slice(&rows[..count * n], count, n)), accum);
+    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_row_major_slice(&rows[..count * n], count, n)), accum, 1.0);
 }
 
 /// `dst (lower triangle) = op(B^T B)` for the first `count` rows of the
 /// column-major `rows` with column stride `stride`.
 fn syrk_columns(dst: &mut [f64], n: usize, rows: &[f64], stride: usize, count: usize, accum: Accum) {
-    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_column_major_slice_with_stride(rows, count, n, stride)), accum);
+    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_column_major_slice_with_stride(rows, count, n, stride)), accum, 1.0);
 }
 
-fn syrk_lower(dst: &mut [f64], n: usize, b: Option<MatRef<'_, f64>>, accum: Accum) {
+/// `dst (lower triangle) = op(alpha B^T B)` (nothing, or zeros for `Replace`, without B).
+fn syrk_lower(dst: &mut [f64], n: usize, b: Option<MatRef<'_, f64>>, accum: Accum, alpha: f64) {
     let Some(b) = b else {
         if accum == Accum::Replace {
             dst.fill(0.0);
@@ -196,7 +205,7 @@ fn syrk_lower(dst: &mut [f64], n: usize, b: Option<MatRef<'_, f64>>, accum: Accu
         BlockStructure::Rectangular,
         b,
         BlockStructure::Rectangular,
-        1.0,
+        alpha,
         Par::Seq,
     );
 }
@@ -217,6 +226,49 @@ pub(crate) fn add_gram(dst: &mut [f64], n: usize, rows: &[f64], count: usize) {
     }
     syrk_rows(dst, n, rows, count, Accum::Add);
     mirror_lower(dst, n);
+}
+
+/// Relative change of a contact curvature (and `1 - cos` of its direction)
+/// below which an incremental update keeps the old term.
+const CURVATURE_SLACK: f64 = 1.1;
+const DIRECTION_COS: f64 = 0.995;
+
+/// The contact part of the Hessian, kept up to date incrementally by
+/// [`ReducedSystem::update_contact_hessian`].
+#[derive(Debug, Clone)]
+pub struct ContactHessian {
+    /// The terms in `hess`, per contact point with area and plane.
+    used: Vec<RankOneTerms>,
+    /// n x n, full symmetric.
+    hess: Vec<f64>,
+    /// Rows in `hess`, and rows taken out since it was last formed from scratch.
+    rows: usize,
+    removed: usize,
+    valid: bool,
+    /// Keep terms that changed by less than [`CURVATURE_SLACK`] (else only equal ones).
+    lagged: bool,
+}
+
+impl ContactHessian {
+    /// The matrix (n x n, full symmetric, PSD up to round-off).
+    pub fn matrix(&self) -> &[f64] {
+        &self.hess
+    }
+
+    /// Forms the matrix from scratch at the next update.
+    pub fn invalidate(&mut self) {
+        self.valid = false;
+    }
+}
+
+/// Whether the curvature terms `a` may stand in for `b` (`slack`: allowed ratio of
+/// the curvatures, `cos`: of the directions; 1, 1 for equality).
+fn close_terms(a: &RankOneTerms, b: &RankOneTerms, slack: f64, cos: f64) -> bool {
+    a.len == b.len
+        && (0..a.len).all(|t| {
+            let (ca, cb) = (a.coef[t], b.coef[t]);
+            ca <= slack * cb && cb <= slack * ca && a.dir[t].dot(&b.dir[t]) >= cos
+        })
 }
 
 fn check_len(name: &str, data: &[f64], expected: usize, shape: impl FnOnce() -> String) -> Result<()> {
@@ -371,7 +423,10 @@ impl ReducedSystem {
     /// Buffers for [`Self::assemble`] and the other evaluations.
     pub fn workspace(&self) -> Workspace {
         let n = self.n;
-        let row_stride = 9 * LANES * self.groups();
+        // Chunks of rows of about 256 KiB: they stay in cache between being
+        // written and being multiplied.
+        let chunk = (256 * 1024 / (9 * LANES * 8 * n)).clamp(1, self.groups().max(1));
+        let row_stride = 9 * LANES * chunk;
         let contact_rows = 3 * self.contact_points.len() * self.planes.len();
         Workspace {
             grad: vec![0.0; n],
@@ -382,8 +437,12 @@ impl ReducedSystem {
             rows: vec![0.0; row_stride * n],
             clamped_rows: vec![0.0; row_stride * n],
             row_stride,
+            chunk,
             contact_rows: vec![0.0; contact_rows * n],
+            contact_rows_out: vec![0.0; contact_rows * n],
             contact_coef: vec![[0.0; 3]; 3 * self.planes.len()],
+            contact_coef_out: vec![[0.0; 3]; 3 * self.planes.len()],
+            contact_terms: vec![RankOneTerms::default(); self.contact_points.len() * self.planes.len()],
             lane_grad: vec![[0.0; LANES]; n],
         }
     }
@@ -427,22 +486,30 @@ impl ReducedSystem {
 
     /// Incremental potential E(q), J.
     pub fn energy(&self, start: &StepStart, q: &[f64]) -> f64 {
-        dispatch(EvaluateKernel { sys: self, start, q, lane_grad: &mut [], grad: &mut [] }) + start.offset
+        dispatch(EvaluateKernel { sys: self, start, q, lane_grad: &mut [], grad: &mut [], terms: &mut [] }) + start.offset
     }
 
     /// `E(q) - E0` (J) with the constant `E0 = -f . qt` of the step left out, so
     /// that differences of nearby values keep their digits; with `with_gradient`
-    /// also the gradient (into `ws.grad`).
+    /// also the gradient (into `ws.grad`) and the contact points' Hessian terms
+    /// (for [`Self::update_contact_hessian`]).
     pub fn evaluate(&self, start: &StepStart, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
-        let (lane_grad, grad): (&mut [[f64; LANES]], &mut [f64]) =
-            if with_gradient { (&mut ws.lane_grad, &mut ws.grad) } else { (&mut [], &mut []) };
-        dispatch(EvaluateKernel { sys: self, start, q, lane_grad, grad })
+        let (lane_grad, grad, terms): (&mut [[f64; LANES]], &mut [f64], &mut [RankOneTerms]) =
+            if with_gradient { (&mut ws.lane_grad, &mut ws.grad, &mut ws.contact_terms) } else { (&mut [], &mut [], &mut []) };
+        dispatch(EvaluateKernel { sys: self, start, q, lane_grad, grad, terms })
     }
 
     /// Energy (shifted as in [`Self::evaluate`]) and, when `grad` is not empty,
     /// the gradient; `lane_grad` (n, or empty) is scratch.
     #[inline(always)]
-    fn evaluate_impl<M: Madd>(&self, start: &StepStart, q: &[f64], lane_grad: &mut [[f64; LANES]], grad: &mut [f64]) -> f64 {
+    fn evaluate_impl<M: Madd>(
+        &self,
+        start: &StepStart,
+        q: &[f64],
+        lane_grad: &mut [[f64; LANES]],
+        grad: &mut [f64],
+        terms: &mut [RankOneTerms],
+    ) -> f64 {
         let n = self.n;
         let with_gradient = !grad.is_empty();
         let inv_h2 = 1.0 / (self.dt() * self.dt());
@@ -502,7 +569,7 @@ impl ReducedSystem {
         if n_planes == 0 {
             return e;
         }
-        for &j in &self.contact_points {
+        for (slot, &j) in self.contact_points.iter().enumerate() {
             let x = self.contact_position::<M>(j, q);
             let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
             let mut g3 = Vector3::zeros();
@@ -510,6 +577,9 @@ impl ReducedSystem {
                 let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
                 e += c.energy;
                 g3 += c.gradient;
+                if with_gradient {
+                    terms[slot * n_planes + p] = c.hessian;
+                }
             }
             if with_gradient && g3 != Vector3::zeros() {
                 let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
@@ -549,24 +619,36 @@ impl ReducedSystem {
     /// eigenvalues of every point's SNH Hessian clamped to zero) into
     /// `projected`, and what the clamping removed (PSD) into `clamped` when
     /// given, both n x n full symmetric. Returns whether anything was clamped.
-    pub fn elastic_hessian(&self, q: &[f64], ws: &mut Workspace, projected: &mut [f64], clamped: Option<&mut [f64]>) -> bool {
-        let split = clamped.is_some();
-        let (positive, negative) = dispatch(ElasticRowsKernel { sys: self, q, split, ws: &mut *ws });
+    pub fn elastic_hessian(&self, q: &[f64], ws: &mut Workspace, projected: &mut [f64], mut clamped: Option<&mut [f64]>) -> bool {
         let n = self.n;
-        syrk_columns(projected, n, &ws.rows, ws.row_stride, positive, Accum::Replace);
-        mirror_lower(projected, n);
-        if let Some(clamped) = clamped {
-            syrk_columns(clamped, n, &ws.clamped_rows, ws.row_stride, negative, Accum::Replace);
-            mirror_lower(clamped, n);
+        let split = clamped.is_some();
+        projected.fill(0.0);
+        if let Some(c) = clamped.as_deref_mut() {
+            c.fill(0.0);
         }
-        negative > 0
+        let mut any_clamped = false;
+        let groups = self.groups();
+        for first in (0..groups).step_by(ws.chunk) {
+            let range = first..groups.min(first + ws.chunk);
+            let (positive, negative) = dispatch(ElasticRowsKernel { sys: self, q, split, range, ws: &mut *ws });
+            syrk_columns(projected, n, &ws.rows, ws.row_stride, positive, Accum::Add);
+            if let Some(c) = clamped.as_deref_mut() {
+                syrk_columns(c, n, &ws.clamped_rows, ws.row_stride, negative, Accum::Add);
+            }
+            any_clamped |= negative > 0;
+        }
+        mirror_lower(projected, n);
+        if let Some(c) = clamped {
+            mirror_lower(c, n);
+        }
+        any_clamped
     }
 
-    /// Square-root rows of the elastic Hessian, eight (one per lane) per group
-    /// and eigenmode, skipping modes that no lane of the group needs; returns
-    /// the numbers of positive and clamped rows written.
+    /// Square-root rows of the elastic Hessian for the groups in `range`, eight
+    /// (one per lane) per group and eigenmode, skipping modes that no lane of the
+    /// group needs; returns the numbers of positive and clamped rows written.
     #[inline(always)]
-    fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, ws: &mut Workspace) -> (usize, usize) {
+    fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, range: std::ops::Range<usize>, ws: &mut Workspace) -> (usize, usize) {
         let n = self.n;
         let stride = ws.row_stride;
         let group_len = n * 9 * LANES;
@@ -575,7 +657,9 @@ impl ReducedSystem {
         let mut vectors = [[Lanes::splat(0.0); 9]; 9];
         let mut pos_coef = [[[0.0; LANES]; 9]; 9];
         let mut neg_coef = [[[0.0; LANES]; 9]; 9];
-        for (group, weights) in self.packed.chunks_exact(group_len).zip(self.packed_weights.chunks_exact(LANES)) {
+        let packed = &self.packed[range.start * group_len..range.end * group_len];
+        let packed_weights = &self.packed_weights[range.start * LANES..range.end * LANES];
+        for (group, weights) in packed.chunks_exact(group_len).zip(packed_weights.chunks_exact(LANES)) {
             let f = group_deformation::<M>(group, q);
             let mut lanes = [[Lanes::splat(0.0); 3]; 3];
             for a in 0..9 {
@@ -614,20 +698,29 @@ impl ReducedSystem {
                     n_neg += 1;
                 }
             }
+            // All nine combinations at once: nine independent multiply-add
+            // chains reuse each loaded block of G; only the needed ones are stored.
             for (i, g) in group.chunks_exact(9 * LANES).enumerate() {
                 let column = i * stride;
+                let mut gs = [[0.0; LANES]; 9];
+                for a in 0..9 {
+                    gs[a] = *lanes_at(g, a * LANES);
+                }
                 for (coef, count, base, out) in [
                     (&pos_coef, n_pos, positive, &mut ws.rows),
                     (&neg_coef, n_neg, negative, &mut ws.clamped_rows),
                 ] {
-                    for (b, c) in coef.iter().take(count).enumerate() {
-                        let mut v = [0.0; LANES];
-                        for a in 0..9 {
-                            v = M::madd8(&c[a], lanes_at(g, a * LANES), v);
-                        }
-                        let at = column + base + b * LANES;
-                        out[at..at + LANES].copy_from_slice(&v);
+                    if count == 0 {
+                        continue;
                     }
+                    let mut v = [[0.0; LANES]; 9];
+                    for a in 0..9 {
+                        for b in 0..9 {
+                            v[b] = M::madd8(&coef[b][a], &gs[a], v[b]);
+                        }
+                    }
+                    let at = column + base;
+                    out[at..at + count * LANES].copy_from_slice(v[..count].as_flattened());
                 }
             }
             positive += n_pos * LANES;
@@ -671,6 +764,94 @@ impl ReducedSystem {
             }
         }
         rows
+    }
+
+    /// An empty incremental contact Hessian for this system; `lagged` keeps
+    /// curvatures that changed by less than 10% (and directions that turned by
+    /// less than about 6 degrees), else only unchanged ones.
+    pub fn contact_hessian_state(&self, lagged: bool) -> ContactHessian {
+        ContactHessian {
+            used: vec![RankOneTerms::default(); self.contact_points.len() * self.planes.len()],
+            hess: vec![0.0; self.n * self.n],
+            rows: 0,
+            removed: 0,
+            valid: false,
+            lagged,
+        }
+    }
+
+    /// Brings `state` to the contact terms of the last [`Self::evaluate`] with
+    /// gradient: the rows of the points whose terms changed are taken out of the
+    /// matrix and their new rows put in, so that a contact state that does not
+    /// change (sticking, resting) costs nothing. The matrix is formed from scratch
+    /// when invalid or once the rows taken out outnumber four times those in it,
+    /// which bounds the round-off of the updates. Returns the rows changed.
+    pub fn update_contact_hessian(&self, ws: &mut Workspace, state: &mut ContactHessian) -> usize {
+        let n = self.n;
+        let rebuild = !state.valid || state.removed > 4 * state.rows.max(64);
+        let (plus, minus, rows) = dispatch(ContactUpdateKernel { sys: self, ws: &mut *ws, state: &mut *state, rebuild });
+        if rebuild {
+            syrk_rows(&mut state.hess, n, &ws.contact_rows, plus, Accum::Replace);
+            state.removed = 0;
+        } else {
+            if plus > 0 {
+                syrk_rows(&mut state.hess, n, &ws.contact_rows, plus, Accum::Add);
+            }
+            if minus > 0 {
+                let b = MatRef::from_row_major_slice(&ws.contact_rows_out[..minus * n], minus, n);
+                syrk_lower(&mut state.hess, n, Some(b), Accum::Add, -1.0);
+            }
+            state.removed += minus;
+        }
+        mirror_lower(&mut state.hess, n);
+        state.rows = rows;
+        state.valid = true;
+        plus + minus
+    }
+
+    /// Rows in and out of an incremental update; returns their counts and the
+    /// rows in the matrix afterwards.
+    #[inline(always)]
+    fn update_contact_impl<M: Madd>(&self, ws: &mut Workspace, state: &mut ContactHessian, rebuild: bool) -> (usize, usize, usize) {
+        let n = self.n;
+        let n_planes = self.planes.len();
+        let (slack, cos) = if state.lagged { (CURVATURE_SLACK, DIRECTION_COS) } else { (1.0, 1.0) };
+        let (mut plus, mut minus, mut rows) = (0, 0, 0);
+        for (slot, &j) in self.contact_points.iter().enumerate() {
+            let (mut count_in, mut count_out) = (0, 0);
+            for p in 0..n_planes {
+                let k = slot * n_planes + p;
+                let (new, old) = (ws.contact_terms[k], state.used[k]);
+                if !rebuild && (new.len == 0 && old.len == 0 || close_terms(&new, &old, slack, cos)) {
+                    rows += old.len;
+                    continue;
+                }
+                if !rebuild {
+                    for t in 0..old.len {
+                        let d = old.dir[t] * old.coef[t].sqrt();
+                        ws.contact_coef_out[count_out] = [d.x, d.y, d.z];
+                        count_out += 1;
+                    }
+                }
+                for t in 0..new.len {
+                    let d = new.dir[t] * new.coef[t].sqrt();
+                    ws.contact_coef[count_in] = [d.x, d.y, d.z];
+                    count_in += 1;
+                }
+                state.used[k] = new;
+                rows += new.len;
+            }
+            let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+            if count_in > 0 {
+                combine_rows::<M, 3>(w, &ws.contact_coef[..count_in], &mut ws.contact_rows[plus * n..], &[0.0; 3], &mut []);
+                plus += count_in;
+            }
+            if count_out > 0 {
+                combine_rows::<M, 3>(w, &ws.contact_coef_out[..count_out], &mut ws.contact_rows_out[minus * n..], &[0.0; 3], &mut []);
+                minus += count_out;
+            }
+        }
+        (plus, minus, rows)
     }
 
     /// Stick correction of a Newton direction `dir` taken from `q`: the slipping
@@ -773,13 +954,14 @@ struct EvaluateKernel<'a> {
     q: &'a [f64],
     lane_grad: &'a mut [[f64; LANES]],
     grad: &'a mut [f64],
+    terms: &'a mut [RankOneTerms],
 }
 
 impl WithMadd for EvaluateKernel<'_> {
     type Output = f64;
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
-        self.sys.evaluate_impl::<M>(self.start, self.q, self.lane_grad, self.grad)
+        self.sys.evaluate_impl::<M>(self.start, self.q, self.lane_grad, self.grad, self.terms)
     }
 }
 
@@ -787,6 +969,7 @@ struct ElasticRowsKernel<'a> {
     sys: &'a ReducedSystem,
     q: &'a [f64],
     split: bool,
+    range: std::ops::Range<usize>,
     ws: &'a mut Workspace,
 }
 
@@ -794,7 +977,7 @@ impl WithMadd for ElasticRowsKernel<'_> {
     type Output = (usize, usize);
     #[inline(always)]
     fn run<M: Madd>(self) -> (usize, usize) {
-        self.sys.elastic_rows_impl::<M>(self.q, self.split, self.ws)
+        self.sys.elastic_rows_impl::<M>(self.q, self.split, self.range, self.ws)
     }
 }
 
@@ -810,6 +993,21 @@ impl WithMadd for ContactRowsKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) -> usize {
         self.sys.contact_rows_impl::<M>(self.start, self.q, self.ws)
+    }
+}
+
+struct ContactUpdateKernel<'a> {
+    sys: &'a ReducedSystem,
+    ws: &'a mut Workspace,
+    state: &'a mut ContactHessian,
+    rebuild: bool,
+}
+
+impl WithMadd for ContactUpdateKernel<'_> {
+    type Output = (usize, usize, usize);
+    #[inline(always)]
+    fn run<M: Madd>(self) -> (usize, usize, usize) {
+        self.sys.update_contact_impl::<M>(self.ws, self.state, self.rebuild)
     }
 }
 

@@ -55,7 +55,7 @@
 
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::reduced::{Hessian, ReducedSystem, StepStart, Workspace};
+use crate::reduced::{ContactHessian, Hessian, ReducedSystem, StepStart, Workspace};
 
 /// How the search direction is computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -216,7 +216,7 @@ pub struct ReducedSolver {
     elastic_valid: bool,
     /// Whether the last direction used the exact elastic Hessian.
     used_exact: bool,
-    contact: Vec<f64>,
+    contact: ContactHessian,
     /// The matrix last factored into `chol`.
     hess: Vec<f64>,
     mass_over_h2: Vec<f64>,
@@ -283,7 +283,7 @@ impl ReducedSolver {
             has_clamped: false,
             elastic_valid: false,
             used_exact: false,
-            contact: square.clone(),
+            contact: system.contact_hessian_state(settings.elastic_hessian == ElasticHessian::Lagged),
             hess: square,
             mass_over_h2,
             stats: SolverStats::default(),
@@ -427,12 +427,14 @@ impl ReducedSolver {
         match &mut self.prefactor {
             Some(a) => a.solve_in_place(&mut self.dir),
             None => {
-                self.system.contact_hessian(&self.current, &self.iterate, &mut self.ws, &mut self.contact);
+                // The contact terms are those of the evaluation at `self.iterate`.
+                self.system.update_contact_hessian(&mut self.ws, &mut self.contact);
                 let exact = try_exact && self.has_clamped;
                 self.used_exact = exact;
+                let contact = self.contact.matrix();
                 for i in 0..self.hess.len() {
                     let clamped = if exact { self.elastic_clamped[i] } else { 0.0 };
-                    self.hess[i] = self.mass_over_h2[i] + (self.elastic[i] - clamped) + self.contact[i];
+                    self.hess[i] = self.mass_over_h2[i] + (self.elastic[i] - clamped) + contact[i];
                 }
                 if !self.hess.iter().all(|v| v.is_finite()) {
                     return Err(LicromError::Diverged { iteration, what: "Hessian" });
