@@ -2,7 +2,11 @@
 //! flat, slides and comes to rest (tan 20 < 0.5). Prints the iterations and
 //! time of every step and the solver's work counters.
 //!
-//! cargo run --release --example landing -- [learned_modes] [cubature] [contacts] [newton|prefactored] [lagged|every_iteration]
+//! With `sliding` as sixth argument, it runs instead the cold step of the
+//! `reduced_step` benchmark (sliding block on level ground, state restored
+//! before every step) a few times.
+//!
+//! cargo run --release --example landing -- [learned_modes] [cubature] [contacts] [newton|prefactored] [lagged|every_iteration] [sliding]
 
 use std::time::Instant;
 
@@ -18,6 +22,24 @@ fn main() {
     let c: usize = arg(3, "1000").parse().expect("contact points");
     let kind = arg(4, "newton").parse().expect("solver");
     let elastic_hessian = arg(5, "lagged").parse().expect("elastic Hessian rule");
+    if arg(6, "") == "sliding" {
+        let model = BlockScene { learned_modes: r, cubature_points: k, contact_points: c, ..Default::default() }.build().expect("scene");
+        let system = ReducedSystem::new(&model.inputs()).expect("system");
+        let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(model.total_mass, 1e-6, 500, kind) };
+        let mut solver = ReducedSolver::new(system, settings).expect("solver");
+        let (mut q, qdot) = model.resting_state(0.3);
+        for (i, qi) in q.iter_mut().enumerate().skip(12) {
+            *qi = 1e-3 * ((i * 7) % 5) as f64 / 4.0;
+        }
+        for _ in 0..3 {
+            solver.set_state(&q, &qdot).expect("state");
+            let t = Instant::now();
+            let report = solver.step().expect("step");
+            println!("{report:?} {:.3} ms", t.elapsed().as_secs_f64() * 1e3);
+        }
+        println!("{:?}", solver.stats());
+        return;
+    }
     let scene = BlockScene {
         learned_modes: r,
         cubature_points: k,

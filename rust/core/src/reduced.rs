@@ -89,6 +89,12 @@ pub struct ReducedSystem {
     areas: Vec<f64>,
     /// Contact points with a non-zero area (the others carry no force).
     contact_points: Vec<usize>,
+    /// Normal rows `n_p^T W_j` of those points in groups of LANES: group g and
+    /// plane p at `(g P + p) n LANES`, as `[i][lane]`.
+    normal_rows: Vec<f64>,
+    /// `n_p . X_j + d_p` at `(g P + p) LANES + lane` (+inf in padding lanes), so
+    /// that `gap = offset + row . q`.
+    normal_offsets: Vec<f64>,
     planes: Vec<Plane>,
     contact: ContactModel,
 }
@@ -158,6 +164,8 @@ pub struct Workspace {
     contact_terms: Vec<RankOneTerms>,
     /// Per-lane partial sums of the elastic gradient, n.
     lane_grad: Vec<[f64; LANES]>,
+    /// Elastic energy of the last evaluation, J.
+    pub elastic_energy: f64,
 }
 
 impl Workspace {
@@ -226,6 +234,26 @@ pub(crate) fn add_gram(dst: &mut [f64], n: usize, rows: &[f64], count: usize) {
     }
     syrk_rows(dst, n, rows, count, Accum::Add);
     mirror_lower(dst, n);
+}
+
+/// A contact point whose gap, from its normal row, is above this (m) is
+/// skipped unless it carries a lagged normal force; its exact gap (from its
+/// position) decides everything else. The margin covers the round-off between
+/// the two ways of computing the gap.
+const CULL_MARGIN: f64 = 1e-9;
+
+/// A quadratic stand-in for the elastic energy about `origin`:
+/// `energy + gradient . d + d^T hessian d / 2`, `d = q - origin`.
+#[derive(Debug, Clone, Copy)]
+pub struct ElasticModel<'a> {
+    /// Expansion point, n.
+    pub origin: &'a [f64],
+    /// Elastic energy there, J.
+    pub energy: f64,
+    /// Elastic gradient there, n.
+    pub gradient: &'a [f64],
+    /// Symmetric n x n matrix.
+    pub hessian: &'a [f64],
 }
 
 /// Relative change of a contact curvature (and `1 - cos` of its direction)
@@ -351,6 +379,24 @@ impl ReducedSystem {
                 }
             }
         }
+        let contact_points: Vec<usize> = (0..c).filter(|&j| inp.contact_areas[j] > 0.0).collect();
+        let n_planes = inp.planes.len();
+        let contact_groups = contact_points.len().div_ceil(LANES);
+        let mut normal_rows = vec![0.0; contact_groups * n_planes * n * LANES];
+        let mut normal_offsets = vec![f64::INFINITY; contact_groups * n_planes * LANES];
+        for (slot, &j) in contact_points.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            let w = &inp.contact_basis[3 * n * j..3 * n * (j + 1)];
+            for (p, plane) in inp.planes.iter().enumerate() {
+                let at = g * n_planes + p;
+                let nrm = plane.normal();
+                let x0 = Vector3::from_column_slice(&inp.contact_rest[3 * j..3 * j + 3]);
+                normal_offsets[at * LANES + l] = plane.gap(&x0);
+                for i in 0..n {
+                    normal_rows[(at * n + i) * LANES + l] = nrm.x * w[i] + nrm.y * w[n + i] + nrm.z * w[2 * n + i];
+                }
+            }
+        }
         Ok(Self {
             n,
             mass,
@@ -361,7 +407,9 @@ impl ReducedSystem {
             material: inp.material,
             contact_basis: inp.contact_basis.to_vec(),
             contact_rest: inp.contact_rest.to_vec(),
-            contact_points: (0..c).filter(|&j| inp.contact_areas[j] > 0.0).collect(),
+            contact_points,
+            normal_rows,
+            normal_offsets,
             areas: inp.contact_areas.to_vec(),
             planes: inp.planes.to_vec(),
             contact,
@@ -444,26 +492,60 @@ impl ReducedSystem {
             contact_coef_out: vec![[0.0; 3]; 3 * self.planes.len()],
             contact_terms: vec![RankOneTerms::default(); self.contact_points.len() * self.planes.len()],
             lane_grad: vec![[0.0; LANES]; n],
+            elastic_energy: 0.0,
         }
     }
 
     /// Fills `start` for a step from state `(q, qdot)`: inertial target, contact
     /// positions and lagged normal forces. Lengths must be n.
     pub fn begin_step(&self, q: &[f64], qdot: &[f64], start: &mut StepStart) {
+        dispatch(BeginKernel { sys: self, q, qdot, start })
+    }
+
+    #[inline(always)]
+    fn begin_impl<M: Madd>(&self, q: &[f64], qdot: &[f64], start: &mut StepStart) {
         let h = self.dt();
         start.q.copy_from_slice(q);
         for ((t, qi), vi) in start.qtilde.iter_mut().zip(q).zip(qdot) {
             *t = qi + h * vi;
         }
-        start.offset = -dot::<crate::simd::Separate>(&self.gravity, &start.qtilde);
+        start.offset = -dot::<M>(&self.gravity, &start.qtilde);
         let n_planes = self.planes.len();
-        for j in 0..self.n_contacts() {
-            let x = self.contact_position::<crate::simd::Separate>(j, q);
-            start.x_prev[3 * j..3 * j + 3].copy_from_slice(x.as_slice());
-            for (p, plane) in self.planes.iter().enumerate() {
-                start.normal_force[j * n_planes + p] = self.contact.lagged_normal_force(plane, self.areas[j], &x);
+        start.normal_force.fill(0.0);
+        let k = self.contact.normal_stiffness;
+        for (g, slots) in self.contact_points.chunks(LANES).enumerate() {
+            let mut engaged = 0u32;
+            for p in 0..n_planes {
+                let gap = self.group_gap::<M>(g * n_planes + p, q);
+                for (l, &j) in slots.iter().enumerate() {
+                    // As `ContactModel::lagged_normal_force`.
+                    let f = self.areas[j] * k * (-gap[l]).max(0.0);
+                    start.normal_force[j * n_planes + p] = f;
+                    if f > 0.0 {
+                        engaged |= 1 << l;
+                    }
+                }
+            }
+            // Only points with a lagged normal force use their start position.
+            for (l, &j) in slots.iter().enumerate() {
+                if engaged & (1 << l) != 0 {
+                    let x = self.contact_position::<M>(j, q);
+                    start.x_prev[3 * j..3 * j + 3].copy_from_slice(x.as_slice());
+                }
             }
         }
+    }
+
+    /// Gaps of the eight contact points of group `at / P` to plane `at % P` at `q`.
+    #[inline(always)]
+    fn group_gap<M: Madd>(&self, at: usize, q: &[f64]) -> F8 {
+        let n = self.n;
+        let rows = &self.normal_rows[at * n * LANES..(at + 1) * n * LANES];
+        let mut gap = *lanes_at(&self.normal_offsets, at * LANES);
+        for (i, &qi) in q.iter().enumerate() {
+            gap = M::madd8_splat(qi, lanes_at(rows, i * LANES), gap);
+        }
+        gap
     }
 
     #[inline(always)]
@@ -486,29 +568,46 @@ impl ReducedSystem {
 
     /// Incremental potential E(q), J.
     pub fn energy(&self, start: &StepStart, q: &[f64]) -> f64 {
-        dispatch(EvaluateKernel { sys: self, start, q, lane_grad: &mut [], grad: &mut [], terms: &mut [] }) + start.offset
+        let mut elastic = 0.0;
+        dispatch(EvaluateKernel { sys: self, start, q, model: None, lane_grad: &mut [], grad: &mut [], terms: &mut [], elastic: &mut elastic })
+            + start.offset
     }
 
     /// `E(q) - E0` (J) with the constant `E0 = -f . qt` of the step left out, so
     /// that differences of nearby values keep their digits; with `with_gradient`
     /// also the gradient (into `ws.grad`) and the contact points' Hessian terms
     /// (for [`Self::update_contact_hessian`]).
+    /// The elastic energy goes to `ws.elastic_energy`.
     pub fn evaluate(&self, start: &StepStart, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
+        self.evaluate_with(start, q, None, with_gradient, ws)
+    }
+
+    /// [`Self::evaluate`] with the elastic energy replaced by a quadratic `model`
+    /// (inertia, gravity and contact exact): a minimisation of it costs no pass
+    /// over the cubature points. `ws.elastic_gradient` is then not set.
+    pub fn evaluate_model(&self, start: &StepStart, q: &[f64], model: &ElasticModel<'_>, with_gradient: bool, ws: &mut Workspace) -> f64 {
+        self.evaluate_with(start, q, Some(model), with_gradient, ws)
+    }
+
+    fn evaluate_with(&self, start: &StepStart, q: &[f64], model: Option<&ElasticModel<'_>>, with_gradient: bool, ws: &mut Workspace) -> f64 {
         let (lane_grad, grad, terms): (&mut [[f64; LANES]], &mut [f64], &mut [RankOneTerms]) =
             if with_gradient { (&mut ws.lane_grad, &mut ws.grad, &mut ws.contact_terms) } else { (&mut [], &mut [], &mut []) };
-        dispatch(EvaluateKernel { sys: self, start, q, lane_grad, grad, terms })
+        dispatch(EvaluateKernel { sys: self, start, q, model, lane_grad, grad, terms, elastic: &mut ws.elastic_energy })
     }
 
     /// Energy (shifted as in [`Self::evaluate`]) and, when `grad` is not empty,
     /// the gradient; `lane_grad` (n, or empty) is scratch.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     fn evaluate_impl<M: Madd>(
         &self,
         start: &StepStart,
         q: &[f64],
+        model: Option<&ElasticModel<'_>>,
         lane_grad: &mut [[f64; LANES]],
         grad: &mut [f64],
         terms: &mut [RankOneTerms],
+        elastic_energy: &mut f64,
     ) -> f64 {
         let n = self.n;
         let with_gradient = !grad.is_empty();
@@ -530,7 +629,78 @@ impl ReducedSystem {
         }
         let mut e = 0.5 * inertia * inv_h2 - work;
 
-        // Elasticity, eight points at a time.
+        if let Some(m) = model {
+            let mut em = m.energy;
+            for i in 0..n {
+                let mut kd = 0.0;
+                for j in 0..n {
+                    kd = M::madd(m.hessian[i * n + j], q[j] - m.origin[j], kd);
+                }
+                em = M::madd(q[i] - m.origin[i], m.gradient[i] + 0.5 * kd, em);
+                if with_gradient {
+                    grad[i] += m.gradient[i] + kd;
+                }
+            }
+            *elastic_energy = em;
+            e += em;
+        } else {
+            e += self.elastic_impl::<M>(q, lane_grad, grad, elastic_energy);
+        }
+
+        // Contact.
+        let n_planes = self.planes.len();
+        if n_planes == 0 {
+            return e;
+        }
+        // Points that touch no plane and carry no lagged normal force contribute
+        // nothing: eight gaps at a time find them from the normal rows alone.
+        for (g, slots) in self.contact_points.chunks(LANES).enumerate() {
+            let mut active = 0u32;
+            for p in 0..n_planes {
+                let gap = self.group_gap::<M>(g * n_planes + p, q);
+                for (l, &j) in slots.iter().enumerate() {
+                    if gap[l] < CULL_MARGIN || start.normal_force[j * n_planes + p] > 0.0 {
+                        active |= 1 << l;
+                    }
+                }
+            }
+            for (l, &j) in slots.iter().enumerate() {
+                let slot = g * LANES + l;
+                if active & (1 << l) == 0 {
+                    if with_gradient {
+                        for t in &mut terms[slot * n_planes..(slot + 1) * n_planes] {
+                            t.len = 0;
+                        }
+                    }
+                    continue;
+                }
+                let x = self.contact_position::<M>(j, q);
+                let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
+                let mut g3 = Vector3::zeros();
+                for (p, plane) in self.planes.iter().enumerate() {
+                    let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
+                    e += c.energy;
+                    g3 += c.gradient;
+                    if with_gradient {
+                        terms[slot * n_planes + p] = c.hessian;
+                    }
+                }
+                if with_gradient && g3 != Vector3::zeros() {
+                    let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+                    let g3: &[f64; 3] = g3.as_slice().try_into().expect("3 components");
+                    combine_rows::<M, 3>(w, &[], &mut [], g3, grad);
+                }
+            }
+        }
+        e
+    }
+
+    /// Elastic energy (also into `elastic_energy`) and, when `grad` is not
+    /// empty, its gradient added to `grad`, eight points at a time.
+    #[inline(always)]
+    fn elastic_impl<M: Madd>(&self, q: &[f64], lane_grad: &mut [[f64; LANES]], grad: &mut [f64], elastic_energy: &mut f64) -> f64 {
+        let n = self.n;
+        let with_gradient = !grad.is_empty();
         if with_gradient {
             lane_grad.fill([0.0; LANES]);
         }
@@ -557,34 +727,11 @@ impl ReducedSystem {
                 }
             }
         }
-        e += ((elastic[0] + elastic[4]) + (elastic[1] + elastic[5])) + ((elastic[2] + elastic[6]) + (elastic[3] + elastic[7]));
+        let e = ((elastic[0] + elastic[4]) + (elastic[1] + elastic[5])) + ((elastic[2] + elastic[6]) + (elastic[3] + elastic[7]));
+        *elastic_energy = e;
         if with_gradient {
             for (g, a) in grad.iter_mut().zip(lane_grad.iter()) {
                 *g += ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
-            }
-        }
-
-        // Contact.
-        let n_planes = self.planes.len();
-        if n_planes == 0 {
-            return e;
-        }
-        for (slot, &j) in self.contact_points.iter().enumerate() {
-            let x = self.contact_position::<M>(j, q);
-            let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
-            let mut g3 = Vector3::zeros();
-            for (p, plane) in self.planes.iter().enumerate() {
-                let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
-                e += c.energy;
-                g3 += c.gradient;
-                if with_gradient {
-                    terms[slot * n_planes + p] = c.hessian;
-                }
-            }
-            if with_gradient && g3 != Vector3::zeros() {
-                let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
-                let g3: &[f64; 3] = g3.as_slice().try_into().expect("3 components");
-                combine_rows::<M, 3>(w, &[], &mut [], g3, grad);
             }
         }
         e
@@ -952,16 +1099,18 @@ struct EvaluateKernel<'a> {
     sys: &'a ReducedSystem,
     start: &'a StepStart,
     q: &'a [f64],
+    model: Option<&'a ElasticModel<'a>>,
     lane_grad: &'a mut [[f64; LANES]],
     grad: &'a mut [f64],
     terms: &'a mut [RankOneTerms],
+    elastic: &'a mut f64,
 }
 
 impl WithMadd for EvaluateKernel<'_> {
     type Output = f64;
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
-        self.sys.evaluate_impl::<M>(self.start, self.q, self.lane_grad, self.grad, self.terms)
+        self.sys.evaluate_impl::<M>(self.start, self.q, self.model, self.lane_grad, self.grad, self.terms, self.elastic)
     }
 }
 
@@ -1008,6 +1157,21 @@ impl WithMadd for ContactUpdateKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) -> (usize, usize, usize) {
         self.sys.update_contact_impl::<M>(self.ws, self.state, self.rebuild)
+    }
+}
+
+struct BeginKernel<'a> {
+    sys: &'a ReducedSystem,
+    q: &'a [f64],
+    qdot: &'a [f64],
+    start: &'a mut StepStart,
+}
+
+impl WithMadd for BeginKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        self.sys.begin_impl::<M>(self.q, self.qdot, self.start)
     }
 }
 

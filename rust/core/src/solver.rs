@@ -55,7 +55,7 @@
 
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::reduced::{ContactHessian, Hessian, ReducedSystem, StepStart, Workspace};
+use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepStart, Workspace};
 
 /// How the search direction is computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -140,6 +140,10 @@ pub struct SolverStats {
     pub iterations: usize,
     /// Energy and gradient evaluations (initial guesses and line-search trials).
     pub evaluations: usize,
+    /// Directions computed on the contact model (inner iterations).
+    pub model_iterations: usize,
+    /// Evaluations of the contact model (no pass over the cubature points).
+    pub model_evaluations: usize,
     /// Assemblies of the elastic Hessian.
     pub elastic_hessians: usize,
     /// Stick-corrected directions solved.
@@ -166,6 +170,10 @@ const ROUNDOFF_ULPS: f64 = 64.0;
 /// Relative energy increase still taken as round-off when the slope shows
 /// that the trial point is at the line minimum.
 const NOISE: f64 = 1e-10;
+/// Inner iterations on the contact model per outer iteration.
+const MAX_INNER: usize = 20;
+/// The contact model is minimised down to this share of the tolerance.
+const INNER_TOLERANCE: f64 = 0.5;
 /// The lagged elastic Hessian is assembled again when its error along the last
 /// step makes up more than this share of the next direction (see
 /// [`ReducedSolver::elastic_drift`]).
@@ -206,6 +214,20 @@ pub struct ReducedSolver {
     trial_grad_elastic: Vec<f64>,
     /// The step from the previous iterate (valid from the second iteration).
     step_taken: Vec<f64>,
+    /// Elastic energy at `iterate` and at `trial`.
+    energy_elastic: f64,
+    trial_energy_elastic: f64,
+    /// The contact model (see [`Self::solve_contact_model`]): its expansion
+    /// point, elastic energy and gradient there; `model_mode` routes the
+    /// evaluations to it.
+    model_origin: Vec<f64>,
+    model_energy: f64,
+    model_grad: Vec<f64>,
+    model_hessian: Vec<f64>,
+    model_mode: bool,
+    /// The outer gradient and Newton direction, kept while the model is solved.
+    outer_grad: Vec<f64>,
+    outer_dir: Vec<f64>,
     dir: Vec<f64>,
     /// Stick-corrected direction and its right-hand side.
     alt: Vec<f64>,
@@ -276,6 +298,15 @@ impl ReducedSolver {
             trial_grad: zeros.clone(),
             trial_grad_elastic: zeros.clone(),
             step_taken: zeros.clone(),
+            energy_elastic: 0.0,
+            trial_energy_elastic: 0.0,
+            model_origin: zeros.clone(),
+            model_energy: 0.0,
+            model_grad: zeros.clone(),
+            model_hessian: square.clone(),
+            model_mode: false,
+            outer_grad: zeros.clone(),
+            outer_dir: zeros.clone(),
             dir: zeros.clone(),
             alt: zeros,
             elastic: square.clone(),
@@ -359,6 +390,7 @@ impl ReducedSolver {
         let mut energy = self.system.evaluate(&self.current, &self.iterate, true, &mut self.ws);
         self.grad.copy_from_slice(&self.ws.grad);
         self.ws.elastic_gradient(&mut self.grad_elastic);
+        self.energy_elastic = self.ws.elastic_energy;
         self.stats.evaluations += 1;
         if !energy.is_finite() {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
@@ -381,7 +413,7 @@ impl ReducedSolver {
             }
             residual = self.direction(iteration, full_step)?;
             if trace() {
-                eprintln!("  it {iteration} r {residual:.3e} full {full_step} hess {} E {energy:.15e} evals {}", self.stats.elastic_hessians, self.stats.evaluations);
+                eprintln!("  it {iteration} r {residual:.3e} full {full_step} exact {} clamped {} hess {} E {energy:.15e} evals {}", self.used_exact, self.has_clamped, self.stats.elastic_hessians, self.stats.evaluations);
             }
             if residual < self.settings.tolerance {
                 for (x, d) in self.iterate.iter_mut().zip(&self.dir) {
@@ -391,11 +423,7 @@ impl ReducedSolver {
                 return Ok(StepReport { iterations: iteration, residual });
             }
             if self.prefactor.is_none() && self.system.has_contact() {
-                if let Some(e) = self.stick_step(energy) {
-                    energy = e;
-                    full_step = true;
-                    continue;
-                }
+                self.solve_contact_model(energy);
             }
             match self.line_search(energy) {
                 Some((e, alpha)) => {
@@ -409,6 +437,84 @@ impl ReducedSolver {
             }
         }
         Err(self.fail(self.settings.max_iterations, residual))
+    }
+
+    /// Replaces the Newton direction `self.dir` from `self.iterate` by the step
+    /// to the minimiser of the contact model: E with the elastic energy replaced
+    /// by its quadratic expansion at the iterate (the projected elastic Hessian),
+    /// inertia, gravity and contact exact. Contact makes E piecewise: a Newton
+    /// step computed with the contact state of the iterate overshoots or stops
+    /// short where points touch, lift off, stick or start to slip. On the model
+    /// those switches cost no pass over the cubature points, so it is minimised
+    /// by the same Newton iteration (stick correction and line search
+    /// included) down to half the tolerance; the true E then takes its minimiser
+    /// as the search direction, and only the elastic nonlinearity is left for
+    /// the next outer iteration. Falls back to the Newton direction when the
+    /// model makes no progress.
+    fn solve_contact_model(&mut self, energy: f64) {
+        let n = self.system.n_dofs();
+        self.model_origin.copy_from_slice(&self.iterate);
+        self.model_grad.copy_from_slice(&self.grad_elastic);
+        self.model_energy = self.energy_elastic;
+        self.outer_grad.copy_from_slice(&self.grad);
+        self.outer_dir.copy_from_slice(&self.dir);
+        let used_exact = self.used_exact;
+        // The model takes the elastic Hessian of the Newton direction, the exact
+        // one only where M/h^2 + K_el is positive definite by itself (the model
+        // stays convex when contact terms vanish); with the projected one the
+        // model's minimiser would miss the clamped curvature and the outer
+        // iteration would converge only linearly.
+        let mut exact = used_exact;
+        for ((m, e), c) in self.model_hessian.iter_mut().zip(&self.elastic).zip(&self.elastic_clamped) {
+            *m = e - if exact { *c } else { 0.0 };
+        }
+        if exact && self.chol.factor_shifted(&self.mass_over_h2, 1.0, &self.model_hessian).is_err() {
+            exact = false;
+            self.model_hessian.copy_from_slice(&self.elastic);
+        }
+        self.model_mode = true;
+        let tolerance = INNER_TOLERANCE * self.settings.tolerance;
+        let mut e = energy;
+        let mut moved = false;
+        for inner in 0..MAX_INNER {
+            if inner > 0 {
+                self.stats.model_iterations += 1;
+                match self.direction(0, exact) {
+                    Ok(r) if r < tolerance => {
+                        for (x, d) in self.iterate.iter_mut().zip(&self.dir) {
+                            *x += d;
+                        }
+                        break;
+                    }
+                    Ok(_) => {}
+                    Err(_) => break,
+                }
+            }
+            if let Some(e1) = self.stick_step(e) {
+                e = e1;
+                moved = true;
+                continue;
+            }
+            match self.line_search(e) {
+                Some((e1, _)) => {
+                    e = e1;
+                    moved = true;
+                }
+                None => break,
+            }
+        }
+        self.model_mode = false;
+        self.used_exact = used_exact;
+        if trace() {
+            eprintln!("    model: {} model evaluations so far, dm {:.3e}", self.stats.model_evaluations, e - energy);
+        }
+        for i in 0..n {
+            self.dir[i] = if moved { self.iterate[i] - self.model_origin[i] } else { self.outer_dir[i] };
+            self.iterate[i] = self.model_origin[i];
+        }
+        self.grad.copy_from_slice(&self.outer_grad);
+        self.grad_elastic.copy_from_slice(&self.model_grad);
+        self.energy_elastic = self.model_energy;
     }
 
     fn refresh_elastic(&mut self) {
@@ -524,12 +630,21 @@ impl ReducedSolver {
         }
     }
 
-    /// Energy and gradient at `self.trial` (gradient into `self.trial_grad`).
+    /// Energy and gradient at `self.trial` (gradient into `self.trial_grad`), of
+    /// E or of the contact model.
     fn evaluate_trial(&mut self) -> f64 {
-        self.stats.evaluations += 1;
-        let e = self.system.evaluate(&self.current, &self.trial, true, &mut self.ws);
+        let e = if self.model_mode {
+            self.stats.model_evaluations += 1;
+            let model = ElasticModel { origin: &self.model_origin, energy: self.model_energy, gradient: &self.model_grad, hessian: &self.model_hessian };
+            self.system.evaluate_model(&self.current, &self.trial, &model, true, &mut self.ws)
+        } else {
+            self.stats.evaluations += 1;
+            let e = self.system.evaluate(&self.current, &self.trial, true, &mut self.ws);
+            self.ws.elastic_gradient(&mut self.trial_grad_elastic);
+            e
+        };
         self.trial_grad.copy_from_slice(&self.ws.grad);
-        self.ws.elastic_gradient(&mut self.trial_grad_elastic);
+        self.trial_energy_elastic = self.ws.elastic_energy;
         e
     }
 
@@ -540,6 +655,7 @@ impl ReducedSolver {
         std::mem::swap(&mut self.iterate, &mut self.trial);
         std::mem::swap(&mut self.grad, &mut self.trial_grad);
         std::mem::swap(&mut self.grad_elastic, &mut self.trial_grad_elastic);
+        std::mem::swap(&mut self.energy_elastic, &mut self.trial_energy_elastic);
     }
 
     /// How far the lagged elastic Hessian is off along the last step `s`: the
