@@ -78,8 +78,15 @@ pub struct ReducedSystem {
     gravity: Vec<f64>,
     /// Number of cubature points given (zero weights included).
     n_cubature: usize,
-    /// Jacobians of the points with w > 0 in groups of LANES (see the module
-    /// documentation); the last group is padded with G = 0, w = 0.
+    /// Columns of G that differ between cubature points, and the columns that
+    /// are the same non-zero 9-vector at every point (the affine modes: a linear
+    /// map of X has the same gradient everywhere) with that vector. Columns that
+    /// are zero everywhere (translations) appear in neither.
+    var_cols: Vec<usize>,
+    const_cols: Vec<(usize, [f64; 9])>,
+    /// The varying columns of the Jacobians of the points with w > 0, in groups
+    /// of LANES (see the module documentation); the last group is padded with
+    /// G = 0, w = 0.
     packed: Vec<f64>,
     /// Weights of the packed points, `LANES` per group.
     packed_weights: Vec<f64>,
@@ -162,8 +169,12 @@ pub struct Workspace {
     /// Hessian terms of every contact point with area and plane, from the last
     /// [`ReducedSystem::evaluate`] with gradient.
     contact_terms: Vec<RankOneTerms>,
-    /// Per-lane partial sums of the elastic gradient, n.
+    /// Per-lane partial sums of the elastic gradient: one per varying column
+    /// of G, then the nine components of `sum_k w_k P_k` (for the constant ones).
     lane_grad: Vec<[f64; LANES]>,
+    /// The columns of G split as in the system (for `elastic_gradient`).
+    var_cols: Vec<usize>,
+    const_cols: Vec<(usize, [f64; 9])>,
     /// Elastic energy of the last evaluation, J.
     pub elastic_energy: f64,
 }
@@ -172,9 +183,8 @@ impl Workspace {
     /// The elastic part of the gradient of the last [`ReducedSystem::evaluate`]
     /// with gradient into `out` (n).
     pub fn elastic_gradient(&self, out: &mut [f64]) {
-        for (o, a) in out.iter_mut().zip(&self.lane_grad) {
-            *o = ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
-        }
+        out.fill(0.0);
+        reduce_lane_gradient(&self.lane_grad, &self.var_cols, &self.const_cols, out);
     }
 
     /// The exact Hessian `hess - hess_clamped` into `out` (n x n).
@@ -313,19 +323,54 @@ fn lanes_at(s: &[f64], at: usize) -> &F8 {
     s[at..at + LANES].try_into().expect("eight lanes")
 }
 
-/// The eight deformation gradients of a packed group, `F[a][lane]`.
+/// Writes the combinations `sum_a coef[b][a] gs[a]` (for the first `count`
+/// modes b of each coefficient set, eight lanes each) into column `at` of the
+/// positive and clamped row stacks, from row `base` on. All nine combinations
+/// are formed at once: nine independent multiply-add chains reuse each lane
+/// block of G.
 #[inline(always)]
-fn group_deformation<M: Madd>(group: &[f64], q: &[f64]) -> [[f64; LANES]; 9] {
-    let mut f = [[0.0; LANES]; 9];
-    for (i, g) in group.chunks_exact(9 * LANES).enumerate() {
-        let qi = q[i];
-        for a in 0..9 {
-            f[a] = M::madd8_splat(qi, lanes_at(g, a * LANES), f[a]);
+fn write_rows<M: Madd>(at: usize, gs: &[[f64; LANES]; 9], coefs: [&[[[f64; LANES]; 9]; 9]; 2], counts: [(usize, usize); 2], outs: [&mut Vec<f64>; 2]) {
+    for ((coef, (count, base)), out) in coefs.into_iter().zip(counts).zip(outs) {
+        if count == 0 {
+            continue;
         }
+        let mut v = [[0.0; LANES]; 9];
+        for a in 0..9 {
+            for b in 0..9 {
+                v[b] = M::madd8(&coef[b][a], &gs[a], v[b]);
+            }
+        }
+        let at = at + base;
+        out[at..at + count * LANES].copy_from_slice(v[..count].as_flattened());
     }
-    for a in [0, 4, 8] {
-        for l in 0..LANES {
-            f[a][l] += 1.0;
+}
+
+/// Adds the elastic gradient held per lane in `lane_grad` (varying columns,
+/// then the nine components of the summed stress) to `out` (n).
+fn reduce_lane_gradient(lane_grad: &[[f64; LANES]], var_cols: &[usize], const_cols: &[(usize, [f64; 9])], out: &mut [f64]) {
+    let sum = |a: &[f64; LANES]| ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
+    for (a, &c) in lane_grad.iter().zip(var_cols) {
+        out[c] += sum(a);
+    }
+    let nv = var_cols.len();
+    let stress: [f64; 9] = std::array::from_fn(|a| sum(&lane_grad[nv + a]));
+    for (c, v) in const_cols {
+        out[*c] += (0..9).map(|a| v[a] * stress[a]).sum::<f64>();
+    }
+}
+
+/// The eight deformation gradients of a packed group, `F[a][lane]`: `f0`
+/// (identity plus the constant columns' part) plus the varying columns.
+#[inline(always)]
+fn group_deformation<M: Madd>(group: &[f64], q: &[f64], var_cols: &[usize], f0: &[f64; 9]) -> [[f64; LANES]; 9] {
+    let mut f = [[0.0; LANES]; 9];
+    for a in 0..9 {
+        f[a] = [f0[a]; LANES];
+    }
+    for (g, &c) in group.chunks_exact(9 * LANES).zip(var_cols) {
+        let qc = q[c];
+        for a in 0..9 {
+            f[a] = M::madd8_splat(qc, lanes_at(g, a * LANES), f[a]);
         }
     }
     f
@@ -365,17 +410,28 @@ impl ReducedSystem {
         let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
         let mass = symmetrized_spd(inp.mass, n)?;
         let kept: Vec<usize> = (0..k).filter(|&i| inp.cubature_weights[i] > 0.0).collect();
+        let column = |point: usize, c: usize| -> [f64; 9] { std::array::from_fn(|a| inp.cubature_jacobians[9 * n * point + a * n + c]) };
+        let (mut var_cols, mut const_cols) = (Vec::new(), Vec::new());
+        for c in 0..n {
+            let first = kept.first().map(|&p| column(p, c)).unwrap_or([0.0; 9]);
+            if kept.iter().any(|&p| column(p, c) != first) {
+                var_cols.push(c);
+            } else if first.iter().any(|v| *v != 0.0) {
+                const_cols.push((c, first));
+            }
+        }
+        let nv = var_cols.len();
         let groups = kept.len().div_ceil(LANES);
-        let mut packed = vec![0.0; groups * n * 9 * LANES];
+        let mut packed = vec![0.0; groups * nv * 9 * LANES];
         let mut packed_weights = vec![0.0; groups * LANES];
         for (slot, &point) in kept.iter().enumerate() {
             let (g, l) = (slot / LANES, slot % LANES);
             packed_weights[slot] = inp.cubature_weights[point];
             let src = &inp.cubature_jacobians[9 * n * point..9 * n * (point + 1)];
-            let dst = &mut packed[g * n * 9 * LANES..(g + 1) * n * 9 * LANES];
-            for i in 0..n {
+            let dst = &mut packed[g * nv * 9 * LANES..(g + 1) * nv * 9 * LANES];
+            for (iv, &c) in var_cols.iter().enumerate() {
                 for a in 0..9 {
-                    dst[(i * 9 + a) * LANES + l] = src[a * n + i];
+                    dst[(iv * 9 + a) * LANES + l] = src[a * n + c];
                 }
             }
         }
@@ -402,6 +458,8 @@ impl ReducedSystem {
             mass,
             gravity: inp.gravity_force.to_vec(),
             n_cubature: k,
+            var_cols,
+            const_cols,
             packed,
             packed_weights,
             material: inp.material,
@@ -491,7 +549,9 @@ impl ReducedSystem {
             contact_coef: vec![[0.0; 3]; 3 * self.planes.len()],
             contact_coef_out: vec![[0.0; 3]; 3 * self.planes.len()],
             contact_terms: vec![RankOneTerms::default(); self.contact_points.len() * self.planes.len()],
-            lane_grad: vec![[0.0; LANES]; n],
+            lane_grad: vec![[0.0; LANES]; self.var_cols.len() + 9],
+            var_cols: self.var_cols.clone(),
+            const_cols: self.const_cols.clone(),
             elastic_energy: 0.0,
         }
     }
@@ -699,15 +759,17 @@ impl ReducedSystem {
     /// empty, its gradient added to `grad`, eight points at a time.
     #[inline(always)]
     fn elastic_impl<M: Madd>(&self, q: &[f64], lane_grad: &mut [[f64; LANES]], grad: &mut [f64], elastic_energy: &mut f64) -> f64 {
-        let n = self.n;
+        let nv = self.var_cols.len();
         let with_gradient = !grad.is_empty();
         if with_gradient {
             lane_grad.fill([0.0; LANES]);
         }
+        let f0 = self.constant_deformation(q);
         let mut elastic = [0.0; LANES];
-        let group_len = n * 9 * LANES;
-        for (group, weights) in self.packed.chunks_exact(group_len).zip(self.packed_weights.chunks_exact(LANES)) {
-            let f = group_deformation::<M>(group, q);
+        let group_len = nv * 9 * LANES;
+        for (g, weights) in self.packed_weights.chunks_exact(LANES).enumerate() {
+            let group = &self.packed[g * group_len..(g + 1) * group_len];
+            let f = group_deformation::<M>(group, q, &self.var_cols, &f0);
             let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
             for l in 0..LANES {
                 elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
@@ -718,23 +780,39 @@ impl ReducedSystem {
                         row[l] *= weights[l];
                     }
                 }
-                for (g, acc) in group.chunks_exact(9 * LANES).zip(lane_grad.iter_mut()) {
+                let (var_acc, stress_acc) = lane_grad.split_at_mut(nv);
+                for (g, acc) in group.chunks_exact(9 * LANES).zip(var_acc.iter_mut()) {
                     let mut v = *acc;
                     for a in 0..9 {
                         v = M::madd8(lanes_at(g, a * LANES), &p[a], v);
                     }
                     *acc = v;
                 }
+                for (acc, pa) in stress_acc.iter_mut().zip(&p) {
+                    for l in 0..LANES {
+                        acc[l] += pa[l];
+                    }
+                }
             }
         }
         let e = ((elastic[0] + elastic[4]) + (elastic[1] + elastic[5])) + ((elastic[2] + elastic[6]) + (elastic[3] + elastic[7]));
         *elastic_energy = e;
         if with_gradient {
-            for (g, a) in grad.iter_mut().zip(lane_grad.iter()) {
-                *g += ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
-            }
+            reduce_lane_gradient(lane_grad, &self.var_cols, &self.const_cols, grad);
         }
         e
+    }
+
+    /// `vec(I) + sum_c v_c q_c` over the constant columns of G.
+    #[inline(always)]
+    fn constant_deformation(&self, q: &[f64]) -> [f64; 9] {
+        let mut f0 = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        for (c, v) in &self.const_cols {
+            for a in 0..9 {
+                f0[a] += v[a] * q[*c];
+            }
+        }
+        f0
     }
 
     /// Gradient (into `ws.grad`) and the requested Hessian parts (into `ws.hess`,
@@ -796,9 +874,10 @@ impl ReducedSystem {
     /// group needs; returns the numbers of positive and clamped rows written.
     #[inline(always)]
     fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, range: std::ops::Range<usize>, ws: &mut Workspace) -> (usize, usize) {
-        let n = self.n;
+        let nv = self.var_cols.len();
         let stride = ws.row_stride;
-        let group_len = n * 9 * LANES;
+        let group_len = nv * 9 * LANES;
+        let f0 = self.constant_deformation(q);
         let (mut positive, mut negative) = (0, 0);
         let mut values = [Lanes::splat(0.0); 9];
         let mut vectors = [[Lanes::splat(0.0); 9]; 9];
@@ -806,8 +885,9 @@ impl ReducedSystem {
         let mut neg_coef = [[[0.0; LANES]; 9]; 9];
         let packed = &self.packed[range.start * group_len..range.end * group_len];
         let packed_weights = &self.packed_weights[range.start * LANES..range.end * LANES];
-        for (group, weights) in packed.chunks_exact(group_len).zip(packed_weights.chunks_exact(LANES)) {
-            let f = group_deformation::<M>(group, q);
+        for (g, weights) in packed_weights.chunks_exact(LANES).enumerate() {
+            let group = &packed[g * group_len..(g + 1) * group_len];
+            let f = group_deformation::<M>(group, q, &self.var_cols, &f0);
             let mut lanes = [[Lanes::splat(0.0); 3]; 3];
             for a in 0..9 {
                 lanes[a / 3][a % 3] = Lanes(f[a]);
@@ -847,28 +927,16 @@ impl ReducedSystem {
             }
             // All nine combinations at once: nine independent multiply-add
             // chains reuse each loaded block of G; only the needed ones are stored.
-            for (i, g) in group.chunks_exact(9 * LANES).enumerate() {
-                let column = i * stride;
+            let counts = [(n_pos, positive), (n_neg, negative)];
+            for (g, &c) in group.chunks_exact(9 * LANES).zip(&self.var_cols) {
                 let mut gs = [[0.0; LANES]; 9];
                 for a in 0..9 {
                     gs[a] = *lanes_at(g, a * LANES);
                 }
-                for (coef, count, base, out) in [
-                    (&pos_coef, n_pos, positive, &mut ws.rows),
-                    (&neg_coef, n_neg, negative, &mut ws.clamped_rows),
-                ] {
-                    if count == 0 {
-                        continue;
-                    }
-                    let mut v = [[0.0; LANES]; 9];
-                    for a in 0..9 {
-                        for b in 0..9 {
-                            v[b] = M::madd8(&coef[b][a], &gs[a], v[b]);
-                        }
-                    }
-                    let at = column + base;
-                    out[at..at + count * LANES].copy_from_slice(v[..count].as_flattened());
-                }
+                write_rows::<M>(c * stride, &gs, [&pos_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
+            }
+            for (c, v) in &self.const_cols {
+                write_rows::<M>(*c * stride, &v.map(|x| [x; LANES]), [&pos_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
             }
             positive += n_pos * LANES;
             negative += n_neg * LANES;

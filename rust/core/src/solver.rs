@@ -409,6 +409,8 @@ impl ReducedSolver {
                 };
                 if refresh {
                     self.refresh_elastic();
+                } else if iteration > 1 && std::env::var_os("LICROM_NOBFGS").is_none() {
+                    self.secant_update();
                 }
             }
             residual = self.direction(iteration, full_step)?;
@@ -679,6 +681,38 @@ impl ReducedSolver {
         // After `accept_trial`, `trial_grad_elastic` holds the previous iterate's.
         self.chol.solve_in_place(&mut self.alt);
         self.velocity_norm(&self.alt) / den
+    }
+
+    /// BFGS update of the lagged elastic Hessian along the last step `s`: with
+    /// `A = M/h^2 + K_el` and `y = M s / h^2 + g_el(x + s) - g_el(x)` (the change
+    /// of the smooth part of the gradient), `A + y y^T / y.s - A s (A s)^T / s.A s`
+    /// reproduces `y` along `s` and stays positive definite when `y.s > 0`
+    /// (skipped otherwise). The update goes into `K_el`.
+    fn secant_update(&mut self) {
+        let n = self.system.n_dofs();
+        let mass = self.system.mass();
+        let (mut sas, mut ys) = (0.0, 0.0);
+        for i in 0..n {
+            let (mut a_s, mut m_s) = (0.0, 0.0);
+            for j in 0..n {
+                let sj = self.step_taken[j];
+                a_s += (self.mass_over_h2[i * n + j] + self.elastic[i * n + j]) * sj;
+                m_s += self.mass_over_h2[i * n + j] * sj;
+            }
+            let _ = mass;
+            self.alt[i] = a_s;
+            self.outer_dir[i] = m_s + self.grad_elastic[i] - self.trial_grad_elastic[i];
+            sas += self.step_taken[i] * a_s;
+            ys += self.step_taken[i] * self.outer_dir[i];
+        }
+        if !(sas > 0.0 && ys > 1e-8 * sas && sas.is_finite() && ys.is_finite()) {
+            return;
+        }
+        for i in 0..n {
+            for j in 0..n {
+                self.elastic[i * n + j] += self.outer_dir[i] * self.outer_dir[j] / ys - self.alt[i] * self.alt[j] / sas;
+            }
+        }
     }
 
     /// `phi(alpha) = E(x + alpha d)` and `phi'(alpha)` at `x + alpha d`, the point left in `self.trial`.
