@@ -31,7 +31,8 @@ fn main() {
         for (i, qi) in q.iter_mut().enumerate().skip(12) {
             *qi = 1e-3 * ((i * 7) % 5) as f64 / 4.0;
         }
-        for _ in 0..3 {
+        let repeats: usize = arg(7, "3").parse().expect("repeats");
+        for _ in 0..repeats {
             solver.set_state(&q, &qdot).expect("state");
             let t = Instant::now();
             let report = solver.step().expect("step");

@@ -1,7 +1,8 @@
 //! Time stepping of the reduced model: minimisation of the incremental
-//! potential by Newton's method with a PSD Hessian, a stick correction for
-//! friction and a line search, or the prefactored scheme that reuses one
-//! factorisation of `M/h^2 + K(rest)` for every iteration.
+//! potential E by a Newton-type iteration with positive definite Hessians, a
+//! contact model solved inside each iteration, a stick correction for friction
+//! and a line search; or the prefactored scheme that reuses one factorisation
+//! of `M/h^2 + K(rest)` for every iteration.
 //!
 //! **Initial guess.** `q_t + h qdot_t + h^2 a`, with `a` the acceleration of the
 //! previous step (`(qdot_t - qdot_{t-1}) / h`), or gravity alone (`M^-1 f`) on the
@@ -9,26 +10,39 @@
 //! then almost at the solution before the first iteration, with its contact
 //! points in the right friction regime.
 //!
-//! **Hessian.** `M/h^2 + K_elastic + K_contact`. The contact part is formed at
-//! every iterate from the points that touch a plane or carry a lagged normal
-//! force: it holds the stiff terms (penalty, stick friction) and changes with
-//! the contact state. The elastic part (PSD-projected SNH Hessians at the
-//! cubature points) is the expensive one and changes slowly; with
-//! [`ElasticHessian::Lagged`] it is kept from step to step and assembled again
-//! only after a new state or when it has drifted: after each step `s` the
-//! secant error of the elastic part, `g_el(x + s) - g_el(x) - K_el s`, is mapped
-//! through the last factored matrix, and when it would make up more than
-//! [`ELASTIC_DRIFT`] of the next direction (a linear rate worse than that) the
-//! elastic Hessian is assembled at the new iterate. The iteration is then a
-//! chord (quasi-) Newton method on the elastic part: every matrix is positive
-//! definite, so each direction is a descent direction, the fixed point is the
-//! same minimiser, and the convergence measure
-//! below is taken on its direction. [`ElasticHessian::EveryIteration`] gives
-//! plain Newton. Where the projection clamped some eigenvalue, and the previous
-//! iteration took the full step (the quadratic model is trustworthy there), the
-//! exact elastic Hessian is tried first; it is used when the total factors, the
-//! projected one otherwise (near rest the clamped twist modes would turn
-//! Newton's quadratic convergence into a linear one).
+//! **Hessian.** `A = M/h^2 + K_el + K_c`. The contact part `K_c` holds the stiff
+//! terms (penalty, stick friction) and follows the contact state exactly: it is
+//! updated at every iterate by taking out and putting in the rows of the
+//! contact points whose terms changed ([`crate::reduced::ContactHessian`]).
+//! The elastic part (PSD-projected SNH Hessians at the cubature points) is the
+//! expensive one and changes slowly. With [`ElasticHessian::Lagged`] (the
+//! default) it is kept from iteration to iteration and from step to step, and
+//! improved along every step `s` by a BFGS correction of `M/h^2 + K_el` (so that
+//! it reproduces the change of the elastic gradient along `s`); it is assembled
+//! again after a new state and when it has drifted: when the secant error
+//! `g_el(x + s) - g_el(x) - K_el s`, mapped through the last factored matrix,
+//! would make up more than [`ELASTIC_DRIFT`] of the next direction. This makes
+//! the outer iteration a quasi-Newton method: every matrix is positive
+//! definite, each direction a descent direction, and the fixed point the same
+//! minimiser; the convergence measure below is taken on its direction.
+//! [`ElasticHessian::EveryIteration`] gives plain Newton; there, where the
+//! projection clamped some eigenvalue and the previous iteration took the full
+//! step, the exact elastic Hessian is tried first (near rest the clamped twist
+//! modes would turn Newton's quadratic convergence into a linear one).
+//!
+//! **Contact model.** Contact makes E piecewise: a Newton step computed with
+//! the contact state of the iterate overshoots or stops short where points
+//! touch, lift off, stick or start to slip, and a plain Newton iteration pays
+//! a full evaluation for every such switch. So each Newton direction is
+//! replaced by the step to the minimiser of a model of E: inertia, gravity and
+//! contact exact, the elastic energy by its quadratic expansion at the iterate
+//! (with `K_el`). Evaluating the model costs no pass over the cubature points,
+//! only over the contact points that touch a plane or carry a lagged normal
+//! force. It is minimised by the same iteration (stick correction and line
+//! search included) to half the tolerance, or to [`INNER_FORCING`] of the
+//! outer residual; E then takes the step to its minimiser as the search
+//! direction, and only the elastic nonlinearity is left for the next outer
+//! iteration.
 //!
 //! **Stick correction.** Coulomb friction makes the potential nearly non-smooth:
 //! its curvature jumps from `a k_f / h` (stick) to almost nothing (slip) over a
@@ -37,21 +51,25 @@
 //! backtracking then crawls. So, when the direction would carry slipping points
 //! through the stick region, the system is solved again with those points
 //! modelled as sticking (a low-rank change of the Hessian and the right-hand
-//! side), and that step is taken when it decreases E enough.
+//! side), and that step is taken when it decreases the energy enough.
 //!
 //! **Line search.** Armijo sufficient decrease, plus a curvature test: a full
 //! step that overshoots the minimum along the line (the slope at the trial
 //! point turned positive beyond [`CURVATURE`] of the initial one), typical where
 //! friction switches between stick and slip, is bracketed and the line minimum
 //! located by safeguarded secant steps on the slope; otherwise the step is
-//! halved until E decreases. Near convergence, where the decrease of E hides in
-//! its round-off, a step at the line minimum (small slope) is accepted. Every
-//! trial point is evaluated with its gradient, which becomes the next
-//! iteration's gradient when the trial is accepted.
+//! halved until the energy decreases. Near convergence, where the decrease
+//! hides in the round-off, a step at the line minimum (small slope) is
+//! accepted. Every trial point is evaluated with its gradient, which becomes
+//! the next iteration's gradient when the trial is accepted; energies are
+//! taken relative to the inertial target's gravity work, a constant of the
+//! step, so that their differences keep their digits.
 //!
-//! Convergence is measured on the search direction `Delta` as the velocity
-//! `r = sqrt(Delta^T M Delta / m_total) / h` (m/s), invariant to the choice of
-//! basis; when `r < tolerance` the step `Delta` is taken and the solve stops.
+//! **Convergence** is measured on the (outer) Newton direction `Delta` at the
+//! iterate as the velocity `r = sqrt(Delta^T M Delta / m_total) / h` (m/s),
+//! invariant to the choice of basis; when `r < tolerance` the step `Delta` is
+//! taken and the solve stops. `iterations` counts these directions (outer
+//! iterations); the model's are counted in [`SolverStats`].
 
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_positive, LicromError, Result};
@@ -152,15 +170,10 @@ pub struct SolverStats {
     pub stick_steps: usize,
 }
 
-fn trace() -> bool {
-    static T: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *T.get_or_init(|| std::env::var_os("LICROM_TRACE").is_some())
-}
-
 /// Armijo sufficient-decrease constant.
 const ARMIJO: f64 = 1e-4;
 /// `|phi'(alpha)| <= CURVATURE |phi'(0)|` accepts a step at the line minimum.
-const CURVATURE: f64 = 0.5;
+pub const CURVATURE: f64 = 0.5;
 /// Secant steps locating an overshot line minimum.
 const MAX_SECANT: usize = 8;
 /// Backtracking halvings before the line search gives up.
@@ -172,8 +185,10 @@ const ROUNDOFF_ULPS: f64 = 64.0;
 const NOISE: f64 = 1e-10;
 /// Inner iterations on the contact model per outer iteration.
 const MAX_INNER: usize = 20;
-/// The contact model is minimised down to this share of the tolerance.
+/// The contact model is minimised down to this share of the tolerance, or of
+/// the outer Newton direction's residual, whichever is larger.
 const INNER_TOLERANCE: f64 = 0.5;
+pub const INNER_FORCING: f64 = 0.01;
 /// The lagged elastic Hessian is assembled again when its error along the last
 /// step makes up more than this share of the next direction (see
 /// [`ReducedSolver::elastic_drift`]).
@@ -409,14 +424,11 @@ impl ReducedSolver {
                 };
                 if refresh {
                     self.refresh_elastic();
-                } else if iteration > 1 && std::env::var_os("LICROM_NOBFGS").is_none() {
+                } else if iteration > 1 {
                     self.secant_update();
                 }
             }
             residual = self.direction(iteration, full_step)?;
-            if trace() {
-                eprintln!("  it {iteration} r {residual:.3e} full {full_step} exact {} clamped {} hess {} E {energy:.15e} evals {}", self.used_exact, self.has_clamped, self.stats.elastic_hessians, self.stats.evaluations);
-            }
             if residual < self.settings.tolerance {
                 for (x, d) in self.iterate.iter_mut().zip(&self.dir) {
                     *x += d;
@@ -425,13 +437,10 @@ impl ReducedSolver {
                 return Ok(StepReport { iterations: iteration, residual });
             }
             if self.prefactor.is_none() && self.system.has_contact() {
-                self.solve_contact_model(energy);
+                self.solve_contact_model(energy, residual);
             }
             match self.line_search(energy) {
                 Some((e, alpha)) => {
-                    if trace() {
-                        eprintln!("    ls alpha {alpha:.4e} dE {:.3e}", e - energy);
-                    }
                     energy = e;
                     full_step = alpha == 1.0;
                 }
@@ -453,7 +462,7 @@ impl ReducedSolver {
     /// as the search direction, and only the elastic nonlinearity is left for
     /// the next outer iteration. Falls back to the Newton direction when the
     /// model makes no progress.
-    fn solve_contact_model(&mut self, energy: f64) {
+    fn solve_contact_model(&mut self, energy: f64, residual: f64) {
         let n = self.system.n_dofs();
         self.model_origin.copy_from_slice(&self.iterate);
         self.model_grad.copy_from_slice(&self.grad_elastic);
@@ -475,7 +484,9 @@ impl ReducedSolver {
             self.model_hessian.copy_from_slice(&self.elastic);
         }
         self.model_mode = true;
-        let tolerance = INNER_TOLERANCE * self.settings.tolerance;
+        // Solving the model much closer than the outer iteration can follow
+        // (its elastic part is only a model) is wasted work.
+        let tolerance = (INNER_TOLERANCE * self.settings.tolerance).max(INNER_FORCING * residual);
         let mut e = energy;
         let mut moved = false;
         for inner in 0..MAX_INNER {
@@ -507,9 +518,6 @@ impl ReducedSolver {
         }
         self.model_mode = false;
         self.used_exact = used_exact;
-        if trace() {
-            eprintln!("    model: {} model evaluations so far, dm {:.3e}", self.stats.model_evaluations, e - energy);
-        }
         for i in 0..n {
             self.dir[i] = if moved { self.iterate[i] - self.model_origin[i] } else { self.outer_dir[i] };
             self.iterate[i] = self.model_origin[i];
@@ -520,7 +528,10 @@ impl ReducedSolver {
     }
 
     fn refresh_elastic(&mut self) {
-        self.has_clamped = self.system.elastic_hessian(&self.iterate, &mut self.ws, &mut self.elastic, Some(&mut self.elastic_clamped));
+        // Lagged, the clamped part is not worth its cost (the BFGS correction does
+        // better); plain Newton uses it for its quadratic convergence near rest.
+        let clamped = (self.settings.elastic_hessian == ElasticHessian::EveryIteration).then_some(&mut self.elastic_clamped[..]);
+        self.has_clamped = self.system.elastic_hessian(&self.iterate, &mut self.ws, &mut self.elastic, clamped);
         self.elastic_valid = true;
         self.stats.elastic_hessians += 1;
     }
@@ -603,9 +614,6 @@ impl ReducedSolver {
             return None;
         }
         self.stats.stick_solves += 1;
-        if trace() {
-            eprintln!("    stick rows {rows}");
-        }
         self.system.add_switch_rows(&self.ws, rows, &mut self.hess);
         if self.chol.factor_shifted(&self.hess, 0.0, &self.mass_over_h2).is_err() {
             return None;
