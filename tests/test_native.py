@@ -210,6 +210,26 @@ def test_step_converges_to_a_stationary_point(block, solver):
     assert np.linalg.norm(grad) < 1e-4 * np.linalg.norm(block.gravity)
 
 
+def test_lagged_elastic_hessian_reaches_the_newton_solution(block):
+    q0, qdot0 = block.sliding_state()
+    cores = {mode: block.core(tolerance=1e-10, max_iterations=100, elastic_hessian=mode) for mode in ("lagged", "every_iteration")}
+    for core in cores.values():
+        core.set_state(q0, qdot0)
+        for _ in range(5):
+            core.step()
+    lagged, plain = cores["lagged"], cores["every_iteration"]
+    d = lagged.q - plain.q
+    assert np.sqrt(d @ block.mass @ d / block.total_mass) / DT < 1e-8
+    s, p = lagged.stats(), plain.stats()
+    assert s["steps"] == p["steps"] == 5 and s["iterations"] >= 5
+    assert s["elastic_hessians"] < p["elastic_hessians"]
+    assert set(s) >= {"evaluations", "model_iterations", "model_evaluations", "stick_solves", "stick_steps"}
+    lagged.reset_stats()
+    assert all(v == 0 for v in lagged.stats().values())
+    with pytest.raises(ConfigError, match="elastic_hessian"):
+        block.core(elastic_hessian="sometimes")
+
+
 def test_empty_cubature_contacts_and_planes(rng):
     block = Block(rng, cubature=0, contacts=False, planes=False)
     core = block.core()

@@ -41,8 +41,10 @@ class ReducedCore:
     + sum_j,p [penalty + damping + friction](X_j + W_j q)``, ``qt = q + h qdot``,
     with penalty contact against each plane, normal damping while approaching
     and implicit Coulomb friction with the normal force lagged from the start
-    of the step. Convergence measure: ``r = sqrt(D^T M D / total_mass) / h`` in
-    m/s for the search direction D; a step converges when r < tolerance.
+    of the step. The first iterate extrapolates the previous step's acceleration
+    (free fall after construction or ``set_state``). Convergence measure:
+    ``r = sqrt(D^T M D / total_mass) / h`` in m/s for the Newton direction D; a
+    step converges when r < tolerance.
 
     Args:
         mass: (n, n) reduced mass matrix ``W^T M W`` in kg, symmetric positive definite.
@@ -63,9 +65,14 @@ class ReducedCore:
         total_mass: mass of the solid in kg, > 0 (normalises the convergence measure).
         tolerance: convergence threshold on r in m/s, > 0.
         max_iterations: search directions allowed per step, >= 1.
-        solver: ``"newton"`` (projected Newton, faer Cholesky, Armijo line search)
-            or ``"prefactored"`` (``M/h^2 + K(rest)`` factored once, same line search
-            and stopping rule).
+        solver: ``"newton"`` (Newton-type iteration on ``M/h^2 + K_elastic + K_contact``,
+            faer Cholesky, the contact model solved inside each iteration, stick
+            correction, Armijo + secant line search) or ``"prefactored"``
+            (``M/h^2 + K(rest)`` factored once, same line search and stopping rule).
+        elastic_hessian: ``"lagged"`` (default: the elastic Hessian is kept across
+            iterations and steps, corrected by BFGS along each step, and assembled
+            again when it drifts or after ``set_state``; a quasi-Newton method with
+            the same minimiser) or ``"every_iteration"`` (plain Newton). Newton only.
 
     K, C and P may be zero.
     """
@@ -90,6 +97,7 @@ class ReducedCore:
         tolerance: float,
         max_iterations: int,
         solver: str = "newton",
+        elastic_hessian: str = "lagged",
     ) -> None: ...
     @property
     def n_dofs(self) -> int:
@@ -110,6 +118,16 @@ class ReducedCore:
                 ``iterations`` and ``residual``) or non-finite values; the state is
                 left unchanged.
         """
+    def stats(self) -> dict[str, int]:
+        """Work counters since construction or :meth:`reset_stats`: ``steps``,
+        ``iterations`` (Newton directions, as ``step`` reports them),
+        ``evaluations`` (energy and gradient over all cubature points),
+        ``model_iterations`` and ``model_evaluations`` (on the contact model, no
+        pass over the cubature points), ``elastic_hessians`` (assemblies of the
+        elastic Hessian), ``stick_solves`` and ``stick_steps`` (stick-corrected
+        directions solved and taken)."""
+    def reset_stats(self) -> None:
+        """Zero the work counters."""
     def accept_last_iterate(self) -> None:
         """After a step that did not converge, take its last iterate as the new
         state (``qdot`` from the difference) as if it had converged.

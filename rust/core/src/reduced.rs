@@ -96,6 +96,10 @@ pub struct ReducedSystem {
     areas: Vec<f64>,
     /// Contact points with a non-zero area (the others carry no force).
     contact_points: Vec<usize>,
+    /// Basis rows `W_j` of those points in groups of LANES, group g at
+    /// `g n 3 LANES` as `[i][c][lane]`, and their rest positions `[g][c][lane]`.
+    contact_packed: Vec<f64>,
+    contact_rest_packed: Vec<f64>,
     /// Normal rows `n_p^T W_j` of those points in groups of LANES: group g and
     /// plane p at `(g P + p) n LANES`, as `[i][lane]`.
     normal_rows: Vec<f64>,
@@ -166,9 +170,13 @@ pub struct Workspace {
     contact_rows_out: Vec<f64>,
     contact_coef: Vec<[f64; 3]>,
     contact_coef_out: Vec<[f64; 3]>,
-    /// Hessian terms of every contact point with area and plane, from the last
+    /// Hessian terms of every contact point with area and plane, and the
+    /// displacement `x - x_prev` of every evaluated one, from the last
     /// [`ReducedSystem::evaluate`] with gradient.
     contact_terms: Vec<RankOneTerms>,
+    contact_dx: Vec<[f64; 3]>,
+    /// Per-lane partial sums of the contact gradient, n.
+    contact_lane_grad: Vec<[f64; LANES]>,
     /// Per-lane partial sums of the elastic gradient: one per varying column
     /// of G, then the nine components of `sum_k w_k P_k` (for the constant ones).
     lane_grad: Vec<[f64; LANES]>,
@@ -453,6 +461,17 @@ impl ReducedSystem {
                 }
             }
         }
+        let mut contact_packed = vec![0.0; contact_groups * n * 3 * LANES];
+        let mut contact_rest_packed = vec![0.0; contact_groups * 3 * LANES];
+        for (slot, &j) in contact_points.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            for c in 0..3 {
+                contact_rest_packed[(g * 3 + c) * LANES + l] = inp.contact_rest[3 * j + c];
+                for i in 0..n {
+                    contact_packed[((g * n + i) * 3 + c) * LANES + l] = inp.contact_basis[3 * n * j + c * n + i];
+                }
+            }
+        }
         Ok(Self {
             n,
             mass,
@@ -466,6 +485,8 @@ impl ReducedSystem {
             contact_basis: inp.contact_basis.to_vec(),
             contact_rest: inp.contact_rest.to_vec(),
             contact_points,
+            contact_packed,
+            contact_rest_packed,
             normal_rows,
             normal_offsets,
             areas: inp.contact_areas.to_vec(),
@@ -549,6 +570,8 @@ impl ReducedSystem {
             contact_coef: vec![[0.0; 3]; 3 * self.planes.len()],
             contact_coef_out: vec![[0.0; 3]; 3 * self.planes.len()],
             contact_terms: vec![RankOneTerms::default(); self.contact_points.len() * self.planes.len()],
+            contact_dx: vec![[0.0; 3]; self.contact_points.len()],
+            contact_lane_grad: vec![[0.0; LANES]; n],
             lane_grad: vec![[0.0; LANES]; self.var_cols.len() + 9],
             var_cols: self.var_cols.clone(),
             const_cols: self.const_cols.clone(),
@@ -628,9 +651,7 @@ impl ReducedSystem {
 
     /// Incremental potential E(q), J.
     pub fn energy(&self, start: &StepStart, q: &[f64]) -> f64 {
-        let mut elastic = 0.0;
-        dispatch(EvaluateKernel { sys: self, start, q, model: None, lane_grad: &mut [], grad: &mut [], terms: &mut [], elastic: &mut elastic })
-            + start.offset
+        dispatch(EvaluateKernel { sys: self, start, q, model: None, ws: None }).0 + start.offset
     }
 
     /// `E(q) - E0` (J) with the constant `E0 = -f . qt` of the step left out, so
@@ -650,27 +671,16 @@ impl ReducedSystem {
     }
 
     fn evaluate_with(&self, start: &StepStart, q: &[f64], model: Option<&ElasticModel<'_>>, with_gradient: bool, ws: &mut Workspace) -> f64 {
-        let (lane_grad, grad, terms): (&mut [[f64; LANES]], &mut [f64], &mut [RankOneTerms]) =
-            if with_gradient { (&mut ws.lane_grad, &mut ws.grad, &mut ws.contact_terms) } else { (&mut [], &mut [], &mut []) };
-        dispatch(EvaluateKernel { sys: self, start, q, model, lane_grad, grad, terms, elastic: &mut ws.elastic_energy })
+        let (e, elastic) = dispatch(EvaluateKernel { sys: self, start, q, model, ws: with_gradient.then_some(&mut *ws) });
+        ws.elastic_energy = elastic;
+        e
     }
 
     /// Energy (shifted as in [`Self::evaluate`]) and, when `grad` is not empty,
     /// the gradient; `lane_grad` (n, or empty) is scratch.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn evaluate_impl<M: Madd>(
-        &self,
-        start: &StepStart,
-        q: &[f64],
-        model: Option<&ElasticModel<'_>>,
-        lane_grad: &mut [[f64; LANES]],
-        grad: &mut [f64],
-        terms: &mut [RankOneTerms],
-        elastic_energy: &mut f64,
-    ) -> f64 {
+    fn evaluate_impl<M: Madd>(&self, start: &StepStart, q: &[f64], model: Option<&ElasticModel<'_>>, mut ws: Option<&mut Workspace>) -> (f64, f64) {
         let n = self.n;
-        let with_gradient = !grad.is_empty();
         let inv_h2 = 1.0 / (self.dt() * self.dt());
         // Inertia and gravity, relative to the inertial target.
         let mut inertia = 0.0;
@@ -683,13 +693,13 @@ impl ReducedSystem {
             let d = q[i] - start.qtilde[i];
             inertia = M::madd(d, md, inertia);
             work = M::madd(self.gravity[i], d, work);
-            if with_gradient {
-                grad[i] = md * inv_h2 - self.gravity[i];
+            if let Some(ws) = ws.as_deref_mut() {
+                ws.grad[i] = md * inv_h2 - self.gravity[i];
             }
         }
         let mut e = 0.5 * inertia * inv_h2 - work;
 
-        if let Some(m) = model {
+        let elastic_energy = if let Some(m) = model {
             let mut em = m.energy;
             for i in 0..n {
                 let mut kd = 0.0;
@@ -697,23 +707,38 @@ impl ReducedSystem {
                     kd = M::madd(m.hessian[i * n + j], q[j] - m.origin[j], kd);
                 }
                 em = M::madd(q[i] - m.origin[i], m.gradient[i] + 0.5 * kd, em);
-                if with_gradient {
-                    grad[i] += m.gradient[i] + kd;
+                if let Some(ws) = ws.as_deref_mut() {
+                    ws.grad[i] += m.gradient[i] + kd;
                 }
             }
-            *elastic_energy = em;
-            e += em;
+            em
         } else {
-            e += self.elastic_impl::<M>(q, lane_grad, grad, elastic_energy);
-        }
+            match ws.as_deref_mut() {
+                Some(ws) => self.elastic_impl::<M>(q, &mut ws.lane_grad, &mut ws.grad),
+                None => self.elastic_impl::<M>(q, &mut [], &mut []),
+            }
+        };
+        e += elastic_energy;
+        (e + self.contact_energy_impl::<M>(start, q, ws), elastic_energy)
+    }
 
-        // Contact.
+    /// Contact energy and, with `ws`, its gradient (added to `ws.grad`), the
+    /// Hessian terms and displacements of the points (into `ws`). Points that
+    /// touch no plane and carry no lagged normal force contribute nothing: eight
+    /// gaps at a time find them from the normal rows alone; the positions and
+    /// the gradient of the others are formed eight points at a time too.
+    #[inline(always)]
+    fn contact_energy_impl<M: Madd>(&self, start: &StepStart, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
+        let n = self.n;
         let n_planes = self.planes.len();
+        let mut e = 0.0;
         if n_planes == 0 {
             return e;
         }
-        // Points that touch no plane and carry no lagged normal force contribute
-        // nothing: eight gaps at a time find them from the normal rows alone.
+        if let Some(ws) = ws.as_deref_mut() {
+            ws.contact_lane_grad.fill([0.0; LANES]);
+        }
+        let mut any_force = false;
         for (g, slots) in self.contact_points.chunks(LANES).enumerate() {
             let mut active = 0u32;
             for p in 0..n_planes {
@@ -724,41 +749,90 @@ impl ReducedSystem {
                     }
                 }
             }
+            if active == 0 {
+                if let Some(ws) = ws.as_deref_mut() {
+                    for t in &mut ws.contact_terms[g * LANES * n_planes..(g * LANES + slots.len()) * n_planes] {
+                        t.len = 0;
+                    }
+                }
+                continue;
+            }
+            let x = self.group_positions::<M>(g, q);
+            let mut force = [[0.0; LANES]; 3];
+            let mut group_force = false;
             for (l, &j) in slots.iter().enumerate() {
                 let slot = g * LANES + l;
                 if active & (1 << l) == 0 {
-                    if with_gradient {
-                        for t in &mut terms[slot * n_planes..(slot + 1) * n_planes] {
+                    if let Some(ws) = ws.as_deref_mut() {
+                        for t in &mut ws.contact_terms[slot * n_planes..(slot + 1) * n_planes] {
                             t.len = 0;
                         }
                     }
                     continue;
                 }
-                let x = self.contact_position::<M>(j, q);
+                let xj = Vector3::new(x[0][l], x[1][l], x[2][l]);
                 let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
                 let mut g3 = Vector3::zeros();
                 for (p, plane) in self.planes.iter().enumerate() {
-                    let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
+                    let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &xj, &xp);
                     e += c.energy;
                     g3 += c.gradient;
-                    if with_gradient {
-                        terms[slot * n_planes + p] = c.hessian;
+                    if let Some(ws) = ws.as_deref_mut() {
+                        ws.contact_terms[slot * n_planes + p] = c.hessian;
                     }
                 }
-                if with_gradient && g3 != Vector3::zeros() {
-                    let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
-                    let g3: &[f64; 3] = g3.as_slice().try_into().expect("3 components");
-                    combine_rows::<M, 3>(w, &[], &mut [], g3, grad);
+                if let Some(ws) = ws.as_deref_mut() {
+                    let dx = xj - xp;
+                    ws.contact_dx[slot] = [dx.x, dx.y, dx.z];
                 }
+                if g3 != Vector3::zeros() {
+                    for c in 0..3 {
+                        force[c][l] = g3[c];
+                    }
+                    group_force = true;
+                }
+            }
+            if let (Some(ws), true) = (ws.as_deref_mut(), group_force) {
+                any_force = true;
+                let w = &self.contact_packed[g * n * 3 * LANES..(g + 1) * n * 3 * LANES];
+                for (wi, acc) in w.chunks_exact(3 * LANES).zip(ws.contact_lane_grad.iter_mut()) {
+                    let mut v = *acc;
+                    for c in 0..3 {
+                        v = M::madd8(lanes_at(wi, c * LANES), &force[c], v);
+                    }
+                    *acc = v;
+                }
+            }
+        }
+        if let (Some(ws), true) = (ws, any_force) {
+            for (g, a) in ws.grad.iter_mut().zip(&ws.contact_lane_grad) {
+                *g += ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
             }
         }
         e
     }
 
-    /// Elastic energy (also into `elastic_energy`) and, when `grad` is not
+    /// Positions `x[c][lane]` of the eight contact points of group `g` at `q`.
+    #[inline(always)]
+    fn group_positions<M: Madd>(&self, g: usize, q: &[f64]) -> [F8; 3] {
+        let n = self.n;
+        let w = &self.contact_packed[g * n * 3 * LANES..(g + 1) * n * 3 * LANES];
+        let mut x = [[0.0; LANES]; 3];
+        for c in 0..3 {
+            x[c] = *lanes_at(&self.contact_rest_packed, (g * 3 + c) * LANES);
+        }
+        for (wi, &qi) in w.chunks_exact(3 * LANES).zip(q) {
+            for c in 0..3 {
+                x[c] = M::madd8_splat(qi, lanes_at(wi, c * LANES), x[c]);
+            }
+        }
+        x
+    }
+
+    /// Elastic energy and, when `grad` is not
     /// empty, its gradient added to `grad`, eight points at a time.
     #[inline(always)]
-    fn elastic_impl<M: Madd>(&self, q: &[f64], lane_grad: &mut [[f64; LANES]], grad: &mut [f64], elastic_energy: &mut f64) -> f64 {
+    fn elastic_impl<M: Madd>(&self, q: &[f64], lane_grad: &mut [[f64; LANES]], grad: &mut [f64]) -> f64 {
         let nv = self.var_cols.len();
         let with_gradient = !grad.is_empty();
         if with_gradient {
@@ -796,7 +870,6 @@ impl ReducedSystem {
             }
         }
         let e = ((elastic[0] + elastic[4]) + (elastic[1] + elastic[5])) + ((elastic[2] + elastic[6]) + (elastic[3] + elastic[7]));
-        *elastic_energy = e;
         if with_gradient {
             reduce_lane_gradient(lane_grad, &self.var_cols, &self.const_cols, grad);
         }
@@ -1069,7 +1142,9 @@ impl ReducedSystem {
         (plus, minus, rows)
     }
 
-    /// Stick correction of a Newton direction `dir` taken from `q`: the slipping
+    /// Stick correction of a Newton direction `dir` taken from the point of the
+    /// last [`Self::evaluate`] with gradient (whose contact displacements it
+    /// uses): the slipping
     /// contact points whose slip the step would reverse or bring into the stick
     /// region (where the friction force falls below the Coulomb limit) are modelled
     /// as sticking. For each, the square-root rows of the Hessian change
@@ -1077,8 +1152,8 @@ impl ReducedSystem {
     /// switch rows, and `W_j^T t (c s - mu f_n)` (stick force minus slip force) is
     /// added to `rhs`. Returns the number of rows; [`Self::add_switch_rows`] adds
     /// their product to a Hessian.
-    pub fn stick_switch(&self, start: &StepStart, q: &[f64], dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
-        dispatch(StickKernel { sys: self, start, q, dir, ws, rhs })
+    pub fn stick_switch(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
+        dispatch(StickKernel { sys: self, start, dir, ws, rhs })
     }
 
     /// Adds the product of the first `count` switch rows of [`Self::stick_switch`]
@@ -1088,51 +1163,77 @@ impl ReducedSystem {
     }
 
     #[inline(always)]
-    fn stick_impl<M: Madd>(&self, start: &StepStart, q: &[f64], dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
+    fn stick_impl<M: Madd>(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
         let n = self.n;
         let n_planes = self.planes.len();
         let h = self.dt();
         let mut rows = 0;
-        for &j in &self.contact_points {
-            let area = self.areas[j];
-            let c = area * self.contact.friction_stiffness / h;
-            if c <= 0.0 || (0..n_planes).all(|p| start.normal_force[j * n_planes + p] <= 0.0) {
+        for (g, slots) in self.contact_points.chunks(LANES).enumerate() {
+            // Slipping points (all carry a lagged normal force, so they were
+            // evaluated and their displacement kept).
+            let mut slipping = 0u32;
+            for (l, &j) in slots.iter().enumerate() {
+                let c = self.areas[j] * self.contact.friction_stiffness / h;
+                let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
+                for (p, plane) in self.planes.iter().enumerate() {
+                    let cap = plane.friction() * start.normal_force[j * n_planes + p];
+                    if cap > 0.0 && c > 0.0 {
+                        let nrm = plane.normal();
+                        if c * (dx - nrm * nrm.dot(&dx)).norm() > cap {
+                            slipping |= 1 << l;
+                        }
+                    }
+                }
+            }
+            if slipping == 0 {
                 continue;
             }
-            let x = self.contact_position::<M>(j, q);
-            let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
-            let wd = rows_dot::<M, 3>(w, dir);
-            let wd = Vector3::new(wd[0], wd[1], wd[2]);
-            let dx = x - Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
-            let mut count = 0;
-            let mut force = Vector3::zeros();
-            for (p, plane) in self.planes.iter().enumerate() {
-                let cap = plane.friction() * start.normal_force[j * n_planes + p];
-                if cap <= 0.0 {
-                    continue;
+            // Their motion along the direction, eight at a time.
+            let w = &self.contact_packed[g * n * 3 * LANES..(g + 1) * n * 3 * LANES];
+            let mut wd = [[0.0; LANES]; 3];
+            for (wi, &di) in w.chunks_exact(3 * LANES).zip(dir) {
+                for c in 0..3 {
+                    wd[c] = M::madd8_splat(di, lanes_at(wi, c * LANES), wd[c]);
                 }
-                let nrm = plane.normal();
-                let delta = dx - nrm * nrm.dot(&dx);
-                let slip = delta.norm();
-                if c * slip <= cap {
-                    continue;
-                }
-                let t = delta / slip;
-                let moved = delta + wd - nrm * nrm.dot(&wd);
-                if t.dot(&moved) >= cap / c {
-                    continue;
-                }
-                let b = nrm.cross(&t);
-                let (st, sb) = (c.sqrt(), (c - cap / slip).max(0.0).sqrt());
-                ws.contact_coef[count] = [st * t.x, st * t.y, st * t.z];
-                ws.contact_coef[count + 1] = [sb * b.x, sb * b.y, sb * b.z];
-                count += 2;
-                force += t * (c * slip - cap);
             }
-            if count > 0 {
-                let f: &[f64; 3] = force.as_slice().try_into().expect("3 components");
-                combine_rows::<M, 3>(w, &ws.contact_coef[..count], &mut ws.contact_rows[rows * n..], f, rhs);
-                rows += count;
+            for (l, &j) in slots.iter().enumerate() {
+                if slipping & (1 << l) == 0 {
+                    continue;
+                }
+                let c = self.areas[j] * self.contact.friction_stiffness / h;
+                let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
+                let wd = Vector3::new(wd[0][l], wd[1][l], wd[2][l]);
+                let mut count = 0;
+                let mut force = Vector3::zeros();
+                for (p, plane) in self.planes.iter().enumerate() {
+                    let cap = plane.friction() * start.normal_force[j * n_planes + p];
+                    if cap <= 0.0 {
+                        continue;
+                    }
+                    let nrm = plane.normal();
+                    let delta = dx - nrm * nrm.dot(&dx);
+                    let slip = delta.norm();
+                    if c * slip <= cap {
+                        continue;
+                    }
+                    let t = delta / slip;
+                    let moved = delta + wd - nrm * nrm.dot(&wd);
+                    if t.dot(&moved) >= cap / c {
+                        continue;
+                    }
+                    let b = nrm.cross(&t);
+                    let (st, sb) = (c.sqrt(), (c - cap / slip).max(0.0).sqrt());
+                    ws.contact_coef[count] = [st * t.x, st * t.y, st * t.z];
+                    ws.contact_coef[count + 1] = [sb * b.x, sb * b.y, sb * b.z];
+                    count += 2;
+                    force += t * (c * slip - cap);
+                }
+                if count > 0 {
+                    let f: &[f64; 3] = force.as_slice().try_into().expect("3 components");
+                    let wj = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+                    combine_rows::<M, 3>(wj, &ws.contact_coef[..count], &mut ws.contact_rows[rows * n..], f, rhs);
+                    rows += count;
+                }
             }
         }
         rows
@@ -1168,17 +1269,14 @@ struct EvaluateKernel<'a> {
     start: &'a StepStart,
     q: &'a [f64],
     model: Option<&'a ElasticModel<'a>>,
-    lane_grad: &'a mut [[f64; LANES]],
-    grad: &'a mut [f64],
-    terms: &'a mut [RankOneTerms],
-    elastic: &'a mut f64,
+    ws: Option<&'a mut Workspace>,
 }
 
 impl WithMadd for EvaluateKernel<'_> {
-    type Output = f64;
+    type Output = (f64, f64);
     #[inline(always)]
-    fn run<M: Madd>(self) -> f64 {
-        self.sys.evaluate_impl::<M>(self.start, self.q, self.model, self.lane_grad, self.grad, self.terms, self.elastic)
+    fn run<M: Madd>(self) -> (f64, f64) {
+        self.sys.evaluate_impl::<M>(self.start, self.q, self.model, self.ws)
     }
 }
 
@@ -1246,7 +1344,6 @@ impl WithMadd for BeginKernel<'_> {
 struct StickKernel<'a> {
     sys: &'a ReducedSystem,
     start: &'a StepStart,
-    q: &'a [f64],
     dir: &'a [f64],
     ws: &'a mut Workspace,
     rhs: &'a mut [f64],
@@ -1256,7 +1353,7 @@ impl WithMadd for StickKernel<'_> {
     type Output = usize;
     #[inline(always)]
     fn run<M: Madd>(self) -> usize {
-        self.sys.stick_impl::<M>(self.start, self.q, self.dir, self.ws, self.rhs)
+        self.sys.stick_impl::<M>(self.start, self.dir, self.ws, self.rhs)
     }
 }
 
@@ -1411,6 +1508,95 @@ mod tests {
             }
         }
         assert!(rel_err(&ws.hess, &naive, 1e-9) < 1e-11, "assembly error {}", rel_err(&ws.hess, &naive, 1e-9));
+    }
+
+    #[test]
+    fn incremental_contact_hessian_matches_a_fresh_one() {
+        let model = small_block(4, 9, 40);
+        let sys = ReducedSystem::new(&model.inputs()).unwrap();
+        let (start, q0, qdot) = sliding_start(&model, &sys);
+        let n = sys.n_dofs();
+        let h = model.scene.dt;
+        let mut ws = sys.workspace();
+        let mut exact = sys.contact_hessian_state(false);
+        let mut fresh = vec![0.0; n * n];
+        let mut rng = Rng::new(21);
+        // A walk through slipping, sticking, lifted and sunk states.
+        for step in 0..30 {
+            let s = [1.0, 0.0, 1e-3, 0.5][step % 4];
+            let mut q: Vec<f64> = (0..n).map(|i| q0[i] + s * h * qdot[i] + 1e-6 * rng.uniform()).collect();
+            q[11] += [0.0, -2e-5, 3e-4, 1e-5][step % 4];
+            sys.evaluate(&start, &q, true, &mut ws);
+            sys.update_contact_hessian(&mut ws, &mut exact);
+            sys.contact_hessian(&start, &q, &mut ws, &mut fresh);
+            assert!(rel_err(exact.matrix(), &fresh, 1e-9) < 1e-10, "step {step}: {}", rel_err(exact.matrix(), &fresh, 1e-9));
+        }
+    }
+
+    #[test]
+    fn contact_model_matches_the_energy_to_second_order() {
+        let model = small_block(3, 11, 9);
+        let sys = ReducedSystem::new(&model.inputs()).unwrap();
+        let (start, q0, qdot) = sliding_start(&model, &sys);
+        let n = sys.n_dofs();
+        let q: Vec<f64> = (0..n).map(|i| q0[i] + model.scene.dt * qdot[i]).collect();
+        let mut ws = sys.workspace();
+        let e = sys.evaluate(&start, &q, true, &mut ws);
+        let mut g_el = vec![0.0; n];
+        ws.elastic_gradient(&mut g_el);
+        let grad = ws.grad.clone();
+        let e_el = ws.elastic_energy;
+        let mut k_el = vec![0.0; n * n];
+        let mut clamped = vec![0.0; n * n];
+        sys.elastic_hessian(&q, &mut ws, &mut k_el, Some(&mut clamped));
+        for (k, c) in k_el.iter_mut().zip(&clamped) {
+            *k -= c;
+        }
+        let m = ElasticModel { origin: &q, energy: e_el, gradient: &g_el, hessian: &k_el };
+        // Same value and gradient at the expansion point.
+        assert!((sys.evaluate_model(&start, &q, &m, true, &mut ws) - e).abs() < 1e-14 * e.abs().max(1.0));
+        assert!(rel_err(&ws.grad, &grad, 1e-9) < 1e-12);
+        // Its gradient is that of its energy, and it follows E to second order.
+        let mut rng = Rng::new(5);
+        let dir: Vec<f64> = (0..n).map(|_| rng.uniform()).collect();
+        let at = |t: f64| -> Vec<f64> { q.iter().zip(&dir).map(|(x, d)| x + t * 1e-4 * d).collect() };
+        let p = at(1.0);
+        sys.evaluate_model(&start, &p, &m, true, &mut ws);
+        let fd = fd_gradient(|x| sys.evaluate_model(&start, x, &m, false, &mut sys.workspace()), &p, 1e-8);
+        assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-5, "model gradient vs FD: {}", rel_err(&ws.grad, &fd, 1e-6));
+        let mut gap = |t: f64| {
+            let x = at(t);
+            (sys.evaluate(&start, &x, false, &mut ws) - sys.evaluate_model(&start, &x, &m, false, &mut ws)).abs()
+        };
+        // Third order: halving the step divides the gap by about 8.
+        let (g1, g2) = (gap(1.0), gap(0.5));
+        assert!(g2 < g1 / 5.0 || g1 < 1e-15, "model gap {g1} -> {g2}");
+    }
+
+    #[test]
+    fn stick_switch_flags_points_carried_through_the_stick_region() {
+        let model = small_block(2, 5, 16);
+        let sys = ReducedSystem::new(&model.inputs()).unwrap();
+        let (start, q0, qdot) = sliding_start(&model, &sys);
+        let n = sys.n_dofs();
+        let h = model.scene.dt;
+        // Slipping along +x; a step that reverses the slip switches every
+        // slipping point, one that carries it on switches none.
+        let q: Vec<f64> = (0..n).map(|i| q0[i] + h * qdot[i]).collect();
+        assert!(regimes(&model, &sys, &start, &q).1 > 0);
+        let mut ws = sys.workspace();
+        let mut rhs = vec![0.0; n];
+        let mut back = vec![0.0; n];
+        back[9] = -2.0 * h * qdot[9];
+        sys.evaluate(&start, &q, true, &mut ws);
+        let rows = sys.stick_switch(&start, &back, &mut ws, &mut rhs);
+        assert_eq!(rows, 2 * regimes(&model, &sys, &start, &q).1);
+        assert!(rhs[9] > 0.0, "stick force minus slip force opposes the slip");
+        let mut on = vec![0.0; n];
+        on[9] = 0.5 * h * qdot[9];
+        let mut rhs = vec![0.0; n];
+        assert_eq!(sys.stick_switch(&start, &on, &mut ws, &mut rhs), 0);
+        assert!(rhs.iter().all(|r| *r == 0.0));
     }
 
     #[test]

@@ -128,13 +128,16 @@ impl ReducedCore {
     }
 
     /// Work counters since construction (or the last `reset_stats`): steps,
-    /// iterations, evaluations, elastic_hessians, stick_solves, stick_steps.
+    /// iterations, evaluations, model_iterations, model_evaluations,
+    /// elastic_hessians, stick_solves, stick_steps.
     fn stats(&self) -> std::collections::HashMap<&'static str, usize> {
         let s = self.inner.stats();
         [
             ("steps", s.steps),
             ("iterations", s.iterations),
             ("evaluations", s.evaluations),
+            ("model_iterations", s.model_iterations),
+            ("model_evaluations", s.model_evaluations),
             ("elastic_hessians", s.elastic_hessians),
             ("stick_solves", s.stick_solves),
             ("stick_steps", s.stick_steps),
