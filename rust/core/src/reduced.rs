@@ -16,7 +16,17 @@
 //! a group forms the eight deformation gradients with vertical multiply-adds
 //! (`F[a][lane] += G[i][a][lane] q_i`, no horizontal sums), the stress and energy
 //! run eight points per instruction, and the gradient `G_k^T P_k` accumulates
-//! per lane until one final reduction.
+//! per lane until one final reduction. Columns of G that are the same at every
+//! point (the affine modes: a linear map of X has the same gradient
+//! everywhere) are factored out: they add a constant to every F, and their
+//! gradient is one product with the summed stress. Contact points are packed
+//! the same way (`W_j` as `[i][c][lane]`, plus their normal rows `n_p^T W_j`):
+//! the gaps of eight points cost one pass over the normal rows, and only groups
+//! with a point that touches a plane or carries a lagged normal force go on to
+//! positions, contact terms and gradient. Measured on one core (AVX-512), the
+//! elastic gradient costs about 30-40 ns per cubature point at n = 32 whether
+//! K is 100 or 5000, so it is compute bound: storing G in f32 would save
+//! bandwidth that is not the limit, and would perturb the model at 1e-7.
 //!
 //! **Hessian.** It is assembled in parts, so that the solver can refresh them
 //! at different rates: the elastic part `B^T B`, where B stacks, per cubature
@@ -25,8 +35,14 @@
 //! the exact elastic Hessian is `B^T B - N^T N`), and the contact part, the same
 //! product over the square-root factors of the contact points' rank-one terms
 //! times `W_j`, formed only for points that touch a plane or carry a lagged
-//! normal force. The rows are written eight at a time (one per lane) into a
-//! column-major stack and multiplied by faer's blocked symmetric kernels.
+//! normal force, and kept up to date incrementally ([`ContactHessian`]). The
+//! elastic rows are written eight at a time (one per lane) into a column-major
+//! stack of cache size and multiplied chunk by chunk by faer's blocked
+//! symmetric kernels.
+//!
+//! **Contact model.** [`ReducedSystem::evaluate_model`] is E with the elastic
+//! energy replaced by a quadratic ([`ElasticModel`]): the solver minimises it
+//! inside each Newton iteration (see [`crate::solver`]).
 
 use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
 use faer::{Accum, MatMut, MatRef, Par};

@@ -195,7 +195,7 @@ const INNER_TOLERANCE: f64 = 0.5;
 pub const INNER_FORCING: f64 = 0.01;
 /// The lagged elastic Hessian is assembled again when its error along the last
 /// step makes up more than this share of the next direction (see
-/// [`ReducedSolver::elastic_drift`]).
+/// the module documentation).
 pub const ELASTIC_DRIFT: f64 = 0.1;
 
 /// State `(q, qdot)` of a reduced model and the preallocated machinery to step it.
