@@ -18,6 +18,7 @@ import numpy as np
 
 import licrom
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, meshes
+from licrom.compare import time_steps
 from licrom.cubature import ContactPoints, Cubature
 from licrom.dataset import drop_state, initial_state_on_plane, report_dataset_spec
 
@@ -45,7 +46,8 @@ def main() -> None:
     ap.add_argument("--model", default=None, help="trained model (.lcm); default: polynomial stand-in basis")
     ap.add_argument("--modes", type=int, default=20, help="learned modes of the stand-in basis")
     ap.add_argument("--resolutions", type=int, nargs="+", default=[15, 24, 42], help="cheese resolutions")
-    ap.add_argument("--full-steps", type=int, default=6, help="full-space steps timed (after one warm-up step)")
+    ap.add_argument("--warmup", type=int, default=6, help="steps run before timing (the 1 cm drop lands in 5)")
+    ap.add_argument("--full-steps", type=int, default=6, help="full-space steps timed")
     ap.add_argument("--reduced-steps", type=int, default=200, help="reduced steps timed")
     ap.add_argument("--cubature", type=int, default=1000, help="cubature tets")
     ap.add_argument("--contacts", type=int, default=1000, help="contact points (farthest-point subset)")
@@ -59,29 +61,14 @@ def main() -> None:
         scene = scene_for(mesh)
         basis = model if model is not None else polynomial_basis(mesh, args.modes)
 
-        full = FullSim(mesh, scene, device=args.device)
-        full.step()  # kernel compilation and the first contact
-        times, iters = [], []
-        for _ in range(args.full_steps):
-            t = time.perf_counter()
-            its, _ = full.step()
-            times.append(time.perf_counter() - t)
-            iters.append(its)
-        full_ms = 1e3 * float(np.median(times))
-
+        # Both are timed over the same steps, once the cheese has landed and rests in contact.
+        full_ms, full_its = time_steps(FullSim(mesh, scene, device=args.device), args.full_steps, warmup=args.warmup)
         t = time.perf_counter()
         reduced = ReducedSim(basis, mesh, scene, cubature=Cubature.naive(mesh, args.cubature),
                              contact_points=ContactPoints.subset(mesh, args.contacts))
         setup = time.perf_counter() - t
-        reduced.step()
-        rtimes, riters = [], []
-        for _ in range(args.reduced_steps):
-            t = time.perf_counter()
-            its, _ = reduced.step()
-            rtimes.append(time.perf_counter() - t)
-            riters.append(its)
-        red_ms = 1e3 * float(np.median(rtimes))
-        rows.append((res, mesh.n_tets, full_ms, float(np.mean(iters)), red_ms, float(np.mean(riters)), setup, full_ms / red_ms))
+        red_ms, red_its = time_steps(reduced, args.reduced_steps, warmup=args.warmup)
+        rows.append((res, mesh.n_tets, full_ms, full_its, red_ms, red_its, setup, full_ms / red_ms))
         print(f"resolution {res}: {mesh.n_tets} tets done", flush=True)
 
     k = (model.n_modes if model is not None else 12 + args.modes)

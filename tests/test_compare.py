@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from licrom import Plane, Scene, Trajectory, meshes
-from licrom.compare import compare, penetration_depths, slip_distance
+from licrom.compare import compare, penetration_depths, slip_distance, time_steps
+from licrom.errors import ConfigError
 
 
 def _sliding_box(speed, frames=21, dt=0.01, sink=0.0):
@@ -34,3 +35,25 @@ def test_compare_identical_and_shifted():
     assert c.slid_full and not c.slid_reduced and not c.stick_slip_agree
     assert c.final_com_error == pytest.approx(0.1 / a.mesh.size)
     assert "DISAGREE" in c.table()
+
+
+class _RecordedSim:
+    """Stands in for a simulation whose step times and iterations are known."""
+
+    def __init__(self, seconds, iterations):
+        self.seconds, self.iterations = np.asarray(seconds, float), np.asarray(iterations)
+
+    def run(self, steps, record_every=1):
+        assert steps == len(self.seconds) and record_every == steps
+        traj = _sliding_box(0.0, frames=2)
+        traj.step_seconds, traj.iterations = self.seconds, self.iterations
+        return traj
+
+
+def test_time_steps_skips_the_warmup():
+    # The first (warm-up) steps are slow and take many iterations; only the rest count.
+    sim = _RecordedSim([5.0, 4.0, 0.001, 0.003, 0.002], [9, 9, 1, 2, 3])
+    ms, its = time_steps(sim, 3, warmup=2)
+    assert ms == pytest.approx(2.0) and its == pytest.approx(2.0)
+    with pytest.raises(ConfigError, match="steps >= 1"):
+        time_steps(sim, 0)

@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ShapeError
+from .errors import ConfigError, ShapeError
 from .scene import Scene
 from .trajectory import Trajectory
 
-__all__ = ["Comparison", "compare", "run_comparison", "slip_distance", "penetration_depths"]
+__all__ = ["Comparison", "compare", "run_comparison", "time_steps", "slip_distance", "penetration_depths"]
 
 # An object "slides" when its contact points slip further than this fraction of its size
 # over the second half of the run (after a drop's landing transient has passed).
@@ -203,3 +203,21 @@ def run_comparison(
     full = FullSim(reduced_sim.mesh, scene, device=device).run(steps, record_every=record_every, progress=progress)
     reduced = reduced_sim.run(steps, record_every=record_every, progress=progress)
     return compare(full, reduced), full, reduced
+
+
+def time_steps(sim: Any, steps: int, warmup: int = 0) -> tuple[float, float]:
+    """Median wall time and mean Newton iterations of ``steps`` steps of a simulation.
+
+    Args:
+        sim: a :class:`~licrom.FullSim` or :class:`~licrom.ReducedSim` (anything with ``run``).
+        steps: steps timed.
+        warmup: steps run first and not timed (kernel compilation, a drop's fall: time
+            both simulations over the same steps of the same scene).
+
+    Returns:
+        ``(milliseconds per step, iterations per step)``.
+    """
+    if steps < 1 or warmup < 0:
+        raise ConfigError(f"time_steps needs steps >= 1 and warmup >= 0, got steps={steps}, warmup={warmup}")
+    traj = sim.run(warmup + steps, record_every=warmup + steps)
+    return 1e3 * float(np.median(traj.step_seconds[warmup:])), float(np.mean(traj.iterations[warmup:]))

@@ -617,9 +617,8 @@ def train(
 
     quiet_loggers = [logging.getLogger(n) for n in ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.accelerators.cuda")]
     old_levels = [lg.level for lg in quiet_loggers]
-    if not cfg.progress:
-        for lg in quiet_loggers:
-            lg.setLevel(logging.WARNING)
+    for lg in quiet_loggers:  # Lightning's notes on accelerators and add-ons say nothing about this run
+        lg.setLevel(logging.WARNING)
     old_matmul = torch.get_float32_matmul_precision()
     if accelerator == "gpu":
         torch.set_float32_matmul_precision("high")
