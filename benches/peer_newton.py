@@ -422,11 +422,9 @@ def format_table(results: dict[str, dict[str, dict[str, Any]]], cases: tuple[Cas
 
 def plot_travel(results: dict[str, dict[str, dict[str, Any]]], cases: tuple[Case, ...], path: Path, duration: float) -> Path:
     """PNG of the centre-of-mass travel down the slope against time, one panel per case."""
-    import matplotlib
+    from licrom.render import pyplot, save_png
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     styles = {"licrom": ("C0", "-"), "licrom_fine": ("C0", ":"), "newton": ("C1", "--")}
     fig, axes = plt.subplots(1, len(cases), figsize=(5.5 * len(cases), 4.0), squeeze=False)
     for ax, case in zip(axes[0], cases):
@@ -442,9 +440,7 @@ def plot_travel(results: dict[str, dict[str, dict[str, Any]]], cases: tuple[Case
         ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:

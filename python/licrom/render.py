@@ -5,24 +5,36 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from ._io import atomic_path
 from .compare import Comparison
+from .errors import ShapeError
 from .trajectory import Trajectory
 
 __all__ = ["filmstrip", "plot_errors", "write_vtu_series"]
 
 
-def _matplotlib():
+def pyplot():
+    """matplotlib.pyplot on the headless Agg backend (imported on first use: it is slow to import)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_png(fig: Any, path: str | os.PathLike) -> Path:
+    """Write a matplotlib figure as a PNG, atomically, and close it."""
+    out = Path(path)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    pyplot().close(fig)
+    return out
 
 
 def _plane_patch(normal: np.ndarray, offset: float, centre: np.ndarray, half: float) -> np.ndarray:
@@ -49,7 +61,13 @@ def filmstrip(
     """
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    plt = _matplotlib()
+    if not trajectories or len(labels) != len(trajectories):
+        raise ShapeError(f"filmstrip needs one label per trajectory, got {len(trajectories)} trajectories and {len(labels)} labels")
+    if len({t.n_frames for t in trajectories}) != 1:
+        raise ShapeError(f"filmstrip needs trajectories of one frame count, got {[t.n_frames for t in trajectories]}")
+    if frames < 1:
+        raise ShapeError(f"filmstrip needs frames >= 1, got {frames}")
+    plt = pyplot()
     first = trajectories[0]
     picks = np.linspace(0, first.n_frames - 1, frames).round().astype(int)
     # The camera follows the object: each panel is centred on the mean of the shown frames'
@@ -82,16 +100,12 @@ def filmstrip(
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    out = Path(path)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return out
+    return save_png(fig, path)
 
 
 def plot_errors(comparisons: dict[str, Comparison], path: str | os.PathLike) -> Path:
     """Relative displacement error and centre-of-mass error over time, one line per comparison."""
-    plt = _matplotlib()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     for name, c in comparisons.items():
         axes[0].plot(c.times, 100 * c.frame_errors, label=name)
@@ -103,11 +117,7 @@ def plot_errors(comparisons: dict[str, Comparison], path: str | os.PathLike) -> 
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    out = Path(path)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return out
+    return save_png(fig, path)
 
 
 def write_vtu_series(traj: Trajectory, folder: str | os.PathLike, name: str = "frame") -> Path:

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from ._io import atomic_path
+from .render import pyplot, save_png
 from .errors import ConfigError
 from .basis import N_AFFINE, affine_values
 from .model import LicromNet, Model, ModelConfig, finalize_basis
@@ -507,11 +508,7 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: str = "") -> Path:
     """PNG of the loss curves (train/val MSE and held-out relative errors) per epoch."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     ep = [r["epoch"] for r in rows]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
@@ -536,11 +533,7 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    p = Path(path)
-    with atomic_path(p) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return p
+    return save_png(fig, path)
 
 
 # ----------------------------------------------------------------------------------------
