@@ -26,3 +26,25 @@ def test_errors_are_one_line(tmp_path, capsys):
 def test_installed_entry_point_runs():
     r = subprocess.run([sys.executable, "-m", "licrom.cli", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "mesh" in r.stdout
+
+
+def test_compare_command_reports_and_writes_pictures(tiny_demo, tmp_path, capsys):
+    import json
+
+    out = tmp_path / "new" / "folder"
+    model = tiny_demo[0] / "model.lcm"
+    args = ["compare", str(model), "--slope", "25", "--friction", "0.1", "--friction", "0.9", "--steps", "40",
+            "--cubature", "40", "--out", str(out)]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "slope 25.0 deg, mu 0.1" in text and "slope 25.0 deg, mu 0.9" in text and "stick/slip" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["slope 25.0 deg, mu 0.1"]["slid_full"] and not summary["slope 25.0 deg, mu 0.9"]["slid_full"]
+    assert {p.name for p in out.iterdir()} == {"summary.json", "errors.png", "filmstrip_1.png", "filmstrip_2.png"}
+
+
+def test_compare_command_refuses_a_foreign_file(tmp_path, capsys):
+    bad = tmp_path / "model.lcm"
+    bad.write_bytes(b"not a model")
+    assert main(["compare", str(bad)]) == 2
+    assert capsys.readouterr().err.startswith("licrom: error:")

@@ -236,6 +236,8 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
         default_mu = base.planes[0].friction if base.planes else 0.5
         default_slope = base.planes[0].slope_deg if base.planes else 0.0
         planes = [Plane.incline(s, m) for s in (slope or (default_slope,)) for m in (friction or (default_mu,))]
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
     results = {}
     comparisons = {}
     for plane in planes:
@@ -255,11 +257,12 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
 
             filmstrip([full, reduced], ["full", "reduced"], Path(out) / f"filmstrip_{len(results)}.png", title=label)
     if out is not None:
+        from ._io import atomic_path
         from .render import plot_errors
 
-        Path(out).mkdir(parents=True, exist_ok=True)
         plot_errors(comparisons, Path(out) / "errors.png")
-        (Path(out) / "summary.json").write_text(json.dumps(results, indent=2))
+        with atomic_path(Path(out) / "summary.json") as tmp:
+            tmp.write_text(json.dumps(results, indent=2))
         click.echo(f"\nwrote {out}/summary.json, errors.png and filmstrips")
 
 

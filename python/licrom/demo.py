@@ -17,6 +17,7 @@ from pathlib import Path
 
 import click
 
+from ._io import atomic_path
 from .errors import ConfigError
 
 __all__ = ["DemoConfig", "run_demo"]
@@ -136,8 +137,9 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
         "model": {"learned_modes": config.modes, "cubature_points": cubature.count},
         "cases": rows,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    (out / "summary.md").write_text(_markdown(summary))
+    for name, text in (("summary.json", json.dumps(summary, indent=2)), ("summary.md", _markdown(summary))):
+        with atomic_path(out / name) as tmp:
+            tmp.write_text(text)
     say(_markdown(summary))
     say(f"outputs in {out.resolve()}:")
     for p in sorted(out.iterdir()):

@@ -1,0 +1,31 @@
+import json
+
+import pytest
+
+from licrom.demo import DemoConfig
+from licrom.errors import ConfigError
+
+
+def test_demo_writes_every_output(tiny_demo):
+    out, summary = tiny_demo
+    for name in ("cheese.vtu", "model.lcm", "model.losses.csv", "model.losses.png", "errors.png", "summary.md",
+                 "filmstrip_slope20_mu0.1.png", "filmstrip_slope20_mu0.9.png",
+                 "vtu_slope20_mu0.1/full/full.pvd", "vtu_slope20_mu0.9/reduced/reduced.pvd"):
+        assert (out / name).is_file(), name
+    assert len(list((out / "data").glob("*.npz"))) == 4
+    assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(summary))
+    assert "| slope 20 deg, mu 0.1 |" in (out / "summary.md").read_text()
+
+
+def test_demo_reduced_runs_follow_the_full_ones(tiny_demo):
+    slides, sticks = tiny_demo[1]["cases"]
+    assert slides["slid_full"] and not sticks["slid_full"]  # tan 20 deg = 0.36 against mu 0.1 and 0.9
+    for case in (slides, sticks):
+        assert case["stick_slip_agree"]
+        assert 0.0 <= case["mean_error"] < 0.05
+        assert case["reduced_step_ms"] < case["full_step_ms"]
+
+
+def test_demo_refuses_a_test_case_from_the_training_set():
+    with pytest.raises(ConfigError, match="held-out"):
+        DemoConfig(train_slopes=(20.0,), train_frictions=(0.5,), test_cases=((20.0, 0.5),))
