@@ -33,6 +33,7 @@ import copy
 import math
 import os
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -497,7 +498,11 @@ class Model:
             return out, out
 
         xh = net.normalize(x)
-        jac, val = vmap(jacfwd(f, has_aux=True))(xh)  # jac (p, 3, r, 3): d out_ic / d xh_j
+        with warnings.catch_warnings():
+            # torch builds its forward-mode decompositions with the deprecated torch.jit.script
+            # on first use; that warning is about torch's internals, not about this call.
+            warnings.filterwarnings("ignore", message=".*torch.jit.script.*", category=FutureWarning)
+            jac, val = vmap(jacfwd(f, has_aux=True))(xh)  # jac (p, 3, r, 3): d out_ic / d xh_j
         val = net.u_scale * val
         jac = (net.u_scale / net.x_scale) * jac.permute(0, 1, 3, 2)  # (p, 3, 3, r): [i, j, c]
         if self.affine:
