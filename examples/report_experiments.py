@@ -133,7 +133,7 @@ def _misses(rows: list[Row]) -> str:
             continue
         onset = float(c.times[np.argmax(c.frame_errors >= 0.5 * c.frame_errors.max())])
         lines.append(
-            f"- {row.case}, {row.extra['cubature']} {row.extra['cubature_points']}: mean error {100 * c.mean_error:.2f} %, final COM "
+            f"- {row.case}, r {row.extra['r']}, {row.extra['cubature']} {row.extra['cubature_points']}: mean error {100 * c.mean_error:.2f} %, final COM "
             f"{100 * c.final_com_error:.2f} % of the size ({1e3 * c.final_com_error * c.object_size:.1f} mm). The subspace holds the "
             f"full run to {100 * row.extra['projection_error']:.2f} % (projection), so the gap comes from the reduced dynamics "
             f"(cubature, contact), not the subspace; the error reaches half its peak at t = {onset:.2f} s"
