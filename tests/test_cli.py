@@ -43,8 +43,10 @@ def test_compare_command_reports_and_writes_pictures(tiny_demo, tmp_path, capsys
     assert {p.name for p in out.iterdir()} == {"summary.json", "errors.png", "filmstrip_1.png", "filmstrip_2.png"}
 
 
-def test_compare_command_refuses_a_foreign_file(tmp_path, capsys):
+def test_compare_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
     bad = tmp_path / "model.lcm"
     bad.write_bytes(b"not a model")
     assert main(["compare", str(bad)]) == 2
     assert capsys.readouterr().err.startswith("licrom: error:")
+    assert main(["compare", str(tiny_demo[0] / "model.lcm"), "--mesh", "sphere:abc"]) == 2
+    assert "needs an integer resolution" in capsys.readouterr().err

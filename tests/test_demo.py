@@ -29,3 +29,10 @@ def test_demo_reduced_runs_follow_the_full_ones(tiny_demo):
 def test_demo_refuses_a_test_case_from_the_training_set():
     with pytest.raises(ConfigError, match="held-out"):
         DemoConfig(train_slopes=(20.0,), train_frictions=(0.5,), test_cases=((20.0, 0.5),))
+
+
+@pytest.mark.parametrize("field, value", [("epochs", 0), ("modes", -1), ("steps", 0), ("cubature_points", 0),
+                                          ("resolution", 2), ("drop_height", float("nan"))])
+def test_demo_refuses_bad_settings_before_simulating(field, value):
+    with pytest.raises(ConfigError, match=f"DemoConfig.{field}"):
+        DemoConfig(**{field: value})

@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 
 from .demo import DemoConfig
-from .errors import LicromError
+from .errors import ConfigError, LicromError
 
 __all__ = ["main", "cli"]
 
@@ -230,7 +230,12 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
     mesh = model.mesh
     if mesh_source:
         kind, _, res = mesh_source.partition(":")
-        mesh = meshes.PROCEDURAL[kind](resolution=int(res)) if kind in meshes.PROCEDURAL and res else Mesh.load(mesh_source)
+        if kind in meshes.PROCEDURAL and res:
+            if not res.isdigit():
+                raise ConfigError(f"--mesh {kind}:RES needs an integer resolution RES, got {mesh_source!r}")
+            mesh = meshes.PROCEDURAL[kind](resolution=int(res))
+        else:
+            mesh = Mesh.load(mesh_source)
     planes = [base.planes[0]] if base.planes else []
     if slope or friction:
         default_mu = base.planes[0].friction if base.planes else 0.5

@@ -54,6 +54,13 @@ class DemoConfig:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
+        # Checked here, not where each is used, so a bad value fails before minutes of simulation.
+        for name in ("resolution", "steps", "modes", "epochs", "cubature_points"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < (4 if name == "resolution" else 1):
+                raise ConfigError(f"DemoConfig.{name} must be an integer >= {4 if name == 'resolution' else 1}, got {value!r}")
+        if not self.drop_height >= 0.0:
+            raise ConfigError(f"DemoConfig.drop_height (m) must be >= 0, got {self.drop_height!r}")
         if not self.train_slopes or not self.train_frictions or not self.test_cases:
             raise ConfigError("DemoConfig needs at least one training slope, training friction and test case")
         for slope, mu in self.test_cases:
