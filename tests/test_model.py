@@ -225,11 +225,11 @@ def test_load_rejects_truncated_foreign_and_unknown_files(mesh, tmp_path):
     raw = good.read_bytes()
     (tmp_path / "trunc.lcm").write_bytes(raw[: len(raw) // 2])
     (tmp_path / "junk.lcm").write_bytes(b"this is not a model file at all")
-    with pytest.raises(FileFormatError):
+    with pytest.raises(FileFormatError, match="truncated or corrupt"):
         Model.load(tmp_path / "trunc.lcm")
-    with pytest.raises(FileFormatError):
+    with pytest.raises(FileFormatError, match=r"not an \.npz \(zip\) archive"):
         Model.load(tmp_path / "junk.lcm")
-    with pytest.raises(FileFormatError):
+    with pytest.raises(FileFormatError, match="not found"):
         Model.load(tmp_path / "missing.lcm")
     # a licrom file of another kind
     from licrom import Trajectory

@@ -63,6 +63,9 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
     p = Path(path)
     if not p.is_file():
         raise FileFormatError(f"{kind} file not found: '{p}'")
+    with open(p, "rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":  # every .npz is a zip archive
+            raise FileFormatError(f"'{p}' is not a licrom {kind} file: it is not an .npz (zip) archive")
     try:
         with np.load(p, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
