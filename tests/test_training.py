@@ -99,6 +99,10 @@ def test_relative_error():
     assert relative_error(u, u, m) == 0.0
     assert relative_error(u, 0 * u, m) == pytest.approx(1.0)
     assert relative_error(0 * u, 0 * u, m) == 0.0
+    # frames together: sqrt(sum of squared errors / sum of squared norms), masses weighting vertices
+    frames = np.stack([u, 2 * u])
+    assert relative_error(frames, np.stack([0 * u, 2 * u]), m) == pytest.approx(np.sqrt(1 / 5))
+    assert relative_error(frames, frames + [[0, 0, 0], [3, 0, 0]], np.array([1.0, 0.0])) == 0.0
 
 
 @pytest.mark.parametrize(

@@ -261,9 +261,9 @@ def relative_error(reference: np.ndarray, approximation: np.ndarray, masses: np.
     ``reference`` and ``approximation`` are (n, 3) or (f, n, 3); returns 0 when both are zero.
     """
     d = np.asarray(reference, dtype=np.float64) - np.asarray(approximation, dtype=np.float64)
-    num = float(np.einsum("...ni,...ni,n->", d, d, masses))
     ref = np.asarray(reference, dtype=np.float64)
-    den = float(np.einsum("...ni,...ni,n->", ref, ref, masses))
+    num = float(np.einsum("...ni,...ni,n->...", d, d, masses).sum())
+    den = float(np.einsum("...ni,...ni,n->...", ref, ref, masses).sum())
     if den == 0.0:
         return 0.0 if num == 0.0 else float("inf")
     return float(np.sqrt(num / den))
