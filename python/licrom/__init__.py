@@ -11,6 +11,10 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+# ``compare`` is a function named like its module: bound here, after the module has loaded,
+# so that importing ``licrom.compare`` (which sets the package attribute to the module) cannot
+# shadow it. The module is numpy-only, so this costs nothing.
+from .compare import compare
 from .errors import ConfigError, FileFormatError, LicromError, MeshError, ShapeError, SolverError
 from .mesh import Mesh, MeshQuality
 from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
@@ -33,7 +37,6 @@ _LAZY = {
     "ModelConfig": ".model",
     "train": ".training",
     "TrainConfig": ".training",
-    "compare": ".compare",
 }
 
 __all__ = [
@@ -52,6 +55,7 @@ __all__ = [
     "InitialState",
     "Scene",
     "Trajectory",
+    "compare",
     *_LAZY,
 ]
 
@@ -73,7 +77,6 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # pragma: no cover
     from . import meshes
     from .basis import AffineBasis, MeshBasis, StackedBasis
-    from .compare import compare
     from .cubature import Cubature
     from .dataset import generate_dataset, report_dataset_spec
     from .full_sim import FullSim

@@ -4,6 +4,11 @@ Errors are mass-weighted, so they do not depend on how the mesh is refined:
 ``e(t) = |u_r(t) - u_f(t)|_M / |u_f(t)|_M`` per frame, the centre-of-mass distance
 as a fraction of the object's size, whether the object slid or stuck in each,
 the deepest penetration, and the per-step wall time of both.
+
+The displacement error is dominated by rigid motion (a slide of a few sizes hides a
+shape that is far off), so the shape is measured on its own: each frame's best rigid
+fit removed (:mod:`licrom.rigid`), the error of the body-frame displacements from the
+first contact on, the peak deformation and the total rotation of each run.
 """
 
 from __future__ import annotations
@@ -15,25 +20,66 @@ from typing import Any
 import numpy as np
 
 from .errors import ConfigError, ShapeError
+from .rigid import body_frame_displacements, rigid_fit, rotation_angle
 from .scene import Scene
 from .trajectory import Trajectory
 
-__all__ = ["Comparison", "compare", "run_comparison", "time_steps", "slip_distance", "penetration_depths"]
+__all__ = [
+    "Comparison",
+    "compare",
+    "first_contact_frame",
+    "nonrigid_error",
+    "peak_nonrigid_deformation",
+    "penetration_depths",
+    "plane_gaps",
+    "run_comparison",
+    "slip_distance",
+    "time_steps",
+    "total_rotation",
+]
 
 # An object "slides" when its contact points slip further than this fraction of its size
 # over the second half of the run (after a drop's landing transient has passed).
 SLIDE_THRESHOLD = 0.01
+# A vertex "touches" a plane when its gap is below this fraction of the object's size.
+CONTACT_TOLERANCE = 0.005
+
+
+def _positions(traj: Trajectory) -> np.ndarray:
+    """(f, n, 3) positions of every frame, m."""
+    return traj.rest_positions[None] + traj.displacements
+
+
+def _masses(traj: Trajectory) -> np.ndarray:
+    return traj.mesh.vertex_masses(traj.scene.material.density)
+
+
+def plane_gaps(traj: Trajectory, scene: Scene | None = None) -> np.ndarray:
+    """(f, n, p) signed distance of every vertex from every plane of ``scene`` per frame, m.
+
+    Negative inside a plane's half-space; ``p = 0`` when the scene has no planes.
+    """
+    planes = (scene or traj.scene).plane_array()
+    return np.einsum("fnk,pk->fnp", _positions(traj), planes[:, :3]) + planes[:, 3]
 
 
 def penetration_depths(traj: Trajectory, scene: Scene | None = None) -> np.ndarray:
     """(f,) deepest penetration of any vertex below any plane per frame, m (0 if none)."""
-    scene = scene or traj.scene
-    if not scene.planes:
+    gaps = plane_gaps(traj, scene)
+    if gaps.shape[2] == 0:
         return np.zeros(traj.n_frames)
-    planes = scene.plane_array()
-    x = traj.rest_positions[None] + traj.displacements  # (f, n, 3)
-    gaps = np.einsum("fnk,pk->fnp", x, planes[:, :3]) + planes[:, 3]
     return np.maximum(-gaps.min(axis=(1, 2)), 0.0)
+
+
+def first_contact_frame(traj: Trajectory, contact_tolerance: float | None = None) -> int | None:
+    """Index of the first frame where any vertex touches a plane; None if none ever does.
+
+    A vertex touches when its gap is below ``contact_tolerance`` (m, default 0.5% of the
+    object's size). None also when the scene has no planes.
+    """
+    tol = CONTACT_TOLERANCE * traj.mesh.size if contact_tolerance is None else contact_tolerance
+    touching = (plane_gaps(traj) < tol).any(axis=(1, 2))
+    return int(np.argmax(touching)) if touching.any() else None
 
 
 def slip_distance(traj: Trajectory, contact_tolerance: float | None = None, start: int = 1) -> float:
@@ -46,23 +92,96 @@ def slip_distance(traj: Trajectory, contact_tolerance: float | None = None, star
     scene = traj.scene
     if not scene.planes or traj.n_frames < 2:
         return 0.0
-    size = float(np.linalg.norm(np.ptp(traj.rest_positions, axis=0)))
-    tol = 0.005 * size if contact_tolerance is None else contact_tolerance
-    planes = scene.plane_array()
+    tol = CONTACT_TOLERANCE * traj.mesh.size if contact_tolerance is None else contact_tolerance
+    normals = scene.plane_array()[:, :3]
+    touching = plane_gaps(traj) < tol  # (f, n, p)
     total = 0.0
     for f in range(max(start, 1), traj.n_frames):
-        x = traj.positions(f)
         v = traj.velocities[f]
         speeds = []
-        for p in planes:
-            n = p[:3]
-            touching = x @ n + p[3] < tol
-            if touching.any():
-                vt = v[touching] - np.outer(v[touching] @ n, n)
+        for p, n in enumerate(normals):
+            on = touching[f, :, p]
+            if on.any():
+                vt = v[on] - np.outer(v[on] @ n, n)
                 speeds.append(np.linalg.norm(vt, axis=1).mean())
         if speeds:
             total += max(speeds) * (traj.times[f] - traj.times[f - 1])
     return float(total)
+
+
+def _check_same_run(a: Trajectory, b: Trajectory, what: str) -> None:
+    if a.n_frames == 0:
+        raise ShapeError(f"{what} needs trajectories with at least one frame")
+    if a.rest_positions.shape != b.rest_positions.shape or not np.allclose(a.rest_positions, b.rest_positions):
+        raise ShapeError(f"{what} needs both trajectories on the same mesh (rest positions differ)")
+    if a.n_frames != b.n_frames or not np.allclose(a.times, b.times):
+        raise ShapeError(f"{what} needs the same frame times (got {a.n_frames} and {b.n_frames} frames)")
+
+
+def nonrigid_error(
+    reference: Trajectory, other: Trajectory, start: int | None = None, contact_tolerance: float | None = None
+) -> float:
+    """Relative error of the non-rigid deformation of ``other`` against ``reference``.
+
+    Each run's own best rigid fit is removed from every frame (mass-weighted centre and
+    Kabsch rotation, :func:`licrom.rigid.body_frame_displacements`); the result is
+    ``sqrt(sum_t |d_t|_M^2 / sum_t |u_t|_M^2)`` over frames ``t >= start``, with ``u_t``
+    the reference's body-frame displacements and ``d_t`` the difference of the two. Works
+    on any two runs of one mesh and frame times: full against reduced, or full against
+    full with a perturbed start (the noise floor of a scene).
+
+    Args:
+        reference: the run taken as the truth.
+        other: the run measured.
+        start: first frame counted (default: the reference's first contact, see
+            :func:`first_contact_frame`; every frame when it never touches a plane).
+        contact_tolerance: gap below which a vertex touches, m (default 0.5% of the size).
+
+    Returns:
+        The relative error (0 for identical shapes; unbounded when the reference
+        hardly deforms over the frames counted).
+
+    Raises:
+        ShapeError: different meshes or frame times.
+        ConfigError: ``start`` not a frame index.
+    """
+    # training_data pulls in the model (torch): imported on use so `import licrom` stays light.
+    from .training_data import relative_error
+
+    _check_same_run(reference, other, "nonrigid_error")
+    if start is None:
+        start = first_contact_frame(reference, contact_tolerance) or 0
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or not 0 <= start < reference.n_frames:
+        raise ConfigError(f"nonrigid_error start must be a frame index in [0, {reference.n_frames}), got {start!r}")
+    masses = _masses(reference)
+    rest = reference.rest_positions
+    ref = body_frame_displacements(_positions(reference)[start:], rest, masses)
+    oth = body_frame_displacements(_positions(other)[start:], rest, masses)
+    return relative_error(ref, oth, masses)
+
+
+def peak_nonrigid_deformation(traj: Trajectory) -> float:
+    """Largest body-frame displacement of any vertex in any frame, as a fraction of the object's size.
+
+    The body-frame displacement is what is left of a vertex's motion once the frame's best
+    rigid fit is removed (:func:`licrom.rigid.body_frame_displacements`).
+    """
+    d = body_frame_displacements(_positions(traj), traj.rest_positions, _masses(traj))
+    return float(np.linalg.norm(d, axis=-1).max()) / traj.mesh.size
+
+
+def total_rotation(traj: Trajectory) -> float:
+    """Accumulated rotation of the best-fit frame over the run, degrees.
+
+    Sum over consecutive frames of the angle of ``R_{t+1} R_t^T``, so a body turning back
+    and forth adds both ways. Frames must be close enough that the body turns less than
+    half a turn between them (a faster spin is aliased to a smaller angle).
+    """
+    if traj.n_frames < 2:
+        return 0.0
+    _, r = rigid_fit(_positions(traj), traj.rest_positions, _masses(traj))
+    steps = r[1:] @ np.swapaxes(r[:-1], -1, -2)
+    return math.degrees(float(rotation_angle(steps).sum()))
 
 
 @dataclass(frozen=True)
@@ -74,7 +193,13 @@ class Comparison:
         frame_errors: (f,) relative mass-weighted displacement error per frame.
         com_errors: (f,) centre-of-mass distance per frame as a fraction of the object size.
         mean_error: mean of ``frame_errors`` over frames after the first.
-        final_com_error: ``com_errors`` at the last frame.
+        final_com_error: ``com_errors`` at the last frame (mass-weighted centroids).
+        nonrigid_error: relative error of the body-frame (non-rigid) displacements from
+            the full run's first contact on, see :func:`nonrigid_error`.
+        nonrigid_start_time: time of the first frame counted in ``nonrigid_error``, s.
+        peak_deformation_full, peak_deformation_reduced: largest body-frame displacement of
+            any vertex over the run, as a fraction of the object size.
+        rotation_full, rotation_reduced: total rotation of the best-fit frame, degrees.
         slip_full, slip_reduced: slide distance of the contact points over the run, m.
         slid_full, slid_reduced: whether each slides: slip over the second half of the
             run above 1% of the object size (so a landing transient does not count).
@@ -89,6 +214,12 @@ class Comparison:
     com_errors: np.ndarray
     mean_error: float
     final_com_error: float
+    nonrigid_error: float
+    nonrigid_start_time: float
+    peak_deformation_full: float
+    peak_deformation_reduced: float
+    rotation_full: float
+    rotation_reduced: float
     slip_full: float
     slip_reduced: float
     slid_full: bool
@@ -122,6 +253,10 @@ class Comparison:
         rows = [
             ("mean relative displacement error", f"{100 * self.mean_error:.2f} %"),
             ("final centre-of-mass error / size", f"{100 * self.final_com_error:.2f} %"),
+            (f"non-rigid deformation error (from {self.nonrigid_start_time:.3g} s)", f"{100 * self.nonrigid_error:.2f} %"),
+            ("peak non-rigid deformation / size full / reduced",
+             f"{100 * self.peak_deformation_full:.2f} % / {100 * self.peak_deformation_reduced:.2f} %"),
+            ("total rotation full / reduced", f"{self.rotation_full:.1f} deg / {self.rotation_reduced:.1f} deg"),
             ("slide distance full / reduced", f"{1e3 * self.slip_full:.2f} mm / {1e3 * self.slip_reduced:.2f} mm"),
             ("stick/slip full / reduced", f"{'slides' if self.slid_full else 'sticks'} / {'slides' if self.slid_reduced else 'sticks'}"
              f" ({'agree' if self.stick_slip_agree else 'DISAGREE'})"),
@@ -135,19 +270,25 @@ class Comparison:
 
 
 def compare(full: Trajectory, reduced: Trajectory) -> Comparison:
-    """Compare two trajectories of the same mesh, scene and frame times."""
-    if full.rest_positions.shape != reduced.rest_positions.shape or not np.allclose(full.rest_positions, reduced.rest_positions):
-        raise ShapeError("compare needs both trajectories on the same mesh (rest positions differ)")
-    if full.n_frames != reduced.n_frames or not np.allclose(full.times, reduced.times):
-        raise ShapeError(f"compare needs the same frame times (got {full.n_frames} and {reduced.n_frames} frames)")
-    mesh = full.mesh
-    masses = mesh.vertex_masses(full.scene.material.density)
-    size = mesh.size
-    diff = reduced.displacements - full.displacements
-    num = np.sqrt(np.einsum("fnk,n->f", diff**2, masses))
-    den = np.sqrt(np.einsum("fnk,n->f", full.displacements**2, masses))
-    # Frames where the object has hardly moved would divide by ~0: floor at 0.1% of the size.
-    errors = num / np.maximum(den, 1e-3 * size * math.sqrt(masses.sum()))
+    """Compare two trajectories of the same mesh, scene and frame times.
+
+    Raises:
+        ShapeError: different meshes or frame times.
+    """
+    from .training_data import relative_error  # on use: see nonrigid_error
+
+    _check_same_run(full, reduced, "compare")
+    masses = _masses(full)
+    size = full.mesh.size
+    # Frames where the object has hardly moved would divide by ~0: each frame is measured against
+    # at least a shift s by 0.1% of the size, |d|/max(|u|, |s|) = min(|d|/|u|, |d|/|s|).
+    shift = np.zeros_like(full.rest_positions)
+    shift[:, 0] = 1e-3 * size
+    errors = np.array([
+        min(relative_error(uf, ur, masses), relative_error(shift, shift + ur - uf, masses))
+        for uf, ur in zip(full.displacements, reduced.displacements)
+    ])
+    start = first_contact_frame(full) or 0
     com_err = np.linalg.norm(reduced.centers_of_mass() - full.centers_of_mass(), axis=1) / size
     slip_f, slip_r = slip_distance(full), slip_distance(reduced)
     half = full.n_frames // 2
@@ -157,6 +298,12 @@ def compare(full: Trajectory, reduced: Trajectory) -> Comparison:
         com_errors=com_err,
         mean_error=float(errors[1:].mean()) if len(errors) > 1 else 0.0,
         final_com_error=float(com_err[-1]),
+        nonrigid_error=nonrigid_error(full, reduced, start=start),
+        nonrigid_start_time=float(full.times[start]),
+        peak_deformation_full=peak_nonrigid_deformation(full),
+        peak_deformation_reduced=peak_nonrigid_deformation(reduced),
+        rotation_full=total_rotation(full),
+        rotation_reduced=total_rotation(reduced),
         slip_full=slip_f,
         slip_reduced=slip_r,
         slid_full=slip_distance(full, start=half) > SLIDE_THRESHOLD * size,
