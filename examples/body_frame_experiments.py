@@ -1,0 +1,396 @@
+"""Body-frame experiments: scenes a new user would try, with their noise floors and subspace bounds.
+
+    python examples/body_frame_experiments.py [--work out/body_frame] [--docs docs] [--small]
+
+Families (one mesh and material each; training runs and held-out runs):
+
+* ``cheese``: a soft cheese (peak non-rigid deformation 5-14 % of its size) dropped onto
+  inclines whose downhill direction is along x or off-axis (azimuth measured from +x),
+  sliding and sticking; held out: other slopes and friction coefficients and a new azimuth;
+* ``box``: a tall soft box that tips over once on a slope, and a box thrown with angular
+  velocity that tumbles down a slope; held out: a new slope / a new throw;
+* ``sphere``: a soft ball rolling down a slope (as in section 2), held out on another one.
+
+For every held-out run the script measures
+
+* the **noise floor**: the full run against itself dropped 0.1 mm higher;
+* the **subspace bounds**: the non-rigid projection error of the run onto affine + POD(r) of
+  the training frames in the world frame, onto the 6 symmetric affine modes + POD(r) of the
+  training frames in the body frame, and onto the same built from the run's own frames;
+* the reduced runs that the package offers (one function per column of the table).
+
+Every full run is cached as ``.npz`` under ``--work/full`` so reruns skip it; the script writes
+``--work/results.json`` and section 10 of ``docs/results.md``. ``--small`` runs tiny meshes for
+a few steps (a smoke test) and writes nothing under ``docs``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import licrom
+from licrom import AffineBasis, FullSim, Material, MeshBasis, Plane, Scene, StackedBasis, Trajectory, meshes
+from licrom._io import atomic_path
+from licrom.basis import SubspaceProjector
+from licrom.compare import compare, penetration_depths
+from licrom.dataset import drop_state, initial_state_on_plane
+from licrom.model import apply_affine, fit_affine
+from licrom.rigid import body_frame_displacements, nonrigid_displacements, rigid_fit, rotation_angle
+
+SECTION_TITLE = "## 10. Body-frame reduced model"
+NUDGE = 1e-4  # m: the noise floor's higher drop
+CHAOTIC_FLOOR = 0.02  # a noise floor above this makes a scene chaotic (target: 3x the floor)
+POD_SIZES = (20, 40)
+
+
+# --- scenes ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Case:
+    """One full-space run of a family.
+
+    Attributes:
+        name: file stem of the cached run.
+        kind: what the run tests (soft slide, off-axis, tipping, ...).
+        held_out: False for training runs.
+        scene: the scene simulated.
+    """
+
+    name: str
+    kind: str
+    held_out: bool
+    scene: Scene
+
+
+@dataclass(frozen=True)
+class Family:
+    """A mesh, its material and time stepping, with its training and held-out runs.
+
+    Attributes:
+        name: family name.
+        mesh: the tet mesh.
+        steps: time steps per run (h = ``cases[0].scene.dt``).
+        cases: training and held-out runs.
+    """
+
+    name: str
+    mesh: licrom.Mesh
+    steps: int
+    cases: tuple[Case, ...]
+
+    @property
+    def training(self) -> list[Case]:
+        return [c for c in self.cases if not c.held_out]
+
+    @property
+    def held_out(self) -> list[Case]:
+        return [c for c in self.cases if c.held_out]
+
+
+def incline(slope_deg: float, azimuth_deg: float, friction: float) -> Plane:
+    """A plane through the origin sloping by ``slope_deg``, downhill along ``(cos a, sin a, 0)``.
+
+    Azimuth 0 is :meth:`Plane.incline`; other azimuths turn the downhill direction off the axes.
+    """
+    t, a = math.radians(slope_deg), math.radians(azimuth_deg)
+    return Plane(normal=(math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)), friction=friction)
+
+
+def _on_plane(mesh: licrom.Mesh, base: Scene, plane: Plane, height: float, rotation=(0.0, 0.0, 0.0),
+              velocity=(0.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.0)) -> Scene:
+    """``base`` on ``plane`` with the mesh dropped from ``height`` above it (pose and velocities given for flat ground)."""
+    rho = base.material.density
+    flat = drop_state(mesh, rho, height, rotation=rotation, velocity=velocity, angular_velocity=angular_velocity)
+    return base.replace(planes=(plane,), initial=initial_state_on_plane(flat, plane, mesh, rho))
+
+
+def _label(plane: Plane, azimuth: float) -> str:
+    return f"{plane.slope_deg:.0f} deg az {azimuth:g}, mu {plane.friction:g}"
+
+
+def cheese_family(small: bool) -> Family:
+    """Soft cheese on inclines along x and off-axis: 2 slopes x 2 friction coefficients x 2 azimuths in training."""
+    mesh = meshes.cheese(resolution=5 if small else 8)
+    # E = 20 kPa and a 6 cm drop: peak non-rigid deformation about 8-12 % of the size (measured in the table).
+    base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01)
+    height, tilt = 0.06, (0.15, 0.1, 0.0)
+    cases = []
+    for az in (0.0, 50.0):
+        for slope in (15.0, 30.0):
+            for mu in (0.2, 0.8):
+                p = incline(slope, az, mu)
+                cases.append(Case(f"cheese_train_{slope:g}_{mu:g}_az{az:g}", _label(p, az), False, _on_plane(mesh, base, p, height, tilt)))
+    held = [("soft, slides", 22.0, 0.0, 0.3), ("soft, sticks", 22.0, 0.0, 0.6),
+            ("off-axis, new azimuth", 25.0, 120.0, 0.3), ("off-axis, new slope and mu", 35.0, 50.0, 0.45)]
+    for kind, slope, az, mu in held:
+        p = incline(slope, az, mu)
+        cases.append(Case(f"cheese_test_{slope:g}_{mu:g}_az{az:g}", f"{kind}: {_label(p, az)}", True,
+                          _on_plane(mesh, base, p, height, tilt)))
+    if small:
+        cases = cases[:2] + cases[-1:]
+    return Family("cheese", mesh, 20 if small else 150, tuple(cases))
+
+
+def box_family(small: bool) -> Family:
+    """A tall soft box (4 x 4 x 12 cm) tipping over on a slope, and thrown to tumble."""
+    mesh = meshes.box(size=(0.04, 0.04, 0.12), resolution=4 if small else 8)
+    base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01)
+    cases = []
+    # Standing on its end, it tips when tan(slope) > width / height = 1/3 (18.4 deg); high friction keeps it from sliding first.
+    for slope, held in ((22.0, False), (30.0, False), (26.0, True)):
+        p = incline(slope, 0.0, 0.9)
+        cases.append(Case(f"box_tip_{slope:g}", f"tips over: {_label(p, 0.0)}", held, _on_plane(mesh, base, p, 0.005)))
+    # Thrown downhill lying on its side, spinning about the slope's horizontal axis: it tumbles end over end.
+    for spin, speed, held in ((12.0, 1.0, False), (20.0, 1.5, False), (16.0, 1.2, True)):
+        p = incline(20.0, 0.0, 0.5)
+        cases.append(Case(f"box_tumble_{spin:g}_{speed:g}", f"tumbles: spin {spin:g} rad/s, {speed:g} m/s, {_label(p, 0.0)}", held,
+                          _on_plane(mesh, base, p, 0.03, rotation=(0.0, math.pi / 2, 0.0), velocity=(speed, 0.0, 0.0),
+                                    angular_velocity=(0.0, spin, 0.0))))
+    if small:
+        cases = [cases[0], cases[2]]
+    return Family("box", mesh, 20 if small else 150, tuple(cases))
+
+
+def sphere_family(small: bool) -> Family:
+    """A soft ball (radius 5 cm) thrown down a slope so that it bounces and rolls."""
+    mesh = meshes.sphere(radius=0.05, resolution=4 if small else 7)
+    base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.005)
+    cases = []
+    for slope, mu, held in ((20.0, 0.5, False), (30.0, 0.5, False), (25.0, 0.3, True)):
+        p = incline(slope, 0.0, mu)
+        cases.append(Case(f"sphere_{slope:g}_{mu:g}", f"rolls: {_label(p, 0.0)}", held,
+                          _on_plane(mesh, base, p, 0.1, velocity=(0.5, 0.0, -1.0))))
+    if small:
+        cases = cases[1:]
+    return Family("sphere", mesh, 20 if small else 200, tuple(cases))
+
+
+FAMILIES: dict[str, Callable[[bool], Family]] = {"cheese": cheese_family, "box": box_family, "sphere": sphere_family}
+
+
+# --- full runs ------------------------------------------------------------------------------
+def nudged(scene: Scene) -> Scene:
+    """The same scene with the object dropped ``NUDGE`` higher (the noise floor's run)."""
+    init = scene.initial
+    return scene.replace(initial=dataclasses.replace(init, translation=tuple(np.add(init.translation, (0.0, 0.0, NUDGE)))))
+
+
+def full_run(work: Path, name: str, mesh: licrom.Mesh, scene: Scene, steps: int) -> Trajectory:
+    """The full-space run, from the cache when it holds this scene and step count."""
+    path = work / "full" / f"{name}.npz"
+    if path.exists():
+        traj = Trajectory.load(path)
+        if traj.scene == scene and traj.n_frames == steps + 1 and traj.rest_positions.shape == mesh.vertices.shape:
+            return traj
+    t0 = time.perf_counter()
+    traj = FullSim(mesh, scene).run(steps)
+    traj.save(path, precision="float64")
+    print(f"  full {name}: {mesh.n_tets} tets, {steps} steps in {time.perf_counter() - t0:.1f} s "
+          f"({traj.iterations.mean():.1f} Newton its/step)", flush=True)
+    return traj
+
+
+# --- metrics --------------------------------------------------------------------------------
+def masses_of(traj: Trajectory) -> np.ndarray:
+    return traj.mesh.vertex_masses(traj.scene.material.density)
+
+
+def first_contact(traj: Trajectory) -> int:
+    """Index of the first frame with any vertex below a plane (0 if never)."""
+    touching = np.flatnonzero(penetration_depths(traj) > 0.0)
+    return int(touching[0]) if len(touching) else 0
+
+
+def _norms(u: np.ndarray, masses: np.ndarray) -> np.ndarray:
+    """(f, n, 3) -> (f,) mass-weighted norms."""
+    return np.sqrt(np.einsum("fnk,n->f", u**2, masses))
+
+
+def nonrigid_error(truth: np.ndarray, other: np.ndarray, rest: np.ndarray, masses: np.ndarray, start: int) -> float:
+    """Non-rigid deformation error of ``other`` against ``truth`` (positions, (f, n, 3)).
+
+    Each frame's own best rigid fit is removed from each; the mass-weighted norm of the
+    difference of what is left, summed over frames from ``start`` on, divided by the same
+    sum of the truth's non-rigid norms (a ratio of means, so frames that hardly deform,
+    such as a throw's flight, do not dominate).
+    """
+    a = nonrigid_displacements(truth[start:], rest, masses)
+    b = nonrigid_displacements(other[start:], rest, masses)
+    return float(_norms(b - a, masses).sum() / _norms(a, masses).sum())
+
+
+def peak_deformation(traj: Trajectory) -> float:
+    """Largest vertex displacement in the body frame over the run, as a fraction of the size."""
+    d = body_frame_displacements(traj.rest_positions + traj.displacements, traj.rest_positions, masses_of(traj))
+    return float(np.linalg.norm(d, axis=2).max() / traj.mesh.size)
+
+
+def total_rotation(traj: Trajectory) -> float:
+    """Sum of the rotation angles between consecutive frames' best rigid fits, rad."""
+    _, r = rigid_fit(traj.rest_positions + traj.displacements, traj.rest_positions, masses_of(traj))
+    return float(rotation_angle(np.einsum("fij,fkj->fik", r[1:], r[:-1])).sum())
+
+
+def run_metrics(full: Trajectory, other: Trajectory) -> dict:
+    """Non-rigid error, final COM distance / size, stick/slip, peak deformation and rotation of ``other`` against ``full``."""
+    c = compare(full, other)
+    rest, m = full.rest_positions, masses_of(full)
+    return {
+        "nonrigid_error": nonrigid_error(rest + full.displacements, rest + other.displacements, rest, m, first_contact(full)),
+        "com_error": c.final_com_error,
+        "slides": bool(c.slid_reduced),
+        "stick_slip_right": bool(c.stick_slip_agree),
+        "peak_deformation": peak_deformation(other),
+        "rotation": total_rotation(other),
+        "step_ms": c.reduced_step_ms,
+    }
+
+
+# --- subspace bounds ------------------------------------------------------------------------
+def symmetric_affine_modes(rest: np.ndarray, masses: np.ndarray) -> np.ndarray:
+    """(n, 3, 6) the stretch and shear modes ``S Xbar`` (S symmetric) about the centre of mass."""
+    xbar = rest - masses @ rest / masses.sum()
+    out = []
+    for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
+        s = np.zeros((3, 3))
+        s[i, j] = s[j, i] = 1.0
+        out.append(xbar @ s.T)
+    return np.stack(out, axis=2)
+
+
+def _residual_pod(mesh: licrom.Mesh, fixed: np.ndarray, u: np.ndarray, masses: np.ndarray, r: int) -> np.ndarray:
+    """``fixed`` modes (n, 3, k) followed by POD(r) of what they leave of the snapshots ``u`` (f, n, 3)."""
+    coeffs = SubspaceProjector(fixed, masses).project(u)
+    residual = u - np.einsum("nik,fk->fni", fixed, coeffs)
+    pod, _ = MeshBasis.pod(mesh, residual, min(r, len(u)))
+    return np.concatenate([fixed, pod.modes], axis=2)
+
+
+def world_bound(mesh: licrom.Mesh, train_u: np.ndarray, test: Trajectory, r: int) -> float:
+    """Non-rigid error of the test run projected onto affine + POD(r) of the training displacements."""
+    rest, m = mesh.vertices, masses_of(test)
+    residual = train_u - apply_affine(rest, fit_affine(rest, train_u, m))
+    pod, _ = MeshBasis.pod(mesh, residual, min(r, len(train_u)))
+    values = StackedBasis(AffineBasis(), pod).values(rest)
+    projected = np.einsum("nik,fk->fni", values, SubspaceProjector(values, m).project(test.displacements))
+    return nonrigid_error(rest + test.displacements, rest + projected, rest, m, first_contact(test))
+
+
+def body_bound(mesh: licrom.Mesh, train_d: np.ndarray, test: Trajectory, r: int) -> float:
+    """Non-rigid error of the test run with its body-frame displacements projected onto 6 symmetric affine + POD(r) of ``train_d``."""
+    rest, m = mesh.vertices, masses_of(test)
+    x = rest + test.displacements
+    c, rot = rigid_fit(x, rest, m)
+    xbar = rest - m @ rest / m.sum()
+    d = body_frame_displacements(x, rest, m)
+    values = _residual_pod(mesh, symmetric_affine_modes(rest, m), train_d, m, r)
+    d_proj = np.einsum("nik,fk->fni", values, SubspaceProjector(values, m).project(d))
+    projected = c[:, None, :] + np.einsum("fij,fnj->fni", rot, xbar + d_proj)
+    return nonrigid_error(x, projected, rest, m, first_contact(test))
+
+
+def body_displacements(traj: Trajectory) -> np.ndarray:
+    return body_frame_displacements(traj.rest_positions + traj.displacements, traj.rest_positions, masses_of(traj))
+
+
+# --- report ---------------------------------------------------------------------------------
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.1f} %"
+
+
+def held_out_table(rows: list[dict]) -> str:
+    head = ["family", "held-out run", "tets", "peak def.", "rotation", "full", "noise floor (non-rigid / COM)",
+            *(f"{f} POD{r}" for r in POD_SIZES for f in ("world", "body", "own body"))]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        nf = row["noise_floor"]
+        out.append("| " + " | ".join([
+            row["family"], row["kind"], str(row["tets"]), _pct(row["peak_deformation"]), f"{math.degrees(row['rotation']):.0f} deg",
+            "slides" if row["slides"] else "sticks",
+            f"{_pct(nf['nonrigid_error'])} / {_pct(nf['com_error'])}" + (" chaotic" if row["chaotic"] else ""),
+            *(_pct(row["bounds"][f"{f}{r}"]) for r in POD_SIZES for f in ("world", "body", "own")),
+        ]) + " |")
+    return "\n".join(out)
+
+
+def training_table(rows: list[dict]) -> str:
+    out = ["| family | training run | peak def. | rotation | full | wall s |", "|---|---|---|---|---|---|"]
+    for row in rows:
+        out.append(f"| {row['family']} | {row['kind']} | {_pct(row['peak_deformation'])} | {math.degrees(row['rotation']):.0f} deg | "
+                   f"{'slides' if row['slides'] else 'sticks'} | {row['wall_s']:.1f} |")
+    return "\n".join(out)
+
+
+def write_section(docs: Path, text: str) -> None:
+    """Put ``text`` in place of section 10 of ``docs/results.md`` (appended if absent), atomically."""
+    path = docs / "results.md"
+    old = path.read_text()
+    before, found, after = old.partition(SECTION_TITLE)
+    rest = after[after.find("\n## "):] if found and "\n## " in after else ""
+    with atomic_path(path) as tmp:
+        tmp.write_text(before.rstrip("\n") + "\n\n" + text.rstrip("\n") + "\n" + rest)
+
+
+# --- main -----------------------------------------------------------------------------------
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--work", type=Path, default=Path("out/body_frame"))
+    ap.add_argument("--docs", type=Path, default=Path("docs"))
+    ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
+    ap.add_argument("--small", action="store_true", help="tiny meshes, few steps: a smoke test that writes nothing under --docs")
+    args = ap.parse_args()
+    work = args.work / "small" if args.small else args.work
+    t_start = time.perf_counter()
+    train_rows, test_rows = [], []
+    for fam_name in args.families:
+        fam = FAMILIES[fam_name](args.small)
+        print(f"{fam.name}: {fam.mesh.n_tets} tets, {fam.mesh.n_vertices} vertices, {len(fam.cases)} runs of {fam.steps} steps", flush=True)
+        train = []
+        for case in fam.training:
+            t0 = time.perf_counter()
+            traj = full_run(work, case.name, fam.mesh, case.scene, fam.steps)
+            train.append(traj)
+            c = compare(traj, traj)
+            train_rows.append({"family": fam.name, "name": case.name, "kind": case.kind, "peak_deformation": peak_deformation(traj),
+                               "rotation": total_rotation(traj), "slides": bool(c.slid_full), "wall_s": time.perf_counter() - t0})
+        # Training frames from first contact on (the fall is rigid and adds nothing to a subspace).
+        train_u = np.concatenate([t.displacements[first_contact(t):] for t in train])
+        train_d = np.concatenate([body_displacements(t)[first_contact(t):] for t in train])
+        for case in fam.held_out:
+            full = full_run(work, case.name, fam.mesh, case.scene, fam.steps)
+            floor = run_metrics(full, full_run(work, case.name + "_nudged", fam.mesh, nudged(case.scene), fam.steps))
+            bounds = {}
+            for r in POD_SIZES:
+                bounds[f"world{r}"] = world_bound(fam.mesh, train_u, full, r)
+                bounds[f"body{r}"] = body_bound(fam.mesh, train_d, full, r)
+                bounds[f"own{r}"] = body_bound(fam.mesh, body_displacements(full)[first_contact(full):], full, r)
+            c = compare(full, full)
+            row = {"family": fam.name, "name": case.name, "kind": case.kind, "tets": fam.mesh.n_tets,
+                   "peak_deformation": peak_deformation(full), "rotation": total_rotation(full), "slides": bool(c.slid_full),
+                   "noise_floor": floor, "chaotic": max(floor["nonrigid_error"], floor["com_error"]) > CHAOTIC_FLOOR, "bounds": bounds}
+            test_rows.append(row)
+            print(f"  {case.name}: peak {_pct(row['peak_deformation'])}, rotation {math.degrees(row['rotation']):.0f} deg, "
+                  f"floor {_pct(floor['nonrigid_error'])} / {_pct(floor['com_error'])}, "
+                  + ", ".join(f"{k} {_pct(v)}" for k, v in bounds.items()), flush=True)
+    wall = time.perf_counter() - t_start
+    with atomic_path(work / "results.json") as tmp:
+        tmp.write_text(json.dumps({"training": train_rows, "held_out": test_rows, "wall_s": wall}, indent=1))
+    print(f"wrote {work / 'results.json'} ({wall:.0f} s)")
+    if args.small:
+        return
+    write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/body_frame_experiments.py` on "
+                  f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s.\n\n"
+                  + training_table(train_rows) + "\n\n" + held_out_table(test_rows) + "\n")
+
+
+if __name__ == "__main__":
+    main()
