@@ -26,9 +26,9 @@ def mesh():
     return meshes.box((0.2, 0.1, 0.1), resolution=4)
 
 
-def _random_model(mesh, r=3, seed=0, affine=True, finalize=True, fourier=0):
+def _random_model(mesh, r=3, seed=0, affine=True, finalize=True, fourier=0, frame="world"):
     torch.manual_seed(seed)
-    net = LicromNet(ModelConfig(latent_dim=r, affine=affine, fourier_features=fourier))
+    net = LicromNet(ModelConfig(latent_dim=r, affine=affine, fourier_features=fourier, frame=frame))
     x = np.asarray(mesh.vertices)
     c = x.mean(axis=0)
     net.set_normalization(c, float(np.abs(x - c).max()), 1e-3)
@@ -78,7 +78,8 @@ def test_fit_affine_recovers_affine_field_and_is_orthogonal(mesh, rng):
 @pytest.mark.parametrize(
     "kwargs",
     [{"latent_dim": 0}, {"latent_dim": 2.5}, {"field_layers": 1}, {"field_width": -3}, {"encoder_point_widths": ()},
-     {"encoder_fc_widths": (4, 0)}, {"affine": "yes"}, {"fourier_features": -1}, {"fourier_scale": 0.0}],
+     {"encoder_fc_widths": (4, 0)}, {"affine": "yes"}, {"fourier_features": -1}, {"fourier_scale": 0.0},
+     {"frame": "lab"}, {"frame": None}],
 )
 def test_model_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
@@ -87,7 +88,7 @@ def test_model_config_rejects_bad_values(kwargs):
 
 def test_model_config_defaults_are_licrom():
     c = ModelConfig()
-    assert (c.field_layers, c.field_width, c.affine) == (5, 60, True)
+    assert (c.field_layers, c.field_width, c.affine, c.frame) == (5, 60, True, "body")
     net = LicromNet(c)
     linears = [m for m in net.field.mlp if isinstance(m, torch.nn.Linear)]
     assert len(linears) == 5 and linears[0].in_features == 3 + 2 * c.fourier_features
@@ -262,3 +263,89 @@ def test_load_rejects_truncated_foreign_and_unknown_files(mesh, tmp_path):
     with pytest.raises(FileFormatError):
         Model.load(rewrite("badcfg.lcm", edit_header=lambda h: h["model_config"].update(latent_dim=5)))
     assert zipfile.is_zipfile(good)
+
+
+# --- frames --------------------------------------------------------------------------------
+def test_unknown_frame_names_the_accepted_values():
+    with pytest.raises(ConfigError, match="'body', 'world'"):
+        ModelConfig(frame="inertial")
+
+
+def test_body_frame_model_has_learned_modes_only(mesh, rng):
+    body = _random_model(mesh, r=3, frame="body")
+    world = _random_model(mesh, r=3, frame="world")
+    assert body.frame == "body" and world.frame == "world"
+    assert (body.n_modes, body.n_learned, body.n_affine) == (3, 3, 0)
+    x = rng.uniform(-0.05, 0.05, size=(6, 3))
+    # the same learned fields; the world-frame model stacks the 12 affine modes in front
+    np.testing.assert_allclose(body.values(x), world.values(x)[:, :, 12:], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(body.jacobians(x), world.jacobians(x)[..., 12:], rtol=1e-12, atol=1e-15)
+    # still mass-orthogonal to every affine mode, hence to the six rigid modes
+    m = np.repeat(mesh.vertex_masses(1.0), 3)
+    b = body.values(mesh.vertices).reshape(-1, 3)
+    a = affine_values(mesh.vertices).reshape(-1, 12)
+    np.testing.assert_allclose(a.T @ (m[:, None] * b), 0.0, atol=1e-10 * np.abs(b).max() * m.sum())
+
+
+def test_body_frame_encoder_ignores_rigid_motion(mesh, rng):
+    from scipy.spatial.transform import Rotation
+
+    model = _random_model(mesh, r=3, frame="body")
+    x = np.asarray(mesh.vertices)
+    u = rng.normal(size=x.shape) * 1e-3
+    z = model.encode_q(x, u)
+    assert z.shape == (3,)
+    # the same deformation, turned and moved as a whole: the same latent
+    rot = Rotation.from_rotvec([0.4, -1.1, 0.7]).as_matrix()
+    moved = (x + u) @ rot.T + np.array([0.3, -0.2, 1.5]) - x
+    np.testing.assert_allclose(model.encode_q(x, moved), z, rtol=1e-6, atol=1e-9 * np.abs(z).max())
+    # a purely rigid motion has no body-frame deformation: project gives zero
+    rigid = x @ rot.T + 0.1 - x
+    from licrom.rigid import body_frame_displacements
+
+    ub = body_frame_displacements(x + rigid, x, mesh.vertex_masses(1.0))
+    np.testing.assert_allclose(model.project(ub), 0.0, atol=1e-12)
+
+
+def test_body_frame_model_round_trip_keeps_frame(mesh, tmp_path, rng):
+    import json
+
+    model = _random_model(mesh, r=2, frame="body")
+    path = model.save(tmp_path / "b.lcm")
+    with np.load(path, allow_pickle=False) as d:
+        header = json.loads(str(d["header_json"]))
+    assert header["version"] == 2 and header["frame"] == "body" and header["model_config"]["frame"] == "body"
+    back = Model.load(path)
+    assert back.frame == "body" and back.n_modes == 2
+    x = rng.uniform(-0.05, 0.05, size=(4, 3))
+    np.testing.assert_array_equal(back.values(x), model.values(x))
+
+
+def test_old_world_frame_model_file_loads_as_world_frame():
+    from pathlib import Path
+
+    path = Path(__file__).parent / "data" / "world_v1.lcm"
+    with np.load(path, allow_pickle=False) as d:
+        import json
+
+        assert json.loads(str(d["header_json"]))["version"] == 1  # written by the old format
+    model = Model.load(path)
+    assert model.frame == "world" and model.config.frame == "world"
+    assert (model.n_affine, model.n_learned, model.n_modes) == (12, 2, 14)
+    x = model.mesh.vertices
+    v = model.values(x)
+    np.testing.assert_array_equal(v[:, :, :12], affine_values(x))
+    # the finalisation stored in the file still makes the learned block mass-orthonormal
+    b = v.reshape(-1, 14)
+    m = np.repeat(model.mesh.vertex_masses(1.0), 3)
+    g = b.T @ (m[:, None] * b)
+    np.testing.assert_allclose(g[12:, 12:], m.sum() / 3 * np.eye(2), rtol=1e-5, atol=1e-9 * m.sum())
+    np.testing.assert_allclose(g[:12, 12:], 0.0, atol=1e-6 * np.abs(g).max())
+    # and it still runs as a world-frame reduced model
+    from licrom.reduced_sim import ReducedSim
+
+    sim = ReducedSim(model)
+    assert type(sim) is ReducedSim and sim.n_modes == 14
+    traj = sim.run(5)
+    assert traj.n_frames == 6 and np.isfinite(traj.displacements).all()
+    assert traj.converged.all() and np.abs(traj.displacements[-1]).max() > 0.0

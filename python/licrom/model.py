@@ -23,6 +23,19 @@ once at the end of training (they do not change the span of ``[A | W]``):
 
 This keeps the reduced mass matrix ``M_r = B^T M B`` well conditioned.
 
+A model lives in one of two frames (:attr:`Model.frame`):
+
+* ``"world"`` (LiCROM as published): the modes are world-frame displacement
+  fields and the basis is ``[A | W]`` as above;
+* ``"body"`` (the default for new models): each training frame's rigid part
+  (centre of mass and polar rotation) was removed first, so ``W`` spans the
+  non-rigid deformation seen in the body frame. :meth:`Model.values` and
+  :meth:`Model.jacobians` then return the ``r`` learned modes only; the rigid
+  motion and the symmetric affine modes are added by
+  :class:`licrom.body_frame.BodyFrameBasis`, which the reduced simulation of a
+  body-frame model uses. The learned modes are still mass-orthogonal to all 12
+  affine modes, hence to the 6 rigid ones.
+
 Torch is needed to evaluate a model; the file itself is a plain ``.npz`` with a
 JSON header (no pickle) and loads without the training data.
 """
@@ -42,7 +55,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ._io import check_version, load_npz, save_npz
+from ._io import load_npz, save_npz
 from .basis import AFFINE_JACOBIAN, N_AFFINE, affine_values
 from .errors import ConfigError, FileFormatError, ShapeError
 from .mesh import Mesh
@@ -55,9 +68,14 @@ __all__ = [
     "PointNetEncoder",
     "NeuralField",
     "MODEL_FORMAT_VERSION",
+    "FRAMES",
+    "check_frame",
 ]
 
-MODEL_FORMAT_VERSION = 1
+# Version 2 records the frame; version 1 files are world-frame models.
+MODEL_FORMAT_VERSION = 2
+_READABLE_VERSIONS = (1, 2)
+FRAMES = ("body", "world")
 # Points evaluated per batch by values()/jacobians() (bounds peak memory, not speed).
 _CHUNK = 16384
 
@@ -65,6 +83,13 @@ _CHUNK = 16384
 # ----------------------------------------------------------------------------------------
 # configuration
 # ----------------------------------------------------------------------------------------
+def check_frame(frame: Any, what: str = "frame") -> str:
+    """Return ``frame`` if it is one of :data:`FRAMES`; raise ConfigError naming them otherwise."""
+    if not isinstance(frame, str) or frame not in FRAMES:
+        raise ConfigError(f"{what} must be one of {', '.join(repr(f) for f in FRAMES)}, got {frame!r}")
+    return frame
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Sizes of the LiCROM networks.
@@ -85,8 +110,13 @@ class ModelConfig:
             before max pooling over the points.
         encoder_fc_widths: widths of the fully connected ELU layers after pooling;
             a last linear layer maps to r.
-        affine: stack the 12 exact affine modes in front of the learned ones and learn
-            only what they cannot express (True), or learn the whole displacement (False).
+        affine: remove the affine part of every training frame and keep the learned
+            modes mass-orthogonal to the 12 affine modes (True), or learn the whole
+            displacement (False). In the world frame the 12 affine modes are stacked in
+            front of the learned ones.
+        frame: ``"body"``: the modes learn the non-rigid deformation in the body frame
+            (rigid motion exact, see :mod:`licrom.body_frame`); ``"world"``: LiCROM's
+            world-frame displacement modes.
     """
 
     latent_dim: int = 20
@@ -97,6 +127,7 @@ class ModelConfig:
     encoder_point_widths: tuple[int, ...] = (64, 128, 256)
     encoder_fc_widths: tuple[int, ...] = (128,)
     affine: bool = True
+    frame: str = "body"
 
     def __post_init__(self) -> None:
         def positive_int(name: str, v: Any, minimum: int = 1) -> int:
@@ -125,6 +156,7 @@ class ModelConfig:
         if not isinstance(self.affine, (bool, np.bool_)):
             raise ConfigError(f"ModelConfig.affine must be True or False, got {self.affine!r}")
         object.__setattr__(self, "affine", bool(self.affine))
+        check_frame(self.frame, "ModelConfig.frame")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -434,8 +466,13 @@ class Model:
     # --- basic properties -----------------------------------------------------------
     @property
     def affine(self) -> bool:
-        """Whether the 12 affine modes are stacked in front of the learned ones."""
+        """Whether the learned modes are mass-orthogonal to the 12 affine modes (affine part removed in training)."""
         return self.config.affine
+
+    @property
+    def frame(self) -> str:
+        """``"world"`` or ``"body"``: the frame the modes live in (see the module docstring)."""
+        return self.config.frame
 
     @property
     def n_learned(self) -> int:
@@ -444,11 +481,12 @@ class Model:
 
     @property
     def n_affine(self) -> int:
-        return N_AFFINE if self.affine else 0
+        """Affine modes stacked in front of the learned ones: 12 for an affine world-frame model, else 0."""
+        return N_AFFINE if self.affine and self.frame == "world" else 0
 
     @property
     def n_modes(self) -> int:
-        """Total number of modes: 12 + r (affine) or r."""
+        """Total number of modes: 12 + r (affine world-frame model) or r."""
         return self.n_affine + self.n_learned
 
     @property
@@ -478,7 +516,7 @@ class Model:
         return self._net32
 
     def __repr__(self) -> str:
-        return f"Model(n_learned={self.n_learned}, affine={self.affine}, n_modes={self.n_modes}, mesh={self.mesh!r})"
+        return f"Model(frame={self.frame!r}, n_learned={self.n_learned}, affine={self.affine}, n_modes={self.n_modes}, mesh={self.mesh!r})"
 
     # --- the learned field ------------------------------------------------------------
     def _learned_values_t(self, x: torch.Tensor) -> torch.Tensor:
@@ -511,10 +549,13 @@ class Model:
         return val @ self._T, jac @ self._T
 
     def values(self, points: Any) -> np.ndarray:
-        """(p, 3, n_modes) float64 basis values ``B(X)`` at points (p, 3); affine modes first."""
+        """(p, 3, n_modes) float64 basis values ``B(X)`` at points (p, 3); affine modes first (world frame).
+
+        For a body-frame model these are the r learned body-frame displacement fields.
+        """
         x = _as_points(points)
         out = np.empty((len(x), 3, self.n_modes))
-        if self.affine:
+        if self.n_affine:
             out[:, :, :N_AFFINE] = affine_values(x)
         with torch.no_grad():
             for s in range(0, len(x), _CHUNK):
@@ -534,7 +575,7 @@ class Model:
         x = _as_points(points)
         vals = np.empty((len(x), 3, self.n_modes))
         jacs = np.empty((len(x), 3, 3, self.n_modes))
-        if self.affine:
+        if self.n_affine:
             vals[:, :, :N_AFFINE] = affine_values(x)
             jacs[:, :, :, :N_AFFINE] = AFFINE_JACOBIAN
         with torch.no_grad():
@@ -572,7 +613,8 @@ class Model:
         """Exact mass-weighted projection ``q = M_r^-1 B^T M u`` onto the subspace.
 
         Args:
-            displacements: (n, 3) or (f, n, 3) vertex displacements of ``mesh`` in m.
+            displacements: (n, 3) or (f, n, 3) vertex displacements of ``mesh`` in m
+                (body-frame displacements for a body-frame model).
             mesh: the mesh they live on; default the model's rest mesh. Any mesh of the
                 same object works (the basis is continuous).
 
@@ -602,13 +644,20 @@ class Model:
 
     # --- encoder ------------------------------------------------------------------------
     def _split_affine(self, x: np.ndarray, u: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        if not self.affine:
+        """``(affine coefficients in q, residual)`` of a world-frame field, as in training."""
+        if not self.affine and self.frame == "world":
             return np.zeros(0), u
         w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=np.float64)
         if w.shape != (len(x),) or np.any(w < 0) or not np.isfinite(w).all() or w.sum() <= 0:
             raise ShapeError(f"weights must be ({len(x)},) non-negative and not all zero")
+        if self.frame == "body":
+            from .rigid import body_frame_displacements
+
+            u = body_frame_displacements(x + u, x, w)
+        if not self.affine:
+            return np.zeros(0), u
         a = fit_affine(x, u, w)
-        return a, u - apply_affine(x, a)
+        return a[: self.n_affine], u - apply_affine(x, a)
 
     def encode(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
         """Latent z (r,) of the learned modes from a displacement field sampled at points.
@@ -616,17 +665,18 @@ class Model:
         The affine part is first removed by a weighted least-squares fit (``weights``:
         (p,) lumped masses of the points, default uniform; for the model mesh's own
         vertices the masses are used automatically), then the PointNet encoder maps
-        the cloud of (X, residual) to z. Use :meth:`encode_q` for the full ``q``.
+        the cloud of (X, residual) to z. A body-frame model first removes the best
+        rigid fit (the same weights), as in training. Use :meth:`encode_q` for the full ``q``.
 
         Args:
             points: (p, 3) rest positions X in m (any sampling of the object).
-            displacements: (p, 3) displacements u at those points in m.
+            displacements: (p, 3) world-frame displacements u at those points in m.
             weights: optional (p,) weights of the affine fit.
         """
         return self.encode_q(points, displacements, weights)[self.n_affine :]
 
     def encode_q(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
-        """Full reduced coordinates ``q = [a; z]`` (n_modes,): the affine fit, then :meth:`encode`."""
+        """Reduced coordinates (n_modes,): ``[a; z]`` (world frame: the affine fit, then :meth:`encode`) or ``z`` (body frame)."""
         x = _as_points(points)
         u = _as_points(displacements, "displacements")
         if u.shape != x.shape:
@@ -664,6 +714,7 @@ class Model:
             "model_config": self.config.to_dict(),
             "n_learned": self.n_learned,
             "affine": self.affine,
+            "frame": self.frame,
             "normalization": self.normalization,
             "scenes": [s.to_dict() for s in self.scenes],
             "default_scene": self._default_index,
@@ -679,16 +730,26 @@ class Model:
     def load(cls, path: str | os.PathLike) -> Model:
         """Read a model written by :meth:`save` (no training data needed).
 
+        Version 1 files (before the frame was recorded) load as world-frame models.
+
         Raises:
             FileFormatError: missing, truncated or foreign file, unknown format version,
                 or incomplete/inconsistent contents.
         """
         header, arrays = load_npz(path, "model")
-        check_version(header.get("version"), MODEL_FORMAT_VERSION, f"model '{path}'")
+        version = header.get("version")
+        if version not in _READABLE_VERSIONS:
+            raise FileFormatError(
+                f"model '{path}' has format version {version!r}; this licrom reads versions {', '.join(map(str, _READABLE_VERSIONS))}"
+            )
         try:
-            config = ModelConfig.from_dict(header["model_config"])
-            if int(header["n_learned"]) != config.latent_dim or bool(header["affine"]) != config.affine:
-                raise FileFormatError(f"model '{path}' header is inconsistent (n_learned/affine vs model_config)")
+            config_dict = dict(header["model_config"])
+            if version == 1:
+                config_dict["frame"] = "world"
+            config = ModelConfig.from_dict(config_dict)
+            if (int(header["n_learned"]) != config.latent_dim or bool(header["affine"]) != config.affine
+                    or header.get("frame", "world") != config.frame):
+                raise FileFormatError(f"model '{path}' header is inconsistent (n_learned/affine/frame vs model_config)")
             net = LicromNet(config)
             keys = header["state_keys"]
             state = {}
