@@ -34,18 +34,21 @@ import platform
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 import licrom
-from licrom import AffineBasis, FullSim, Material, MeshBasis, Plane, Scene, StackedBasis, Trajectory, meshes
+from licrom import AffineBasis, FullSim, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
 from licrom.basis import SubspaceProjector
-from licrom.compare import compare, penetration_depths
+from licrom.compare import compare, first_contact_frame, nonrigid_error
+from licrom.cubature import Cubature
 from licrom.dataset import drop_state, initial_state_on_plane
 from licrom.model import apply_affine, fit_affine
-from licrom.rigid import body_frame_displacements, nonrigid_displacements, rigid_fit, rotation_angle
+from licrom.rigid import body_frame_displacements, rigid_fit
+from licrom.training import TrainConfig
 
 SECTION_TITLE = "## 10. Body-frame reduced model"
 NUDGE = 1e-4  # m: the noise floor's higher drop
@@ -204,53 +207,21 @@ def masses_of(traj: Trajectory) -> np.ndarray:
     return traj.mesh.vertex_masses(traj.scene.material.density)
 
 
-def first_contact(traj: Trajectory) -> int:
-    """Index of the first frame with any vertex below a plane (0 if never)."""
-    touching = np.flatnonzero(penetration_depths(traj) > 0.0)
-    return int(touching[0]) if len(touching) else 0
-
-
-def _norms(u: np.ndarray, masses: np.ndarray) -> np.ndarray:
-    """(f, n, 3) -> (f,) mass-weighted norms."""
-    return np.sqrt(np.einsum("fnk,n->f", u**2, masses))
-
-
-def nonrigid_error(truth: np.ndarray, other: np.ndarray, rest: np.ndarray, masses: np.ndarray, start: int) -> float:
-    """Non-rigid deformation error of ``other`` against ``truth`` (positions, (f, n, 3)).
-
-    Each frame's own best rigid fit is removed from each; the mass-weighted norm of the
-    difference of what is left, summed over frames from ``start`` on, divided by the same
-    sum of the truth's non-rigid norms (a ratio of means, so frames that hardly deform,
-    such as a throw's flight, do not dominate).
-    """
-    a = nonrigid_displacements(truth[start:], rest, masses)
-    b = nonrigid_displacements(other[start:], rest, masses)
-    return float(_norms(b - a, masses).sum() / _norms(a, masses).sum())
-
-
-def peak_deformation(traj: Trajectory) -> float:
-    """Largest vertex displacement in the body frame over the run, as a fraction of the size."""
-    d = body_frame_displacements(traj.rest_positions + traj.displacements, traj.rest_positions, masses_of(traj))
-    return float(np.linalg.norm(d, axis=2).max() / traj.mesh.size)
-
-
-def total_rotation(traj: Trajectory) -> float:
-    """Sum of the rotation angles between consecutive frames' best rigid fits, rad."""
-    _, r = rigid_fit(traj.rest_positions + traj.displacements, traj.rest_positions, masses_of(traj))
-    return float(rotation_angle(np.einsum("fij,fkj->fik", r[1:], r[:-1])).sum())
+def contact_start(traj: Trajectory) -> int:
+    """First frame with a vertex touching a plane (0 if none ever does): where the non-rigid metrics start."""
+    return first_contact_frame(traj) or 0
 
 
 def run_metrics(full: Trajectory, other: Trajectory) -> dict:
     """Non-rigid error, final COM distance / size, stick/slip, peak deformation and rotation of ``other`` against ``full``."""
     c = compare(full, other)
-    rest, m = full.rest_positions, masses_of(full)
     return {
-        "nonrigid_error": nonrigid_error(rest + full.displacements, rest + other.displacements, rest, m, first_contact(full)),
+        "nonrigid_error": c.nonrigid_error,
         "com_error": c.final_com_error,
         "slides": bool(c.slid_reduced),
         "stick_slip_right": bool(c.stick_slip_agree),
-        "peak_deformation": peak_deformation(other),
-        "rotation": total_rotation(other),
+        "peak_deformation": c.peak_deformation_reduced,
+        "rotation": c.rotation_reduced,
         "step_ms": c.reduced_step_ms,
     }
 
@@ -267,44 +238,150 @@ def symmetric_affine_modes(rest: np.ndarray, masses: np.ndarray) -> np.ndarray:
     return np.stack(out, axis=2)
 
 
-def _residual_pod(mesh: licrom.Mesh, fixed: np.ndarray, u: np.ndarray, masses: np.ndarray, r: int) -> np.ndarray:
-    """``fixed`` modes (n, 3, k) followed by POD(r) of what they leave of the snapshots ``u`` (f, n, 3)."""
-    coeffs = SubspaceProjector(fixed, masses).project(u)
-    residual = u - np.einsum("nik,fk->fni", fixed, coeffs)
-    pod, _ = MeshBasis.pod(mesh, residual, min(r, len(u)))
-    return np.concatenate([fixed, pod.modes], axis=2)
+def residual_pod(mesh: licrom.Mesh, u: np.ndarray, masses: np.ndarray, r: int) -> MeshBasis:
+    """POD(r) of what the mass-weighted affine fit leaves of the snapshots ``u`` (f, n, 3), as the training data does.
+
+    The modes are mass-orthogonal to every affine mode, rigid ones included.
+    """
+    rest = mesh.vertices
+    residual = u - apply_affine(rest, fit_affine(rest, u, masses))
+    return MeshBasis.pod(mesh, residual, min(r, len(u)))[0]
 
 
-def world_bound(mesh: licrom.Mesh, train_u: np.ndarray, test: Trajectory, r: int) -> float:
-    """Non-rigid error of the test run projected onto affine + POD(r) of the training displacements."""
-    rest, m = mesh.vertices, masses_of(test)
-    residual = train_u - apply_affine(rest, fit_affine(rest, train_u, m))
-    pod, _ = MeshBasis.pod(mesh, residual, min(r, len(train_u)))
-    values = StackedBasis(AffineBasis(), pod).values(rest)
-    projected = np.einsum("nik,fk->fni", values, SubspaceProjector(values, m).project(test.displacements))
-    return nonrigid_error(rest + test.displacements, rest + projected, rest, m, first_contact(test))
-
-
-def body_bound(mesh: licrom.Mesh, train_d: np.ndarray, test: Trajectory, r: int) -> float:
-    """Non-rigid error of the test run with its body-frame displacements projected onto 6 symmetric affine + POD(r) of ``train_d``."""
-    rest, m = mesh.vertices, masses_of(test)
-    x = rest + test.displacements
-    c, rot = rigid_fit(x, rest, m)
-    xbar = rest - m @ rest / m.sum()
-    d = body_frame_displacements(x, rest, m)
-    values = _residual_pod(mesh, symmetric_affine_modes(rest, m), train_d, m, r)
-    d_proj = np.einsum("nik,fk->fni", values, SubspaceProjector(values, m).project(d))
-    projected = c[:, None, :] + np.einsum("fij,fnj->fni", rot, xbar + d_proj)
-    return nonrigid_error(x, projected, rest, m, first_contact(test))
+def _as_run(full: Trajectory, displacements: np.ndarray) -> Trajectory:
+    """``full`` with other displacements (a projection of it), so the metrics of :func:`compare` apply."""
+    return dataclasses.replace(full, displacements=displacements, velocities=np.zeros_like(displacements))
 
 
 def body_displacements(traj: Trajectory) -> np.ndarray:
     return body_frame_displacements(traj.rest_positions + traj.displacements, traj.rest_positions, masses_of(traj))
 
 
+def world_projection_error(test: Trajectory, values: np.ndarray) -> float:
+    """Non-rigid error of the test run projected (mass-weighted) onto world-frame modes ``values`` (n, 3, k)."""
+    projected = np.einsum("nik,fk->fni", values, SubspaceProjector(values, masses_of(test)).project(test.displacements))
+    return nonrigid_error(test, _as_run(test, projected), start=contact_start(test))
+
+
+def body_projection_error(test: Trajectory, learned: np.ndarray) -> float:
+    """Non-rigid error of the test run with its body-frame displacements projected onto 6 symmetric affine + ``learned`` (n, 3, r).
+
+    Each frame keeps its own rigid fit ``(c, R)`` (exact in the body-frame model); only the
+    body-frame displacement is replaced by its mass-weighted projection.
+    """
+    rest, m = test.rest_positions, masses_of(test)
+    c, rot = rigid_fit(rest + test.displacements, rest, m)
+    xbar = rest - m @ rest / m.sum()
+    values = np.concatenate([symmetric_affine_modes(rest, m), learned], axis=2)
+    d_proj = np.einsum("nik,fk->fni", values, SubspaceProjector(values, m).project(body_displacements(test)))
+    projected = c[:, None, :] + np.einsum("fij,fnj->fni", rot, xbar + d_proj) - rest
+    return nonrigid_error(test, _as_run(test, projected), start=contact_start(test))
+
+
+@dataclass
+class Setting:
+    """A family with its training runs: what the subspaces and reduced runs are built from.
+
+    Attributes:
+        family: the family.
+        train: its training runs (full space).
+        models: folder of the trained models (cached).
+        epochs: training epochs of models trained here.
+    """
+
+    family: Family
+    train: list[Trajectory]
+    models: Path
+    epochs: int
+
+    @property
+    def mesh(self) -> licrom.Mesh:
+        return self.family.mesh
+
+    @cached_property
+    def masses(self) -> np.ndarray:
+        return masses_of(self.train[0])
+
+    @cached_property
+    def train_u(self) -> np.ndarray:
+        """World-frame displacements of the training frames from first contact on (the fall adds nothing)."""
+        return np.concatenate([t.displacements[contact_start(t):] for t in self.train])
+
+    @cached_property
+    def train_d(self) -> np.ndarray:
+        """Body-frame displacements of the same frames."""
+        return np.concatenate([body_displacements(t)[contact_start(t):] for t in self.train])
+
+    def world_pod(self, r: int) -> StackedBasis:
+        return StackedBasis(AffineBasis(), residual_pod(self.mesh, self.train_u, self.masses, r))
+
+    def body_pod(self, r: int) -> MeshBasis:
+        return residual_pod(self.mesh, self.train_d, self.masses, r)
+
+    def model(self, frame: str, r: int) -> licrom.Model:
+        """The model of this family's training runs in ``frame`` with r learned modes, trained once and cached."""
+        path = self.models / f"{self.family.name}_{frame}_r{r}.lcm"
+        if not path.exists():
+            t0 = time.perf_counter()
+            licrom.train(self.train, path, TrainConfig(epochs=self.epochs, val_fraction=0.0, progress=False),
+                         ModelConfig(latent_dim=r, frame=frame))
+            print(f"  trained {path.name} ({self.epochs} epochs) in {time.perf_counter() - t0:.0f} s", flush=True)
+        return licrom.Model.load(path)
+
+
+# --- reduced runs: one function per column, each returning (reduced run, projection error of its subspace) ---
+def _reduced(setting: Setting, case: Case, basis) -> Trajectory:
+    return ReducedSim(basis, setting.mesh, case.scene, cubature=Cubature.full(setting.mesh)).run(setting.family.steps)
+
+
+def world_pod_column(setting: Setting, case: Case, full: Trajectory, r: int) -> tuple[Trajectory, float]:
+    """World frame, affine + POD(r) of the training frames: what any linear world-frame subspace of this size gives."""
+    basis = setting.world_pod(r)
+    return _reduced(setting, case, basis), world_projection_error(full, basis.values(setting.mesh.vertices))
+
+
+def world_model_column(setting: Setting, case: Case, full: Trajectory, r: int) -> tuple[Trajectory, float]:
+    """The learned world-frame model (LiCROM as published)."""
+    model = setting.model("world", r)
+    return _reduced(setting, case, model), world_projection_error(full, model.values(setting.mesh.vertices))
+
+
+COLUMNS: dict[str, Callable[[Setting, Case, Trajectory, int], tuple[Trajectory, float]]] = {
+    "world POD": world_pod_column,
+    "world model": world_model_column,
+}
+
+
 # --- report ---------------------------------------------------------------------------------
 def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.1f} %"
+
+
+def targets(row: dict) -> tuple[float, float]:
+    """(non-rigid error, final COM / size) targets of a held-out run: 15 % and 2 %, or 3x the noise floor when chaotic."""
+    floor = row["noise_floor"]
+    if not row["chaotic"]:
+        return 0.15, 0.02
+    return max(0.15, 3 * floor["nonrigid_error"]), max(0.02, 3 * floor["com_error"])
+
+
+def verdict(row: dict, run: dict) -> str:
+    """Which targets a reduced run meets, and for a miss whether the subspace or the dynamics is to blame."""
+    t_nr, t_com = targets(row)
+    misses = []
+    if run["nonrigid_error"] > t_nr:
+        misses.append(f"non-rigid > {_pct(t_nr)}")
+    if run["com_error"] > t_com:
+        misses.append(f"COM > {_pct(t_com)}")
+    if not run["stick_slip_right"]:
+        misses.append("stick/slip wrong")
+    if not misses:
+        return "meets"
+    if run["bound"] > t_nr:
+        blame = f"subspace (its projection leaves {_pct(run['bound'])})"
+    else:
+        blame = f"dynamics (the subspace holds the run to {_pct(run['bound'])})"
+    return "misses " + ", ".join(misses) + ": " + blame
 
 
 def held_out_table(rows: list[dict]) -> str:
@@ -314,7 +391,7 @@ def held_out_table(rows: list[dict]) -> str:
     for row in rows:
         nf = row["noise_floor"]
         out.append("| " + " | ".join([
-            row["family"], row["kind"], str(row["tets"]), _pct(row["peak_deformation"]), f"{math.degrees(row['rotation']):.0f} deg",
+            row["family"], row["kind"], str(row["tets"]), _pct(row["peak_deformation"]), f"{row['rotation']:.0f} deg",
             "slides" if row["slides"] else "sticks",
             f"{_pct(nf['nonrigid_error'])} / {_pct(nf['com_error'])}" + (" chaotic" if row["chaotic"] else ""),
             *(_pct(row["bounds"][f"{f}{r}"]) for r in POD_SIZES for f in ("world", "body", "own")),
@@ -322,10 +399,23 @@ def held_out_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def reduced_table(rows: list[dict]) -> str:
+    out = ["| held-out run | subspace | r | projection | non-rigid error | final COM / size | full / reduced | "
+           "peak def. full / reduced | rotation full / reduced | ms/step | verdict |", "|" + "---|" * 11]
+    for row in rows:
+        for run in row["reduced"]:
+            out.append(
+                f"| {row['family']}: {row['kind']} | {run['column']} | {run['r']} | {_pct(run['bound'])} | {_pct(run['nonrigid_error'])} | "
+                f"{_pct(run['com_error'])} | {'slides' if row['slides'] else 'sticks'} / {'slides' if run['slides'] else 'sticks'} | "
+                f"{_pct(row['peak_deformation'])} / {_pct(run['peak_deformation'])} | {row['rotation']:.0f} / {run['rotation']:.0f} deg | "
+                f"{run['step_ms']:.2f} | {verdict(row, run)} |")
+    return "\n".join(out)
+
+
 def training_table(rows: list[dict]) -> str:
     out = ["| family | training run | peak def. | rotation | full | wall s |", "|---|---|---|---|---|---|"]
     for row in rows:
-        out.append(f"| {row['family']} | {row['kind']} | {_pct(row['peak_deformation'])} | {math.degrees(row['rotation']):.0f} deg | "
+        out.append(f"| {row['family']} | {row['kind']} | {_pct(row['peak_deformation'])} | {row['rotation']:.0f} deg | "
                    f"{'slides' if row['slides'] else 'sticks'} | {row['wall_s']:.1f} |")
     return "\n".join(out)
 
@@ -341,14 +431,47 @@ def write_section(docs: Path, text: str) -> None:
 
 
 # --- main -----------------------------------------------------------------------------------
+def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], sizes: list[int]) -> dict:
+    """Noise floor, subspace bounds and reduced runs of one held-out run."""
+    fam, mesh = setting.family, setting.mesh
+    full = full_run(work, case.name, mesh, case.scene, fam.steps)
+    floor = run_metrics(full, full_run(work, case.name + "_nudged", mesh, nudged(case.scene), fam.steps))
+    own_d = body_displacements(full)[contact_start(full):]
+    bounds = {}
+    for r in POD_SIZES:
+        bounds[f"world{r}"] = world_projection_error(full, setting.world_pod(r).values(mesh.vertices))
+        bounds[f"body{r}"] = body_projection_error(full, setting.body_pod(r).modes)
+        bounds[f"own{r}"] = body_projection_error(full, residual_pod(mesh, own_d, setting.masses, r).modes)
+    own = run_metrics(full, full)
+    row = {"family": fam.name, "name": case.name, "kind": case.kind, "tets": mesh.n_tets, "peak_deformation": own["peak_deformation"],
+           "rotation": own["rotation"], "slides": own["slides"], "noise_floor": floor,
+           "chaotic": max(floor["nonrigid_error"], floor["com_error"]) > CHAOTIC_FLOOR, "bounds": bounds, "reduced": []}
+    print(f"  {case.name}: peak {_pct(row['peak_deformation'])}, rotation {row['rotation']:.0f} deg, "
+          f"floor {_pct(floor['nonrigid_error'])} / {_pct(floor['com_error'])}, "
+          + ", ".join(f"{k} {_pct(v)}" for k, v in bounds.items()), flush=True)
+    for name in columns:
+        for r in sizes:
+            reduced, bound = COLUMNS[name](setting, case, full, r)
+            run = {"column": name, "r": r, "bound": bound, **run_metrics(full, reduced)}
+            row["reduced"].append(run)
+            print(f"    {name} r {r}: non-rigid {_pct(run['nonrigid_error'])} (projection {_pct(bound)}), COM {_pct(run['com_error'])}, "
+                  f"{verdict(row, run)}", flush=True)
+    return row
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=Path("out/body_frame"))
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
+    ap.add_argument("--columns", nargs="*", default=list(COLUMNS), choices=list(COLUMNS), help="reduced runs to make")
+    ap.add_argument("--r", type=int, nargs="+", default=[20], help="learned / POD modes of the reduced runs")
+    ap.add_argument("--epochs", type=int, default=100, help="epochs of the models trained here")
     ap.add_argument("--small", action="store_true", help="tiny meshes, few steps: a smoke test that writes nothing under --docs")
     args = ap.parse_args()
     work = args.work / "small" if args.small else args.work
+    sizes = [min(r, 4) for r in args.r] if args.small else args.r
+    epochs = 2 if args.small else args.epochs
     t_start = time.perf_counter()
     train_rows, test_rows = [], []
     for fam_name in args.families:
@@ -356,31 +479,13 @@ def main() -> None:
         print(f"{fam.name}: {fam.mesh.n_tets} tets, {fam.mesh.n_vertices} vertices, {len(fam.cases)} runs of {fam.steps} steps", flush=True)
         train = []
         for case in fam.training:
-            t0 = time.perf_counter()
             traj = full_run(work, case.name, fam.mesh, case.scene, fam.steps)
             train.append(traj)
-            c = compare(traj, traj)
-            train_rows.append({"family": fam.name, "name": case.name, "kind": case.kind, "peak_deformation": peak_deformation(traj),
-                               "rotation": total_rotation(traj), "slides": bool(c.slid_full), "wall_s": time.perf_counter() - t0})
-        # Training frames from first contact on (the fall is rigid and adds nothing to a subspace).
-        train_u = np.concatenate([t.displacements[first_contact(t):] for t in train])
-        train_d = np.concatenate([body_displacements(t)[first_contact(t):] for t in train])
-        for case in fam.held_out:
-            full = full_run(work, case.name, fam.mesh, case.scene, fam.steps)
-            floor = run_metrics(full, full_run(work, case.name + "_nudged", fam.mesh, nudged(case.scene), fam.steps))
-            bounds = {}
-            for r in POD_SIZES:
-                bounds[f"world{r}"] = world_bound(fam.mesh, train_u, full, r)
-                bounds[f"body{r}"] = body_bound(fam.mesh, train_d, full, r)
-                bounds[f"own{r}"] = body_bound(fam.mesh, body_displacements(full)[first_contact(full):], full, r)
-            c = compare(full, full)
-            row = {"family": fam.name, "name": case.name, "kind": case.kind, "tets": fam.mesh.n_tets,
-                   "peak_deformation": peak_deformation(full), "rotation": total_rotation(full), "slides": bool(c.slid_full),
-                   "noise_floor": floor, "chaotic": max(floor["nonrigid_error"], floor["com_error"]) > CHAOTIC_FLOOR, "bounds": bounds}
-            test_rows.append(row)
-            print(f"  {case.name}: peak {_pct(row['peak_deformation'])}, rotation {math.degrees(row['rotation']):.0f} deg, "
-                  f"floor {_pct(floor['nonrigid_error'])} / {_pct(floor['com_error'])}, "
-                  + ", ".join(f"{k} {_pct(v)}" for k, v in bounds.items()), flush=True)
+            own = run_metrics(traj, traj)
+            train_rows.append({"family": fam.name, "name": case.name, "kind": case.kind, "peak_deformation": own["peak_deformation"],
+                               "rotation": own["rotation"], "slides": own["slides"], "wall_s": float(traj.step_seconds.sum())})
+        setting = Setting(fam, train, work / "models", epochs)
+        test_rows += [held_out_row(setting, case, work, args.columns, sizes) for case in fam.held_out]
     wall = time.perf_counter() - t_start
     with atomic_path(work / "results.json") as tmp:
         tmp.write_text(json.dumps({"training": train_rows, "held_out": test_rows, "wall_s": wall}, indent=1))
@@ -389,7 +494,7 @@ def main() -> None:
         return
     write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/body_frame_experiments.py` on "
                   f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s.\n\n"
-                  + training_table(train_rows) + "\n\n" + held_out_table(test_rows) + "\n")
+                  + training_table(train_rows) + "\n\n" + held_out_table(test_rows) + "\n\n" + reduced_table(test_rows) + "\n")
 
 
 if __name__ == "__main__":
