@@ -55,7 +55,7 @@ def test_split_is_by_whole_trajectory():
 
 
 def test_training_data_removes_affine_part(data_dir, trajs, mesh):
-    d = TrainingData(data_dir, val_indices=[1])
+    d = TrainingData(data_dir, val_indices=[1], frame="world")
     assert d.names == [f"traj_{k:03d}" for k in range(4)]
     assert d.train_indices == [0, 2, 3] and d.val_indices == [1]
     assert len(d.train) == 30 and len(d.val) == 10
@@ -71,7 +71,59 @@ def test_training_data_removes_affine_part(data_dir, trajs, mesh):
     assert d.x_scale == pytest.approx(0.1)
     assert d.u_scale > 0 and np.isfinite(d.u_scale)
     s = d.summary()
-    assert s["validation"] == ["traj_001"] and s["train_frames"] == 30
+    assert s["validation"] == ["traj_001"] and s["train_frames"] == 30 and s["frame"] == "world"
+
+
+def _rigid_run(mesh, frames=8, dt=0.01):
+    """A trajectory of pure rigid motion: turning about a tilted axis while falling and sliding."""
+    from scipy.spatial.transform import Rotation
+
+    x = np.asarray(mesh.vertices)
+    c = x.mean(axis=0)
+    t = np.arange(frames) * dt
+    rots = Rotation.from_rotvec(np.outer(3.0 * t + 0.2, [0.3, -0.5, 0.8])).as_matrix()
+    pos = np.einsum("fij,nj->fni", rots, x - c) + c + np.stack([0.4 * t, -0.1 * t, -4.9 * t**2], axis=1)[:, None]
+    disp = pos - x
+    return Trajectory(x, mesh.tets, disp, np.gradient(disp, dt, axis=0), t, make_synthetic_trajectories(mesh, 1, 2)[0].scene)
+
+
+def test_body_frame_data_of_a_rigid_run_is_zero(mesh):
+    run = _rigid_run(mesh)
+    body = TrainingData([run, run], val_indices=[1], frame="body")
+    scale = np.abs(run.displacements).max()
+    assert scale > 0.05  # it moved and turned a lot
+    assert np.abs(body.train.residuals).max() < 1e-6 * scale
+    assert np.abs(body.train.full_displacements(body.rest, slice(None))).max() < 1e-9 * scale
+    assert body.train.norm2_full.max() < 1e-20 and body.summary()["frame"] == "body"
+    # in the world frame the same run is all displacement (the affine modes hold it)
+    world = TrainingData([run, run], val_indices=[1], frame="world")
+    np.testing.assert_allclose(world.train.full_displacements(world.rest, slice(None)), run.displacements, atol=1e-9 * scale)
+
+
+def test_body_frame_data_is_the_deformation_without_rigid_motion(mesh, trajs):
+    from licrom.rigid import body_frame_displacements
+
+    d = TrainingData(trajs, val_indices=[1], frame="body")
+    t = trajs[1]
+    expect = body_frame_displacements(d.rest + t.displacements, d.rest, d.masses)
+    np.testing.assert_allclose(d.val.full_displacements(d.rest, slice(None)), expect, atol=1e-7 * np.abs(expect).max())
+    # a frame turned and moved as a whole gives the same body-frame data
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_rotvec([0.0, 1.2, -0.4]).as_matrix()
+    moved = (d.rest + t.displacements) @ rot.T + [1.0, 2.0, 3.0] - d.rest
+    turned = Trajectory(d.rest, t.tets, moved, t.velocities, t.times, t.scene)
+    d2 = TrainingData([trajs[0], turned], val_indices=[1], frame="body")
+    np.testing.assert_allclose(d2.val.residuals, d.val.residuals, atol=1e-6 * np.abs(d.val.residuals).max())
+
+
+def test_unknown_frame_is_a_config_error_naming_the_frames(trajs):
+    with pytest.raises(ConfigError, match="'body', 'world'"):
+        TrainingData(trajs, frame="inertial")
+    with pytest.raises(ConfigError, match="'body', 'world'"):
+        train(trajs, None, TrainConfig(**TINY), ModelConfig(latent_dim=2), frame="Body")
+    with pytest.raises(ConfigError, match="frame"):  # prepared data and model must agree
+        train(TrainingData(trajs, frame="world"), None, TrainConfig(**TINY), ModelConfig(latent_dim=2), frame="body")
 
 
 def test_training_data_refuses_mixed_meshes(trajs):
@@ -108,7 +160,7 @@ def test_relative_error():
 @pytest.mark.parametrize(
     "kwargs",
     [{"epochs": 0}, {"lr": -1.0}, {"sample": "faces"}, {"device": "tpu"}, {"val_fraction": 1.0}, {"batch_frames": 1.5},
-     {"projection_weight": -1.0}, {"devices": 0}],
+     {"projection_weight": -1.0}, {"devices": 0}, {"objective": "vae"}],
 )
 def test_train_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
@@ -119,7 +171,7 @@ def test_train_config_rejects_bad_values(kwargs):
 def test_train_writes_model_curves_plot_and_checkpoints(data_dir, tmp_path, mesh):
     out = tmp_path / "m.lcm"
     cfg = TrainConfig(**TINY, val_indices=(3,), seed=5)
-    model = train(data_dir, out, cfg, ModelConfig(latent_dim=3))
+    model = train(data_dir, out, cfg, ModelConfig(latent_dim=3), frame="world")
     paths = output_paths(out)
     for key in ("model", "csv", "png"):
         assert paths[key].is_file(), key
@@ -134,7 +186,7 @@ def test_train_writes_model_curves_plot_and_checkpoints(data_dir, tmp_path, mesh
         assert float(r["val_proj_full"]) <= float(r["val_proj_residual"])
     # learning rate decays
     assert float(rows[1]["lr"]) < float(rows[0]["lr"])
-    assert model.n_modes == 15 and model.mesh.same_as(mesh)
+    assert model.n_modes == 15 and model.mesh.same_as(mesh) and model.frame == "world"
     meta = model.metadata
     assert meta["data"]["validation"] == ["traj_003"] and meta["epochs_trained"] == 2
     assert meta["train_config"]["seed"] == 5 and len(meta["history"]) == 2
@@ -209,8 +261,8 @@ def test_encoder_against_exact_projection(tmp_path, capsys):
     trajs = make_synthetic_trajectories(mesh, count=3, frames=12, seed=0, modes=3, rotation=False)
     cfg = TrainConfig(epochs=12, batch_frames=6, points_per_frame=256, encoder_points=128, val_points=128,
                       lr=3e-3, val_fraction=0.0, progress=False, seed=0)
-    model = train(trajs, None, cfg, ModelConfig(latent_dim=3, encoder_point_widths=(32, 64), encoder_fc_widths=(32,)))
-    data = TrainingData(trajs, val_fraction=0.0, affine=True)
+    model = train(trajs, None, cfg, ModelConfig(latent_dim=3, encoder_point_widths=(32, 64), encoder_fc_widths=(32,), frame="world"))
+    data = TrainingData(trajs, val_fraction=0.0, affine=True, frame="world")
     masses = data.masses
     err_proj, err_enc, norm = 0.0, 0.0, 0.0
     for t in trajs:

@@ -2,8 +2,11 @@
 
 All trajectories must share one rest mesh. They are split into training and
 validation sets by whole trajectory (a held-out scene is never seen in any
-frame). For every frame the affine part of the displacement is removed by a
-mass-weighted least-squares fit; the networks learn the residual. The
+frame). In the body frame (the default) each frame's best rigid fit (centre of
+mass, polar rotation; :mod:`licrom.rigid`) is removed first and the rest is
+expressed in the body frame, so only non-rigid deformation remains. Then, in
+either frame, the affine part of the displacement is removed by a mass-weighted
+least-squares fit; the networks learn the residual. The
 normalisation statistics come from the training frames only and are stored in
 the model (never in a cache file).
 
@@ -23,7 +26,8 @@ import numpy as np
 
 from .errors import ConfigError, FileFormatError
 from .mesh import Mesh
-from .model import apply_affine, fit_affine
+from .model import apply_affine, check_frame, fit_affine
+from .rigid import body_frame_displacements
 from .scene import InitialState, Plane, Scene
 from .trajectory import Trajectory
 
@@ -122,6 +126,9 @@ def split_by_trajectory(
 class FrameSet:
     """Frames of some trajectories, affine part removed.
 
+    In the body frame, "full" means the body-frame displacement ``R^T (x - c) - Xbar``
+    (the non-rigid deformation), not the world-frame displacement.
+
     Attributes:
         residuals: (F, n, 3) float32 residual displacements in m.
         affine: (F, 12) float64 affine coefficients of the mass-weighted fit (zeros
@@ -149,12 +156,14 @@ class FrameSet:
         return apply_affine(rest, self.affine[index]) + self.residuals[index].astype(np.float64)
 
 
-def _frames(named: Sequence[tuple[str, Trajectory]], rest: np.ndarray, masses: np.ndarray, affine: bool, stride: int) -> FrameSet:
+def _frames(named: Sequence[tuple[str, Trajectory]], rest: np.ndarray, masses: np.ndarray, affine: bool, stride: int, frame: str) -> FrameSet:
     res_list, aff_list, traj_list, frame_list, nf_list, nr_list = [], [], [], [], [], []
     n = len(rest)
     for k, (_, t) in enumerate(named):
         idx = np.arange(0, t.n_frames, stride)
         u = t.displacements[idx]
+        if frame == "body":
+            u = body_frame_displacements(rest + u, rest, masses)
         if affine:
             a = fit_affine(rest, u, masses)
             res = u - apply_affine(rest, a)
@@ -190,12 +199,15 @@ class TrainingData:
             ``val_fraction``.
         affine: remove the affine part (the model stacks affine modes in front).
         frame_stride: keep every ``frame_stride``-th frame of each trajectory.
+        frame: ``"body"`` (remove each frame's rigid part first, see the module
+            docstring) or ``"world"``.
 
     Attributes:
         mesh: the common rest mesh.
         masses: (n,) lumped vertex masses in kg (density of the first scene).
         names, scenes: of all trajectories, in order.
         train_indices, val_indices: the split.
+        frame: ``"body"`` or ``"world"``.
         train, val: :class:`FrameSet` of each side.
         x_center: (3,) mass-weighted centre of the rest shape, m.
         x_scale: largest distance of a vertex from ``x_center`` along an axis, m.
@@ -212,9 +224,11 @@ class TrainingData:
         val_indices: Sequence[int] | None = None,
         affine: bool = True,
         frame_stride: int = 1,
+        frame: str = "body",
     ) -> None:
         if not isinstance(frame_stride, (int, np.integer)) or frame_stride < 1:
             raise ConfigError(f"frame_stride must be an integer >= 1, got {frame_stride!r}")
+        self.frame = check_frame(frame)
         named = load_trajectories(source)
         self.mesh = check_same_mesh(named)
         self.names = [n for n, _ in named]
@@ -224,8 +238,8 @@ class TrainingData:
         self.affine = bool(affine)
         self.train_indices, self.val_indices = split_by_trajectory(len(named), val_fraction, seed, val_indices)
         rest = np.asarray(self.mesh.vertices)
-        self.train = _frames([named[i] for i in self.train_indices], rest, self.masses, self.affine, int(frame_stride))
-        self.val = _frames([named[i] for i in self.val_indices], rest, self.masses, self.affine, int(frame_stride))
+        self.train = _frames([named[i] for i in self.train_indices], rest, self.masses, self.affine, int(frame_stride), self.frame)
+        self.val = _frames([named[i] for i in self.val_indices], rest, self.masses, self.affine, int(frame_stride), self.frame)
         if len(self.train) == 0:
             raise ConfigError("the training trajectories hold no frames")
         w = self.masses / self.masses.sum()
@@ -252,6 +266,7 @@ class TrainingData:
             "x_scale": self.x_scale,
             "u_scale": self.u_scale,
             "affine_removed": self.affine,
+            "frame": self.frame,
         }
 
 
