@@ -222,7 +222,7 @@ def generate_dataset(
     Raises:
         ConfigError: bad arguments, or ``out_dir`` holds a dataset of another mesh.
     """
-    from .full_sim import FullSim, _resolve_device
+    from .full_sim import FullSim, resolve_device
 
     if not isinstance(mesh, Mesh):
         raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
@@ -236,7 +236,7 @@ def generate_dataset(
         raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
     if precision not in ("float32", "float64"):
         raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
-    device = _resolve_device(device)
+    device = resolve_device(device)
     mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
     for m in mus:
         if m is not None and (not math.isfinite(m) or m < 0):

@@ -1,0 +1,45 @@
+"""Full-space ground truth: implicit FEM with penalty contact and implicit Coulomb friction (warp).
+
+Each time step minimises the incremental potential of backward Euler,
+
+    E(x) = 1/(2 h^2) (x - x~)^T M (x - x~) + sum_t V_t Psi(F_t(x)) + sum_{j,p} C_jp(x_j),
+    x~ = x_t + h v_t + h^2 g,                 v_{t+1} = (x_{t+1} - x_t) / h,
+
+with stable Neo-Hookean elasticity and, at each contact point j and plane p, a
+normal penalty, optional normal damping and a friction dissipation potential whose
+gradient is the force ``|f_t| = min(k_f |v_t|, mu f_n)`` with the normal force
+``f_n`` lagged from the start of the step (see ``DESIGN.md`` and :class:`FullSim`).
+
+The minimiser is found by Newton's method:
+
+- Hessian: per-element PSD projection through the analytic eigensystem of the stable
+  Neo-Hookean energy (Smith, de Goes and Kim 2019; ``wp.svd3``/``wp.eig3``), contact and
+  friction blocks (PSD by construction), lumped mass; assembled by atomic adds straight
+  into 3x3 blocks of a block-CSR pattern built once per mesh.
+- Linear solves: conjugate gradients with a block-Jacobi (3x3) preconditioner, three fused
+  kernels per iteration, relative tolerance ``min(0.25, sqrt(|g| / |g_0|))`` (Eisenstat-Walker).
+- Friction makes the energy nearly non-smooth where stiff sticking meets slip. When a Newton
+  step would carry slipping contact points through the stick region, the step is solved
+  again with those points modelled as sticking and taken if it decreases ``E`` in full.
+- Line search: Armijo sufficient decrease on ``E``; a full step that overshoots the line
+  minimum is refined by safeguarded secant steps on the directional derivative.
+- Initial iterate: ``x_t + h v_t + h^2 a`` with ``a`` the previous step's acceleration
+  (``g`` on the first step, where this is ``x~``). The minimiser does not depend on it;
+  sticking contacts start in the stick region, so Newton needs far fewer iterations.
+
+A step has converged when the mass-weighted RMS length of the Newton step divided by ``h``,
+``sqrt(dx^T M dx / m_total) / h``, is below ``scene.solver.tolerance`` (m/s): the measure the
+reduced solver uses, invariant under a change of basis. All kernels run in float64, on the
+CPU or on a CUDA device, with the same code.
+
+Where things live: :mod:`.elastic` (stable Neo-Hookean per tet), :mod:`.contact` (penalty,
+damping and friction per contact point: the warp twin of ``rust/core/src/contact.rs``),
+:mod:`.inertia` (backward-Euler bookkeeping), :mod:`.pcg` (the block-sparse Hessian and its
+solve), :mod:`.line_search`, :mod:`.device` (devices and evaluation modes) and :mod:`.sim`
+(:class:`FullSim`, the Newton iteration).
+"""
+
+from .device import ACCEPTED_DEVICES, resolve_device
+from .sim import ENERGY_TERMS, FullSim, StepStats
+
+__all__ = ["ACCEPTED_DEVICES", "ENERGY_TERMS", "FullSim", "StepStats", "resolve_device"]

@@ -1,0 +1,58 @@
+"""Types, evaluation modes and warp set-up shared by the full-space kernels."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import warp as wp
+
+from ..errors import ConfigError
+
+__all__ = ["ACCEPTED_DEVICES", "resolve_device", "warp_ready"]
+
+ACCEPTED_DEVICES = ("cpu", "cuda", "cuda:N")
+"""Device names :class:`~licrom.full_sim.FullSim` accepts (``cuda:N`` is the N-th CUDA device)."""
+
+if wp.config.log_level <= wp.LOG_INFO:  # no banner or module-load chatter on stdout
+    wp.config.log_level = wp.LOG_WARNING
+
+f64 = wp.float64
+vec3d = wp.vec3d
+mat33d = wp.mat33d
+
+# What an evaluation kernel computes: the energy only, plus the gradient, plus the
+# PSD-projected Hessian, plus the exact (unprojected) Hessian, or (contact only) the force
+# on each contact point, written to its own slot instead of accumulated.
+MODE_ENERGY = wp.constant(0)
+MODE_GRADIENT = wp.constant(1)
+MODE_HESSIAN = wp.constant(2)
+MODE_RAW_HESSIAN = wp.constant(3)
+MODE_FORCES = wp.constant(4)
+
+_initialised = False
+
+
+def warp_ready() -> Any:
+    """Initialise warp once and return it."""
+    global _initialised
+    if not _initialised:
+        wp.init()
+        _initialised = True
+    return wp
+
+
+def resolve_device(device: Any) -> str:
+    """Check a device name against the accepted ones and the devices present."""
+    if not isinstance(device, str) or not re.fullmatch(r"cpu|cuda|cuda:\d+", device):
+        raise ConfigError(f"device must be one of {', '.join(ACCEPTED_DEVICES)} (N = 0, 1, ...), got {device!r}")
+    if device == "cpu":
+        return device
+    wp = warp_ready()
+    count = wp.get_cuda_device_count()
+    if count == 0:
+        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; use device='cpu'")
+    if device != "cuda" and int(device.split(":")[1]) >= count:
+        raise ConfigError(f"device {device!r} does not exist: {count} CUDA device(s) available (cuda:0..cuda:{count - 1})")
+    return device
+

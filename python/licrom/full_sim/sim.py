@@ -1,0 +1,576 @@
+"""The full-space solver: Newton on the incremental potential of backward Euler (see :mod:`licrom.full_sim`)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..errors import ConfigError, ShapeError, SolverError
+from ..mesh import Mesh
+from ..scene import Scene
+from ..trajectory import Trajectory
+from . import contact, elastic, inertia, pcg
+from .device import (
+    MODE_ENERGY,
+    MODE_FORCES,
+    MODE_GRADIENT,
+    MODE_HESSIAN,
+    MODE_RAW_HESSIAN,
+    resolve_device,
+    warp_ready,
+)
+from .line_search import ARMIJO, line_search
+
+__all__ = ["ENERGY_TERMS", "FullSim", "StepStats"]
+
+ENERGY_TERMS = ("inertia", "elastic", "penalty", "damping", "friction")
+"""Terms of the incremental potential, for :meth:`FullSim.energy` and friends."""
+
+# Energies and dot products are reduced through this many partial sums: one on the CPU
+# (sequential, deterministic), many on a GPU (spreads the atomic additions).
+_PARTIALS = {"cpu": 1, "cuda": 256}
+_MAX_FORCING = 0.25  # loosest relative tolerance of the linear solves
+_MIN_FORCING = 1.0e-10  # tightest relative tolerance of the linear solves
+
+
+@dataclass(frozen=True)
+class StepStats:
+    """What the last :meth:`FullSim.step` did.
+
+    Attributes:
+        iterations: Newton directions computed.
+        residual: final convergence measure ``sqrt(dx^T M dx / m_total) / h`` in m/s.
+        converged: whether the residual met ``scene.solver.tolerance``.
+        linear_iterations: conjugate-gradient iterations summed over the Newton iterations.
+        energy_evaluations: incremental-potential evaluations of the line searches.
+        seconds: wall time of the step, s.
+    """
+
+    iterations: int
+    residual: float
+    converged: bool
+    linear_iterations: int
+    energy_evaluations: int
+    seconds: float
+
+
+class FullSim:
+    """Full-space simulation of one mesh in one scene (the ground truth).
+
+    Args:
+        mesh: the tet mesh (rest shape).
+        scene: material, planes, contact stiffnesses, time step, gravity, solver settings
+            and initial state (applied on construction).
+        device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
+        contact_points: where contact acts: ``None`` for every boundary vertex with its share
+            of the boundary area, or ``(indices, areas)`` (or an object with ``indices`` and
+            ``areas`` attributes, such as ``licrom.cubature.ContactPoints``).
+
+    Raises:
+        ConfigError: unknown device, or bad contact points.
+        ShapeError: contact-point arrays of the wrong shape.
+    """
+
+    def __init__(self, mesh: Mesh, scene: Scene, device: str = "cpu", contact_points: Any = None) -> None:
+        if not isinstance(mesh, Mesh):
+            raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
+        if not isinstance(scene, Scene):
+            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        self.device = resolve_device(device)
+        self.mesh = mesh
+        self.scene = scene
+        idx, areas = self._check_contact_points(contact_points)
+        wp = warp_ready()
+        dev = self.device
+        n = mesh.n_vertices
+        self._n = n
+        self._masses = mesh.vertex_masses(scene.material.density)
+        self._total_mass = float(self._masses.sum())
+        self._contact_idx = idx
+        self._contact_areas = areas
+        mu, lam = scene.material.snh_parameters
+        self._mu, self._lam = float(mu), float(lam)
+        self._alpha = 1.0 + 0.75 * self._mu / self._lam
+        h = scene.dt
+        self._h = h
+        planes = scene.plane_array()
+
+        f64 = wp.float64
+        # Static data.
+        self._tets = wp.array(mesh.tets.astype(np.int32), dtype=wp.vec4i, device=dev)
+        self._dminv = wp.array(mesh.shape_matrix_inverses, dtype=wp.mat33d, device=dev)
+        self._vol = wp.array(mesh.rest_volumes, dtype=f64, device=dev)
+        self._mass = wp.array(self._masses, dtype=f64, device=dev)
+        self._points = wp.array(idx.astype(np.int32), dtype=wp.int32, device=dev)
+        self._areas = wp.array(areas, dtype=f64, device=dev)
+        self._normals = wp.array(planes[:, :3].reshape(-1, 3), dtype=wp.vec3d, device=dev)
+        self._offsets = wp.array(planes[:, 3].copy(), dtype=f64, device=dev)
+        self._frictions = wp.array(planes[:, 4].copy(), dtype=f64, device=dev)
+        self._n_planes = len(planes)
+        self._fn_lag = wp.zeros((max(len(idx), 1), max(self._n_planes, 1)), dtype=f64, device=dev)
+        self._forces = wp.zeros(max(len(idx), 1), dtype=wp.vec3d, device=dev)
+
+        # State and work arrays.
+        vec = lambda: wp.zeros(n, dtype=wp.vec3d, device=dev)
+        self._x = vec()
+        self._v = vec()
+        self._v_prev = vec()
+        self._have_prev = False
+        self._x_start = vec()
+        self._x_tilde = vec()
+        self._x_trial = vec()
+        self._grad = vec()
+        self._y = vec()
+        parts = _PARTIALS["cpu" if dev == "cpu" else "cuda"]
+        self._energy = wp.zeros(parts, dtype=f64, device=dev)
+        self._gnorm = wp.zeros(parts, dtype=f64, device=dev)
+        self._stats = wp.zeros((2, parts), dtype=f64, device=dev)
+        self._y_alt = vec()
+        self._rhs = vec()
+        self._count = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._stick_correction = True
+        # Hessian pattern (a 3x3 block per vertex pair sharing a tet), values and the PCG solve.
+        self._hess = pcg.BlockHessian(mesh.tets, n, dev, parts)
+
+        self.time = 0.0
+        self._step_index = 0
+        self._has_forces = False
+        self.last_stats: StepStats | None = None
+        positions, velocities = scene.initial.apply(mesh.vertices, self._masses)
+        self.set_state(positions, velocities)
+
+    # --- setup -------------------------------------------------------------------------
+    def _check_contact_points(self, contact_points: Any) -> tuple[np.ndarray, np.ndarray]:
+        mesh = self.mesh
+        if contact_points is None:
+            return np.asarray(mesh.boundary_vertices, dtype=np.int64), np.asarray(mesh.boundary_vertex_areas, dtype=np.float64)
+        if hasattr(contact_points, "indices") and hasattr(contact_points, "areas"):
+            raw_idx, raw_areas = contact_points.indices, contact_points.areas
+        else:
+            try:
+                raw_idx, raw_areas = contact_points
+            except (TypeError, ValueError):
+                raise ConfigError("contact_points must be None or a pair (indices, areas)") from None
+        idx = np.asarray(raw_idx)
+        areas = np.asarray(raw_areas)
+        if idx.ndim != 1 or areas.ndim != 1 or len(idx) != len(areas):
+            raise ShapeError(f"contact_points indices and areas must be 1-d arrays of equal length, got shapes {idx.shape} and {areas.shape}")
+        if len(idx) and not np.issubdtype(idx.dtype, np.integer):
+            raise ShapeError(f"contact_points indices must be integers, got dtype {idx.dtype}")
+        idx = idx.astype(np.int64)
+        if len(idx) and (idx.min() < 0 or idx.max() >= mesh.n_vertices):
+            raise ConfigError(f"contact_points indices must be vertex indices in [0, {mesh.n_vertices - 1}], found {idx.min()}..{idx.max()}")
+        if len(np.unique(idx)) != len(idx):
+            raise ConfigError("contact_points indices must not repeat a vertex")
+        try:
+            areas = areas.astype(np.float64)
+        except (TypeError, ValueError):
+            raise ShapeError(f"contact_points areas must be real numbers, got dtype {areas.dtype}") from None
+        if not np.all(np.isfinite(areas)) or np.any(areas < 0):
+            raise ConfigError("contact_points areas must be finite and >= 0 (m^2)")
+        return idx, areas
+
+    # --- state -------------------------------------------------------------------------
+    @property
+    def n_vertices(self) -> int:
+        return self._n
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(n, 3) float64 vertex positions in m (a copy)."""
+        return self._x.numpy().astype(np.float64, copy=True)
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(n, 3) float64 vertex velocities in m/s (a copy)."""
+        return self._v.numpy().astype(np.float64, copy=True)
+
+    @property
+    def masses(self) -> np.ndarray:
+        """(n,) lumped vertex masses in kg."""
+        return self._masses.copy()
+
+    @property
+    def contact_indices(self) -> np.ndarray:
+        """(C,) vertex index of each contact point."""
+        return self._contact_idx.copy()
+
+    @property
+    def contact_areas(self) -> np.ndarray:
+        """(C,) boundary area carried by each contact point, m^2."""
+        return self._contact_areas.copy()
+
+    def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
+        """Set positions and/or velocities ((n, 3), m and m/s); an omitted one keeps its value.
+
+        Raises:
+            ShapeError: wrong shape, or NaN/inf values.
+        """
+        wp = warp_ready()
+        if positions is not None:
+            self._x.assign(wp.array(self._check_field("positions", positions), dtype=wp.vec3d, device=self.device))
+        if velocities is not None:
+            self._v.assign(wp.array(self._check_field("velocities", velocities), dtype=wp.vec3d, device=self.device))
+        self._has_forces = False
+        self._have_prev = False
+
+    def _check_field(self, name: str, a: Any) -> np.ndarray:
+        try:
+            arr = np.asarray(a, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ShapeError(f"{name} must be a real (n, 3) array") from None
+        if arr.shape != (self._n, 3):
+            raise ShapeError(f"{name} must have shape ({self._n}, 3), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ShapeError(f"{name} hold NaN or inf")
+        return np.ascontiguousarray(arr)
+
+    # --- evaluation --------------------------------------------------------------------
+    def _begin_step(self) -> None:
+        """x_start = x, x~ = x + h v + h^2 g, lagged normal forces; the iterate starts at x~."""
+        wp = warp_ready()
+        dev = self.device
+        h = self._h
+        wp.launch(
+            inertia.predict_kernel, dim=self._n, device=dev,
+            inputs=[self._x, self._v, self._v_prev, wp.float64(h), wp.vec3d(*self.scene.gravity),
+                    wp.float64(1.0 if self._have_prev else 0.0), self._x_start, self._x_tilde, self._x],
+        )
+        if len(self._contact_idx) and self._n_planes:
+            wp.launch(
+                contact.lagged_normal_kernel, dim=(len(self._contact_idx), self._n_planes), device=dev,
+                inputs=[self._x_start, self._points, self._areas, self._normals, self._offsets,
+                        wp.float64(self.scene.contact.normal_stiffness), self._fn_lag],
+            )
+
+    def _evaluate(self, x: Any, mode: int, terms: int = 0b11111) -> None:
+        """Accumulate the energy partials (and gradient / Hessian for mode >= 1 / 2) at ``x``.
+
+        ``terms`` bits: 1 inertia, 2 elastic, 4 penalty, 8 damping, 16 friction.
+        """
+        wp = warp_ready()
+        dev = self.device
+        self._energy.zero_()
+        if mode >= MODE_GRADIENT:
+            self._grad.zero_()
+        if mode >= MODE_HESSIAN:
+            self._hess.values.zero_()
+        values = self._hess.values
+        if terms & 1:
+            wp.launch(
+                inertia.inertia_kernel, dim=self._n, device=dev,
+                inputs=[x, self._x_tilde, self._mass, wp.float64(1.0 / self._h**2), mode, self._hess.diag_slots,
+                        self._energy, self._grad, values],
+            )
+        if terms & 2:
+            wp.launch(
+                elastic.tet_kernel, dim=self.mesh.n_tets, device=dev,
+                inputs=[x, self._tets, self._dminv, self._vol, self._hess.slots, wp.float64(self._mu), wp.float64(self._lam),
+                        wp.float64(self._alpha), mode, self._energy, self._grad, values],
+            )
+        contact_terms = terms >> 2
+        if contact_terms and len(self._contact_idx) and self._n_planes:
+            self._launch_contact(x, mode, contact_terms)
+
+    def _launch_contact(self, x: Any, mode: int, contact_terms: int = 0b111) -> None:
+        wp = warp_ready()
+        c = self.scene.contact
+        wp.launch(
+            contact.contact_kernel, dim=len(self._contact_idx), device=self.device,
+            inputs=[x, self._x_start, self._points, self._areas, self._normals, self._offsets, self._frictions,
+                    self._fn_lag, wp.float64(c.normal_stiffness), wp.float64(c.normal_damping),
+                    wp.float64(c.friction_stiffness), wp.float64(self._h), contact_terms, mode, self._hess.diag_slots,
+                    self._energy, self._grad, self._hess.values, self._forces],
+        )
+
+    def _energy_value(self) -> float:
+        return float(self._energy.numpy().sum())
+
+    # --- stepping ----------------------------------------------------------------------
+    def step(self) -> tuple[int, float]:
+        """Advance one time step by minimising the incremental potential.
+
+        Returns:
+            ``(iterations, residual)``: Newton directions computed and the final convergence
+            measure in m/s. :attr:`last_stats` holds more (linear iterations, timing).
+
+        Raises:
+            SolverError: no convergence within ``scene.solver.max_iterations``, or a NaN/inf,
+                with ``scene.solver.on_failure == "raise"``; the state is then left unchanged.
+                With ``"record"`` the last finite iterate is kept and ``last_stats.converged``
+                is False.
+        """
+        dev = self.device
+        n = self._n
+        start = time.perf_counter()
+        solver = self.scene.solver
+        h = self._h
+        self._begin_step()
+        iterations = 0
+        linear_iterations = 0
+        evaluations = 0
+        residual = math.inf
+        converged = False
+        failure = ""
+        gnorm0 = None
+        energy = None
+        maxiter_cg = max(3 * n, 50)
+        while iterations < solver.max_iterations:
+            self._evaluate(self._x, MODE_HESSIAN)
+            self._gnorm.zero_()
+            wp.launch(pcg.diag_kernel, dim=n, device=dev, inputs=[self._hess.values, self._hess.diag_slots, self._grad, self._hess.inv_diag, self._gnorm])
+            e0 = self._energy_value() if energy is None else energy
+            gnorm = math.sqrt(float(self._gnorm.numpy().sum()))
+            if not (math.isfinite(e0) and math.isfinite(gnorm)):
+                failure = "the energy or its gradient is NaN or inf"
+                break
+            if gnorm0 is None:
+                gnorm0 = gnorm
+            forcing = _MAX_FORCING if gnorm0 == 0.0 else min(_MAX_FORCING, max(_MIN_FORCING, math.sqrt(gnorm / gnorm0)))
+            linear_iterations += self._hess.solve(self._grad, self._y, forcing, maxiter_cg)
+            iterations += 1
+            self._stats.zero_()
+            wp.launch(pcg.stats_kernel, dim=n, device=dev, inputs=[self._grad, self._y, self._mass, self._stats])
+            st = self._stats.numpy().sum(axis=1)
+            slope, ymy = float(st[0]), float(st[1])  # the direction is -y: slope of E along it is -g.y
+            if not (math.isfinite(slope) and math.isfinite(ymy)):
+                failure = "the Newton direction is NaN or inf"
+                break
+            residual = math.sqrt(max(ymy, 0.0) / self._total_mass) / h
+            if residual < solver.tolerance:
+                wp.launch(inertia.axpy_kernel, dim=n, device=dev, inputs=[self._x, self._y, wp.float64(-1.0), self._x])
+                converged = True
+                break
+            alpha, accepted, evals = None, None, 0
+            if self._stick_correction and len(self._contact_idx) and self._n_planes:
+                its, stick_slope = self._stick_direction(forcing, maxiter_cg)
+                linear_iterations += its
+                if stick_slope is not None:
+                    # Take the stick-corrected step only if it decreases E in full.
+                    self._y, self._y_alt = self._y_alt, self._y
+                    e1, _ = self._trial(1.0, False)
+                    evals += 1
+                    if math.isfinite(e1) and e1 <= e0 - ARMIJO * stick_slope + 1e-13 * abs(e0):
+                        alpha, accepted = 1.0, e1
+                    else:
+                        self._y, self._y_alt = self._y_alt, self._y
+            if accepted is None:
+                alpha, accepted, ls_evals = self._line_search(e0, slope)
+                evals += ls_evals
+            evaluations += evals
+            if accepted is None:
+                failure = "the line search found no decrease of the incremental potential"
+                break
+            self._x, self._x_trial = self._x_trial, self._x
+            energy = accepted
+        seconds = time.perf_counter() - start
+        if not converged and not failure:
+            failure = f"no convergence in {iterations} Newton iterations"
+        if not converged and solver.on_failure == "raise":
+            wp.copy(self._x, self._x_start)
+            self._has_forces = False
+            self.last_stats = StepStats(iterations, residual, False, linear_iterations, evaluations, seconds)
+            err = SolverError(
+                f"full-space step {self._step_index} (t = {self.time:.6g} s) failed: {failure}; "
+                f"residual {residual:.3e} m/s, tolerance {solver.tolerance:.3e} m/s, "
+                f"{iterations} iterations (max_iterations {solver.max_iterations})"
+            )
+            err.iterations = iterations  # type: ignore[attr-defined]
+            err.residual = residual  # type: ignore[attr-defined]
+            err.step_index = self._step_index  # type: ignore[attr-defined]
+            raise err
+        wp.launch(inertia.velocity_kernel, dim=n, device=dev, inputs=[self._x, self._x_start, wp.float64(1.0 / h), self._v, self._v_prev])
+        self._have_prev = True
+        if len(self._contact_idx) and self._n_planes:
+            self._launch_contact(self._x, MODE_FORCES)
+        self._has_forces = True
+        self.time += h
+        self._step_index += 1
+        self.last_stats = StepStats(iterations, residual, converged, linear_iterations, evaluations, time.perf_counter() - start)
+        return iterations, residual
+
+    def _stick_direction(self, tol: float, maxiter: int) -> tuple[int, float | None]:
+        """Newton direction with the contact points that the current step would carry through stick modelled as sticking.
+
+        Slipping points whose slip the step ``-y`` would reverse or bring into the stick
+        region get the stick Hessian and the stick gradient (pulling their slip to zero),
+        and the system is solved again into ``_y_alt``. Friction makes the energy nearly
+        non-smooth where stiff sticking meets slip; this anticipates the switch that the
+        plain Newton step would overshoot.
+
+        Returns (CG iterations, slope ``g . y_alt``), the slope None when no point switches
+        or the new direction is not a descent direction of the true energy.
+        """
+        dev = self.device
+        n = self._n
+        c = self.scene.contact
+        wp.copy(self._rhs, self._grad)
+        self._count.zero_()
+        wp.launch(
+            contact.stick_kernel, dim=len(self._contact_idx), device=dev,
+            inputs=[self._x, self._x_start, self._y, self._points, self._areas, self._normals, self._frictions,
+                    self._fn_lag, wp.float64(c.friction_stiffness), wp.float64(self._h), self._hess.diag_slots,
+                    self._hess.values, self._rhs, self._count],
+        )
+        switched = int(self._count.numpy()[0])
+        if switched == 0:
+            return 0, None
+        self._gnorm.zero_()
+        wp.launch(pcg.diag_kernel, dim=n, device=dev, inputs=[self._hess.values, self._hess.diag_slots, self._grad, self._hess.inv_diag, self._gnorm])
+        its = self._hess.solve(self._rhs, self._y_alt, tol, maxiter)
+        self._stats.zero_()
+        wp.launch(pcg.stats_kernel, dim=n, device=dev, inputs=[self._grad, self._y_alt, self._mass, self._stats])
+        slope = float(self._stats.numpy()[0].sum())
+        return its, (slope if math.isfinite(slope) and slope > 0.0 else None)
+
+    def _trial(self, alpha: float, with_slope: bool) -> tuple[float, float]:
+        """E and dE/dalpha at x - alpha y (the point is left in ``_x_trial``)."""
+        dev = self.device
+        n = self._n
+        wp.launch(inertia.axpy_kernel, dim=n, device=dev, inputs=[self._x, self._y, wp.float64(-alpha), self._x_trial])
+        self._evaluate(self._x_trial, MODE_GRADIENT if with_slope else MODE_ENERGY)
+        e = self._energy_value()
+        if not with_slope:
+            return e, math.nan
+        self._stats.zero_()
+        wp.launch(pcg.stats_kernel, dim=n, device=dev, inputs=[self._grad, self._y, self._mass, self._stats])
+        return e, -float(self._stats.numpy()[0].sum())
+
+    def _line_search(self, e0: float, slope: float) -> tuple[float, float | None, int]:
+        """Step length along ``-y`` from ``x`` (see :func:`~licrom.full_sim.line_search.line_search`).
+
+        The accepted point is left in ``_x_trial``.
+        """
+        return line_search(e0, -slope, self._trial)
+
+    def contact_forces(self) -> np.ndarray:
+        """(C, 3) contact + damping + friction force on each contact point at the end of the last step, N.
+
+        Zero before the first step (and after :meth:`set_state`).
+        """
+        c = len(self._contact_idx)
+        if not self._has_forces or not c or not self._n_planes:
+            return np.zeros((c, 3))
+        return self._forces.numpy()[:c].astype(np.float64, copy=True)
+
+    def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
+        """Step ``steps`` times; record frame 0 (the current state) and every ``record_every``-th step.
+
+        With ``scene.solver.on_failure == "record"``, unconverged steps are flagged in
+        ``Trajectory.converged`` and the run goes on from the last iterate.
+
+        Raises:
+            ConfigError: bad ``steps`` or ``record_every``.
+            SolverError: a step failed and ``on_failure == "raise"``.
+        """
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+            raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
+        if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
+            raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
+        rest = self.mesh.vertices
+        disp = [self.positions - rest]
+        vels = [self.velocities]
+        times = [self.time]
+        iterations, residuals, converged, seconds = [], [], [], []
+        linear = 0
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=int(steps), desc="full", unit="step", leave=False)
+        try:
+            for s in range(1, int(steps) + 1):
+                its, res = self.step()
+                st = self.last_stats
+                iterations.append(its)
+                residuals.append(res)
+                converged.append(st.converged)
+                seconds.append(st.seconds)
+                linear += st.linear_iterations
+                if s % record_every == 0:
+                    disp.append(self.positions - rest)
+                    vels.append(self.velocities)
+                    times.append(self.time)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(newton=its, cg=st.linear_iterations, refresh=False)
+        finally:
+            if bar is not None:
+                bar.close()
+        return Trajectory(
+            rest_positions=rest,
+            tets=self.mesh.tets,
+            displacements=np.array(disp),
+            velocities=np.array(vels),
+            times=np.array(times),
+            scene=self.scene,
+            iterations=np.array(iterations, dtype=np.int32),
+            residuals=np.array(residuals, dtype=np.float64),
+            converged=np.array(converged, dtype=bool),
+            step_seconds=np.array(seconds, dtype=np.float64),
+            info={
+                "source": "full",
+                "device": self.device,
+                "n_vertices": int(self._n),
+                "n_tets": int(self.mesh.n_tets),
+                "contact_points": int(len(self._contact_idx)),
+                "record_every": int(record_every),
+                "linear_iterations": int(linear),
+                "unconverged_steps": int(len(converged) - int(np.sum(converged))),
+            },
+        )
+
+    # --- inspection (tests, debugging) -------------------------------------------------
+    def _terms_mask(self, terms: str | Iterable[str]) -> int:
+        names = ENERGY_TERMS if terms == "all" else ((terms,) if isinstance(terms, str) else tuple(terms))
+        mask = 0
+        for t in names:
+            if t not in ENERGY_TERMS:
+                raise ConfigError(f"unknown energy term {t!r}; accepted: 'all' or any of {', '.join(ENERGY_TERMS)}")
+            mask |= 1 << ENERGY_TERMS.index(t)
+        return mask
+
+    def _at(self, positions: np.ndarray | None) -> Any:
+        """Prepare the step from the current state and return the warp array to evaluate at."""
+        wp = warp_ready()
+        x_now = self._x.numpy().copy()
+        self._begin_step()  # overwrites self._x with x~; restore it
+        self._x.assign(wp.array(x_now, dtype=wp.vec3d, device=self.device))
+        pos = x_now if positions is None else self._check_field("positions", positions)
+        self._x_trial.assign(wp.array(pos, dtype=wp.vec3d, device=self.device))
+        return self._x_trial
+
+    def energy(self, positions: np.ndarray | None = None, terms: str | Iterable[str] = "all") -> float:
+        """Incremental potential of a step from the current state, at ``positions`` (default: now), J.
+
+        Elastic energy is measured from the rest state (``Psi(F) - Psi(I)``), which changes
+        nothing but the constant.
+        """
+        x = self._at(positions)
+        self._evaluate(x, MODE_ENERGY, self._terms_mask(terms))
+        return self._energy_value()
+
+    def gradient(self, positions: np.ndarray | None = None, terms: str | Iterable[str] = "all") -> np.ndarray:
+        """(n, 3) gradient of :meth:`energy`, N."""
+        x = self._at(positions)
+        self._evaluate(x, MODE_GRADIENT, self._terms_mask(terms))
+        return self._grad.numpy().astype(np.float64, copy=True)
+
+    def hessian(self, positions: np.ndarray | None = None, terms: str | Iterable[str] = "all", project: bool = True) -> Any:
+        """(3n, 3n) ``scipy.sparse.csr_matrix`` Hessian of :meth:`energy` as assembled by Newton.
+
+        With ``project=False`` the elastic part is the exact (unprojected) Hessian.
+        """
+        import scipy.sparse as sp
+
+        x = self._at(positions)
+        self._evaluate(x, MODE_HESSIAN if project else MODE_RAW_HESSIAN, self._terms_mask(terms))
+        offsets, cols = self._hess.pattern
+        vals = self._hess.values.numpy()
+        return sp.bsr_matrix((vals, cols, offsets), shape=(3 * self._n, 3 * self._n)).tocsr()
