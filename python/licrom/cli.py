@@ -212,7 +212,8 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
     """Run full and reduced side by side on scenes, and report how they differ.
 
     Every (slope, friction) pair is one scene: the model's scene with that incline, the
-    object placed on it as in the model's scene. Prints per-scene error, centre-of-mass
+    object placed on it as in the model's scene. Prints per-scene error, non-rigid
+    deformation error, peak deformation and total rotation of both, centre-of-mass
     error, stick/slip agreement, penetration and per-step time of both.
     """
     import json

@@ -155,11 +155,14 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
 
 
 def _markdown(summary: dict) -> str:
-    head = "| scene | mean rel. error | final COM error / size | full | reduced | full ms/step | reduced ms/step | speedup |\n"
-    head += "|---|---|---|---|---|---|---|---|\n"
+    head = ("| scene | mean rel. error | non-rigid error | peak deformation / size full / reduced | "
+            "rotation full / reduced | final COM error / size | full | reduced | full ms/step | reduced ms/step | speedup |\n")
+    head += "|---|---|---|---|---|---|---|---|---|---|---|\n"
     for r in summary["cases"]:
         head += (
-            f"| {r['scene']} | {100 * r['mean_error']:.2f} % | {100 * r['final_com_error']:.2f} % | "
+            f"| {r['scene']} | {100 * r['mean_error']:.2f} % | {100 * r['nonrigid_error']:.2f} % | "
+            f"{100 * r['peak_deformation_full']:.2f} % / {100 * r['peak_deformation_reduced']:.2f} % | "
+            f"{r['rotation_full']:.0f} deg / {r['rotation_reduced']:.0f} deg | {100 * r['final_com_error']:.2f} % | "
             f"{'slides' if r['slid_full'] else 'sticks'} | {'slides' if r['slid_reduced'] else 'sticks'} | "
             f"{r['full_step_ms']:.2f} | {r['reduced_step_ms']:.3f} | {r['speedup']:.0f}x |\n"
         )
