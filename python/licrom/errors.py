@@ -34,7 +34,21 @@ class ConfigError(LicromError, ValueError):
 
 
 class SolverError(LicromError, RuntimeError):
-    """A solve did not converge or produced non-finite values."""
+    """A solve did not converge or produced non-finite values.
+
+    Attributes:
+        iterations: iterations taken before giving up (None when not known).
+        residual: the last convergence measure in m/s (None when not known).
+        step_index: the time step that failed (None when not known).
+    """
+
+    def __init__(
+        self, message: str, *, iterations: int | None = None, residual: float | None = None, step_index: int | None = None
+    ) -> None:
+        super().__init__(message)
+        self.iterations = iterations
+        self.residual = residual
+        self.step_index = step_index
 
 
 class FileFormatError(LicromError, OSError):

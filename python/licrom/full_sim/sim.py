@@ -376,15 +376,14 @@ class FullSim:
             wp.copy(self._x, self._x_start)
             self._has_forces = False
             self.last_stats = StepStats(iterations, residual, False, linear_iterations, evaluations, seconds)
-            err = SolverError(
+            raise SolverError(
                 f"full-space step {self._step_index} (t = {self.time:.6g} s) failed: {failure}; "
                 f"residual {residual:.3e} m/s, tolerance {solver.tolerance:.3e} m/s, "
-                f"{iterations} iterations (max_iterations {solver.max_iterations})"
+                f"{iterations} iterations (max_iterations {solver.max_iterations})",
+                iterations=iterations,
+                residual=residual,
+                step_index=self._step_index,
             )
-            err.iterations = iterations  # type: ignore[attr-defined]
-            err.residual = residual  # type: ignore[attr-defined]
-            err.step_index = self._step_index  # type: ignore[attr-defined]
-            raise err
         wp.launch(inertia.velocity_kernel, dim=n, device=dev, inputs=[self._x, self._x_start, wp.float64(1.0 / h), self._v, self._v_prev])
         self._have_prev = True
         if len(self._contact_idx) and self._n_planes:
