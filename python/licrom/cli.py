@@ -133,7 +133,11 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
 @click.argument("data", type=click.Path(exists=True, path_type=Path))
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Model file to write (.lcm); the loss CSV/PNG and checkpoints go beside it.")
-@click.option("--modes", "-r", type=int, default=20, show_default=True, help="Learned modes r (12 affine modes come on top).")
+@click.option("--modes", "-r", type=int, default=20, show_default=True, help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame).")
+@click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
+              help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
+@click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
+              help="pod: regress the field onto the POD modes of the training frames; autoencoder: LiCROM's training [pod].")
 @click.option("--epochs", type=int, default=None, help="Passes over the training frames [TrainConfig default].")
 @click.option("--lr", type=float, default=None, help="Initial Adam learning rate [3e-3].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")
@@ -149,7 +153,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
+def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
                   layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -161,11 +165,11 @@ def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_fra
 
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
-    for key, value in (("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
+    for key, value in (("objective", objective), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
                        ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus)):
         if value is not None:
             tkw[key] = value
-    mkw: dict = {"latent_dim": modes}
+    mkw: dict = {"latent_dim": modes, "frame": frame}
     if width is not None:
         mkw["field_width"] = width
     if layers is not None:
@@ -180,7 +184,8 @@ def train_command(data, output, modes, epochs, lr, seed, device, gpus, batch_fra
     meta = model.metadata
     final = meta.get("final", {})
     split = meta.get("data", {})
-    click.echo(f"trained r = {model.n_learned} (+{model.n_affine} affine) on {len(split.get('train', []))} trajectories "
+    on_top = f"+{model.n_affine} affine" if model.frame == "world" else "+6 affine and the rigid motion"
+    click.echo(f"trained r = {model.n_learned} ({on_top}, {model.frame} frame) on {len(split.get('train', []))} trajectories "
                f"({split.get('train_frames')} frames), held out {len(split.get('validation', []))} ({split.get('validation_frames')} frames)")
     click.echo(f"epochs            {meta.get('epochs_trained')}")
     click.echo(f"final train loss  {final.get('train_loss', float('nan')):.4e}")
@@ -281,9 +286,11 @@ DEMO_DEFAULTS = DemoConfig()
 @click.option("--resolution", type=int, default=DEMO_DEFAULTS.resolution, show_default=True, help="Cheese resolution.")
 @click.option("--epochs", type=int, default=DEMO_DEFAULTS.epochs, show_default=True, help="Training epochs.")
 @click.option("--modes", "-r", type=int, default=DEMO_DEFAULTS.modes, show_default=True, help="Learned modes r.")
+@click.option("--frame", type=click.Choice(["body", "world"]), default=DEMO_DEFAULTS.frame, show_default=True,
+              help="Frame of the learned modes (world: LiCROM's model, for comparison).")
 @click.option("--steps", type=int, default=DEMO_DEFAULTS.steps, show_default=True, help="Time steps per run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress display.")
-def demo_command(out, resolution, epochs, modes, steps, quiet) -> None:
+def demo_command(out, resolution, epochs, modes, frame, steps, quiet) -> None:
     """The whole pipeline at small scale on the built-in cheese scene.
 
     Full-space runs, training, and the reduced model on held-out slopes and friction
@@ -294,7 +301,7 @@ def demo_command(out, resolution, epochs, modes, steps, quiet) -> None:
 
     from .demo import run_demo
 
-    run_demo(replace(DEMO_DEFAULTS, out_dir=out, resolution=resolution, epochs=epochs, modes=modes, steps=steps),
+    run_demo(replace(DEMO_DEFAULTS, out_dir=out, resolution=resolution, epochs=epochs, modes=modes, frame=frame, steps=steps),
              progress=not quiet)
 
 

@@ -247,11 +247,15 @@ class NeuralField(nn.Module):
         self.mlp = nn.Sequential(*mods)
         _xavier(self)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def hidden(self, x: torch.Tensor) -> torch.Tensor:
+        """The last hidden layer's output (..., width) at normalised points (..., 3)."""
         if self.fourier_matrix.shape[0]:
             p = (2.0 * math.pi) * (x @ self.fourier_matrix.T)
             x = torch.cat([x, torch.sin(p), torch.cos(p)], dim=-1)
-        out = self.mlp(x)
+        return self.mlp[:-1](x)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = self.mlp[-1](self.hidden(x))
         return out.reshape(*x.shape[:-1], 3, self.latent_dim)
 
 

@@ -276,6 +276,28 @@ def pod_targets(data: TrainingData, count: int) -> tuple[np.ndarray, np.ndarray,
     return np.ascontiguousarray(np.moveaxis(modes, 2, 0)), latents, weights * (count / max(weights.sum(), 1e-300))
 
 
+@torch.no_grad()
+def _refit_output_layer(net: LicromNet, data: TrainingData, modes: np.ndarray) -> None:
+    """Solve the field's last linear layer for the POD modes (count, n, 3) at the vertices.
+
+    The output layer is linear in its weights, so the mass-weighted least-squares fit
+    of every mode on the trained hidden features is exact and cheap, where Adam on
+    sampled points only approaches it; this finishes the ``"pod"`` objective.
+    """
+    field = net.field
+    last = field.mlp[-1]
+    dev, dtype = last.weight.device, last.weight.dtype
+    hidden = field.hidden(net.normalize(torch.tensor(data.rest, dtype=dtype, device=dev))).double().cpu().numpy()
+    design = np.concatenate([hidden, np.ones((len(hidden), 1))], axis=1)  # (n, width + 1)
+    target = np.moveaxis(modes, 0, 2).reshape(len(hidden), -1)  # (n, 3 r): output i * r + c
+    m = data.mesh.vertex_masses(1.0)
+    gram = design.T @ (m[:, None] * design)
+    gram += 1e-10 * np.trace(gram) / len(gram) * np.eye(len(gram))  # features may be (nearly) dependent
+    coef = np.linalg.solve(gram, design.T @ (m[:, None] * target))
+    last.weight.copy_(torch.as_tensor(coef[:-1].T, dtype=dtype, device=dev))
+    last.bias.copy_(torch.as_tensor(coef[-1], dtype=dtype, device=dev))
+
+
 def _pod_loss(net: LicromNet, points: torch.Tensor, displacements: torch.Tensor, mode_values: torch.Tensor,
               latents: torch.Tensor, weights: torch.Tensor, encoder_points: int) -> torch.Tensor:
     """Loss of the ``"pod"`` objective: weighted MSE of the normalised field against the POD
@@ -811,6 +833,8 @@ def train(
         t_fit = time.perf_counter() - t_fit
 
     net = copy.deepcopy(module.net).to("cpu").float().eval()
+    if cfg.objective == "pod":
+        _refit_output_layer(net, tdata, module._pod[0])
     fin = finalize_basis(net, tdata.mesh, tdata.train.residuals)
     rows = history.rows
     last = rows[-1] if rows else {}
