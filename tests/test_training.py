@@ -297,3 +297,36 @@ def test_cli_train(data_dir, tmp_path):
     assert res.exit_code == 0, res.output
     assert out.is_file() and "held-out projection error" in res.output
     assert Model.load(out).n_learned == 2
+
+
+# --- the POD bound -------------------------------------------------------------------------
+def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
+    from licrom.basis import AffineBasis, MeshBasis, StackedBasis, SubspaceProjector
+    from licrom.rigid import body_frame_displacements
+    from licrom.training import subspace_report
+
+    # six deformation fields, three learned modes: POD(3) leaves a real error to compare against
+    trajs = make_synthetic_trajectories(mesh, count=5, frames=20, seed=3, modes=6, rotation=True)
+    data = TrainingData(trajs, val_indices=[4])
+    cfg = TrainConfig(epochs=10, batch_frames=8, points_per_frame=256, encoder_points=64, val_points=64, progress=False, device="cpu")
+    model = train(data, None, cfg, ModelConfig(latent_dim=3, field_width=32, encoder_point_widths=(16, 32), encoder_fc_widths=(16,)))
+    rep = subspace_report(model, data)
+    assert rep["frame"] == "body" and rep["r"] == 3
+    assert (rep["train"]["frames"], rep["val"]["frames"]) == (80, 20)
+    for split in ("train", "val"):
+        assert 0.01 < rep[split]["pod"] < 1.0 and 0.0 < rep[split]["model"] < 1.0
+    # POD(r) is the best r-dimensional subspace for its own training frames
+    assert rep["train"]["model"] >= rep["train"]["pod"] * (1 - 1e-9)
+    # the bound: held out, at most 1.2x the projection error of POD(r)
+    assert rep["val"]["model"] <= 1.2 * rep["val"]["pod"] and rep["ratio"] == rep["val"]["model"] / rep["val"]["pod"]
+
+    # the POD number, computed independently: affine + POD(3) of the body-frame residuals, held-out run projected
+    pod, _ = MeshBasis.pod(mesh, data.train.residuals, 3)
+    values = StackedBasis(AffineBasis(), pod).values(mesh.vertices)
+    held_out = body_frame_displacements(data.rest + trajs[4].displacements, data.rest, data.masses)
+    q = SubspaceProjector(values, data.masses).project(held_out)
+    approx = np.einsum("nic,fc->fni", values, q)
+    assert relative_error(held_out, approx, data.masses) == pytest.approx(rep["val"]["pod"], rel=1e-4)
+
+    with pytest.raises(ConfigError, match="frame"):
+        subspace_report(model, TrainingData(trajs, val_indices=[4], frame="world"))

@@ -55,7 +55,7 @@ import torch
 from ._io import atomic_path
 from .render import pyplot, save_png
 from .errors import ConfigError, ShapeError
-from .basis import N_AFFINE, MeshBasis, affine_values
+from .basis import N_AFFINE, MeshBasis, SubspaceProjector, affine_values
 from .model import LicromNet, Model, ModelConfig, check_frame, finalize_basis
 from .training_data import TrainingData, TrajectorySource
 
@@ -426,15 +426,12 @@ def evaluate(model: Model, data: TrainingData, split: str = "val", *, points: in
 
 def _projection_error2(residuals: np.ndarray, basis: np.ndarray, masses: np.ndarray, chunk_frames: int = 256) -> float:
     """Sum over frames of ``||u - P u||_M^2`` for residuals (F, n, 3), P the M-projection onto basis (n, 3, k)."""
-    b = basis.reshape(-1, basis.shape[-1])
-    mw = np.repeat(masses, 3)
-    gram = b.T @ (mw[:, None] * b)
+    projector = SubspaceProjector(basis, masses)
     err = 0.0
     for f0 in range(0, len(residuals), chunk_frames):
-        u = np.asarray(residuals[f0 : f0 + chunk_frames], dtype=np.float64).reshape(-1, b.shape[0])
-        c = np.linalg.lstsq(gram, b.T @ (mw[:, None] * u.T), rcond=None)[0]
-        d = u - (b @ c).T
-        err += float(np.einsum("fk,fk,k->", d, d, mw))
+        u = np.asarray(residuals[f0 : f0 + chunk_frames], dtype=np.float64)
+        d = u - np.einsum("nic,fc->fni", basis, projector.project(u))
+        err += float(np.einsum("fni,fni,n->", d, d, masses))
     return err
 
 
