@@ -8,6 +8,7 @@
 // vectoriser handles best in the hot kernels; iterator chains would hide it.
 #![allow(clippy::needless_range_loop)]
 
+pub mod body_frame;
 pub mod cholesky;
 pub mod contact;
 mod dense;

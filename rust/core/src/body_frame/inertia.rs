@@ -1,0 +1,204 @@
+//! The inertia of the body-frame model from mass moments.
+//!
+//! With `y_v = Xbar_v + W_v q` and `sum m y = 0` for every q, the inertia of a
+//! step `1/(2h^2) sum_v m_v |c + R y_v - xt_v|^2` is, up to a constant of the
+//! step, `M/(2h^2) |c - ct|^2 + 1/(2h^2) [q^T Mqq q + 2 b.q - 2 tr(R^T B(q))]`
+//! with `B(q) = B0 + sum_k q_k B_k` (see the module documentation of
+//! [`crate::body_frame`]). The `q^T Mqq q` part is evaluated by the elastic
+//! system (it is its mass term); this module holds the rest.
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::rotation::axial;
+use super::Pose;
+use crate::error::{check_finite, check_positive, LicromError, Result};
+
+/// Mass moments of the body over all its vertices, fixed for a mesh and basis.
+#[derive(Debug, Clone)]
+pub struct MassMoments {
+    /// Total mass M, kg.
+    pub(super) total: f64,
+    /// `J = sum m Xbar Xbar^T`, kg m^2.
+    pub(super) j: Matrix3<f64>,
+    /// `P_k = sum m W^k Xbar^T`, n of them.
+    pub(super) p: Vec<Matrix3<f64>>,
+    /// `Q_kl = sum m W^k W^l^T` at `k n + l`.
+    pub(super) q: Vec<Matrix3<f64>>,
+    /// `b_k = tr P_k`.
+    pub(super) b: Vec<f64>,
+}
+
+/// A row-major 3x3 block of `data` at `at`.
+fn block(data: &[f64], at: usize) -> Matrix3<f64> {
+    Matrix3::from_row_slice(&data[9 * at..9 * at + 9])
+}
+
+impl MassMoments {
+    /// Validated moments: `j` 3x3, `p` n x 3 x 3, `q` n x n x 3 x 3 (row-major);
+    /// J symmetric positive definite (a body that is not a point or a line) and
+    /// `Q_kl = Q_lk^T`, both to a relative 1e-8.
+    pub fn new(total_mass: f64, j: &[f64], p: &[f64], q: &[f64]) -> Result<Self> {
+        check_positive("total_mass", total_mass)?;
+        if j.len() != 9 {
+            return Err(LicromError::shape("inertia_moments", "(3, 3)", format!("{} values", j.len())));
+        }
+        if !p.len().is_multiple_of(9) {
+            return Err(LicromError::shape("mode_moments", "(n, 3, 3)", format!("{} values", p.len())));
+        }
+        let n = p.len() / 9;
+        if q.len() != 9 * n * n {
+            return Err(LicromError::shape("mode_products", format!("({n}, {n}, 3, 3)"), format!("{} values", q.len())));
+        }
+        check_finite("inertia_moments", j)?;
+        check_finite("mode_moments", p)?;
+        check_finite("mode_products", q)?;
+        let jm = block(j, 0);
+        let scale = jm.amax();
+        if (jm - jm.transpose()).amax() > 1e-8 * scale || jm.symmetric_eigen().eigenvalues.min() <= 1e-12 * scale {
+            return Err(LicromError::invalid("inertia_moments", "must be symmetric positive definite (a solid, not a point, line or plane)"));
+        }
+        let qm: Vec<Matrix3<f64>> = (0..n * n).map(|i| block(q, i)).collect();
+        let qscale = qm.iter().fold(0.0_f64, |m, b| m.max(b.amax()));
+        for k in 0..n {
+            for l in 0..n {
+                if (qm[k * n + l] - qm[l * n + k].transpose()).amax() > 1e-8 * qscale {
+                    return Err(LicromError::invalid("mode_products", format!("must satisfy Q[k, l] = Q[l, k]^T, fails at ({k}, {l})")));
+                }
+            }
+        }
+        let pm: Vec<Matrix3<f64>> = (0..n).map(|i| block(p, i)).collect();
+        Ok(Self { total: total_mass, j: 0.5 * (jm + jm.transpose()), b: pm.iter().map(|m| m.trace()).collect(), p: pm, q: qm })
+    }
+
+    /// Number of modes n.
+    pub fn n_modes(&self) -> usize {
+        self.p.len()
+    }
+
+    /// `Mqq_kl = tr Q_kl`, n x n row-major.
+    pub fn mode_mass(&self) -> Vec<f64> {
+        self.q.iter().map(|m| m.trace()).collect()
+    }
+
+    /// `sum m y Xbar^T = J + sum_l q_l P_l`.
+    pub fn y_xbar(&self, q: &[f64]) -> Matrix3<f64> {
+        self.p.iter().zip(q).fold(self.j, |acc, (p, ql)| acc + p * *ql)
+    }
+
+    /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk`.
+    pub fn y_mode(&self, q: &[f64], k: usize) -> Matrix3<f64> {
+        let n = self.n_modes();
+        (0..n).fold(self.p[k].transpose(), |acc, l| acc + self.q[l * n + k] * q[l])
+    }
+
+    /// `C = sum m y y^T = J + sum_k q_k (P_k + P_k^T) + sum_kl q_k q_l Q_kl`.
+    pub fn second_moment(&self, q: &[f64]) -> Matrix3<f64> {
+        let n = self.n_modes();
+        let mut c = self.j;
+        for k in 0..n {
+            // sum_l q_l Q_kl, then q_k (P_k + P_k^T + that).
+            let row = (0..n).fold(Matrix3::zeros(), |acc, l| acc + self.q[k * n + l] * q[l]);
+            c += (self.p[k] + self.p[k].transpose() + row) * q[k];
+        }
+        c
+    }
+}
+
+/// What the inertia needs from the start of a step: the predicted centre of
+/// mass `ct` and the moments `B0`, `B_k` against `a_v = 2 R^t y^t_v - R^{t-1} y^{t-1}_v`.
+#[derive(Debug, Clone)]
+pub struct InertiaTarget {
+    pub(super) ct: Vector3<f64>,
+    pub(super) b0: Matrix3<f64>,
+    pub(super) bk: Vec<Matrix3<f64>>,
+}
+
+impl InertiaTarget {
+    /// Zeroed target for n modes.
+    pub fn new(n: usize) -> Self {
+        Self { ct: Vector3::zeros(), b0: Matrix3::zeros(), bk: vec![Matrix3::zeros(); n] }
+    }
+
+    /// Fills the target of a step from pose `cur` (time t) and `prev` (t - 1).
+    pub fn begin(&mut self, m: &MassMoments, cur: &Pose, prev: &Pose, gravity: &Vector3<f64>, h: f64) {
+        self.ct = 2.0 * cur.center - prev.center + gravity * (h * h);
+        let (r1, r0) = (cur.rotation * 2.0, prev.rotation);
+        self.b0 = r1 * m.y_xbar(&cur.q) - r0 * m.y_xbar(&prev.q);
+        for (k, b) in self.bk.iter_mut().enumerate() {
+            *b = r1 * m.y_mode(&cur.q, k) - r0 * m.y_mode(&prev.q, k);
+        }
+    }
+
+    /// `B(q) = B0 + sum_k q_k B_k`.
+    pub fn b_of(&self, q: &[f64]) -> Matrix3<f64> {
+        self.bk.iter().zip(q).fold(self.b0, |acc, (b, qk)| acc + b * *qk)
+    }
+
+    /// Inertia energy (J) without its `q^T Mqq q / (2h^2)` part and without the
+    /// constant of the step; adds its gradient in `(c, omega, q)` to `grad`
+    /// (length 6 + n) when given.
+    pub fn energy(&self, m: &MassMoments, pose: &Pose, h: f64, grad: Option<&mut [f64]>) -> f64 {
+        let inv_h2 = 1.0 / (h * h);
+        let (r, q) = (&pose.rotation, &pose.q);
+        let dc = pose.center - self.ct;
+        let b = self.b_of(q);
+        let bq: f64 = m.b.iter().zip(q).map(|(b, q)| b * q).sum();
+        let e = 0.5 * m.total * dc.norm_squared() * inv_h2 + (bq - r.dot(&b)) * inv_h2;
+        if let Some(g) = grad {
+            let gc = dc * (m.total * inv_h2);
+            let gw = axial(&(b * r.transpose())) * inv_h2;
+            g[..3].iter_mut().zip(gc.iter()).for_each(|(a, v)| *a += v);
+            g[3..6].iter_mut().zip(gw.iter()).for_each(|(a, v)| *a += v);
+            for (k, gk) in g[6..].iter_mut().enumerate() {
+                *gk += (m.b[k] - r.dot(&self.bk[k])) * inv_h2;
+            }
+        }
+        e
+    }
+
+    /// Adds the exact Hessian of [`Self::energy`] at `pose` (for the pulled-back
+    /// function `omega -> E(exp([omega]x) R)` at omega = 0) to the full symmetric
+    /// `hess` (N x N, N = 6 + n): `M/h^2 I` for c, `(tr S I - sym S)/h^2`,
+    /// `S = B(q) R^T`, for omega, and `a(B_k R^T)/h^2` between omega and q_k.
+    pub fn add_exact_hessian(&self, m: &MassMoments, pose: &Pose, h: f64, hess: &mut [f64]) {
+        let inv_h2 = 1.0 / (h * h);
+        let big = 6 + m.n_modes();
+        let rt = pose.rotation.transpose();
+        let s = self.b_of(&pose.q) * rt;
+        let ww = (Matrix3::identity() * s.trace() - 0.5 * (s + s.transpose())) * inv_h2;
+        let cross = |k: usize| axial(&(self.bk[k] * rt)) * inv_h2;
+        add_blocks(hess, big, m.total * inv_h2, &ww, cross);
+    }
+}
+
+/// Adds `cc I` to the centre block, `ww` to the rotation block and
+/// `cross(k)` between omega and q_k (both ways) of the N x N `hess`.
+fn add_blocks(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>, cross: impl Fn(usize) -> Vector3<f64>) {
+    for i in 0..3 {
+        hess[i * big + i] += cc;
+        for j in 0..3 {
+            hess[(3 + i) * big + 3 + j] += ww[(i, j)];
+        }
+    }
+    for k in 0..big - 6 {
+        let v = cross(k);
+        for i in 0..3 {
+            hess[(3 + i) * big + 6 + k] += v[i];
+            hess[(6 + k) * big + 3 + i] += v[i];
+        }
+    }
+}
+
+/// Adds the Gauss-Newton inertia `J^T M J` of the vertex positions,
+/// `Jv = [I, -[R y_v]x, R W_v]`, scaled by `scale`, to `hess` (N x N) without
+/// its `Mqq` block (which the elastic system holds): `M I` for c,
+/// `R (tr C I - C) R^T` (C = sum m y y^T: the inertia tensor) for omega and
+/// `R a(Y_k)` between omega and q_k. It is positive semi-definite with the
+/// `Mqq` block, and equals the exact Hessian where `R y_v` meets the predicted
+/// `a_v`, i.e. up to terms of the order of h^2 times the accelerations.
+pub fn add_gauss_newton(m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
+    let r = &pose.rotation;
+    let c = m.second_moment(&pose.q);
+    let ww = r * (Matrix3::identity() * c.trace() - c) * r.transpose() * scale;
+    add_blocks(hess, 6 + m.n_modes(), m.total * scale, &ww, |k| r * axial(&m.y_mode(&pose.q, k)) * scale);
+}

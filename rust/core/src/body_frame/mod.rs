@@ -1,0 +1,345 @@
+//! The reduced model in the body frame (floating frame of reference): rigid
+//! motion exact and nonlinear, learned modes in the body.
+//!
+//! **Kinematics.** `x_v = c + R y_v(q)`, `y_v = Xbar_v + W_v q`,
+//! `Xbar_v = X_v - X_com`, with every column of W mass-orthogonal to the six
+//! rigid modes (`sum m W_v = 0`, `sum m Xbar_v x W_v = 0`), so that c is the
+//! centre of mass. Units: c in m, q as the modes (W in m per unit of q).
+//!
+//! **Energy of one backward-Euler step**, from the current pose `(c, R, q)`
+//! (time t) and the previous one (t - 1), with the predicted positions
+//! `xt_v = 2 x^t_v - x^{t-1}_v + h^2 g` (so that the vertex velocities
+//! `(x^t - x^{t-1})/h` are exact, as in the full-space solver):
+//!
+//! - inertia `1/(2h^2) sum_v m_v |c + R y_v - xt_v|^2`. With `sum m y = 0` it
+//!   splits into `M/(2h^2) |c - ct|^2`, `ct = 2c^t - c^{t-1} + h^2 g`, and
+//!   `1/(2h^2) [q^T Mqq q + 2 b.q - 2 tr(R^T B(q))]` plus a constant, from the
+//!   mass moments `J = sum m Xbar Xbar^T`, `P_k = sum m W^k Xbar^T`,
+//!   `Q_kl = sum m W^k W^l^T`: `Mqq_kl = tr Q_kl`, `b_k = tr P_k`,
+//!   `B(q) = B0 + sum_k q_k B_k` with, per step,
+//!   `B0 = 2R^t (J + sum_l q^t_l P_l) - R^{t-1} (J + sum_l q^{t-1}_l P_l)` and
+//!   `B_k = 2R^t (P_k^T + sum_l q^t_l Q_lk) - R^{t-1} (P_k^T + sum_l q^{t-1}_l Q_lk)`
+//!   ([`inertia`]). Cost O(9 n^2) per step and O(9 n) per evaluation,
+//!   independent of the mesh;
+//! - elastic `sum_k w_k Psi(I + G_k q)` (`Psi(R F) = Psi(F)` removes R): the
+//!   cubature kernel of [`crate::reduced`], through a [`ReducedSystem`] with
+//!   mass `Mqq`, no gravity force and no contact points, whose step starts at
+//!   q = qdot = 0, so that it evaluates exactly `q^T Mqq q/(2h^2) + elastic(q)`;
+//! - contact and friction at the contact points ([`contact`]), with the
+//!   lagged normal force and the slip measured from the positions at time t.
+//!
+//! **Variables** of the Newton iteration are `(dc, omega, dq)` (3 + 3 + n),
+//! the rotation moving as `R <- exp([omega]x) R`; gradients and Hessians are
+//! those of the pulled-back function at omega = 0. The energy reported leaves
+//! out the constant of the step (`tr J` and `sum m |a_v|^2` terms), so only its
+//! differences within a step carry meaning.
+
+pub mod contact;
+pub mod inertia;
+pub mod rotation;
+pub mod solver;
+pub mod synthetic;
+
+#[cfg(test)]
+mod tests;
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::contact::{ContactModel, Plane};
+use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::material::StableNeoHookean;
+use crate::reduced::{ReducedInputs, ReducedSystem, StepStart, Workspace};
+use contact::{BodyContacts, ContactOut, ContactRows, ContactStart};
+use inertia::{InertiaTarget, MassMoments};
+
+/// Borrowed description of a body-frame model; arrays row-major (C order).
+#[derive(Debug, Clone, Copy)]
+pub struct BodyFrameInputs<'a> {
+    /// Total mass M, kg.
+    pub total_mass: f64,
+    /// `J = sum m Xbar Xbar^T`, 3 x 3, kg m^2.
+    pub inertia_moments: &'a [f64],
+    /// `P_k = sum m W^k Xbar^T`, n x 3 x 3.
+    pub mode_moments: &'a [f64],
+    /// `Q_kl = sum m W^k W^l^T`, n x n x 3 x 3.
+    pub mode_products: &'a [f64],
+    /// Gravity acceleration, m/s^2.
+    pub gravity: [f64; 3],
+    /// `G_k = dvec(F)/dq` at the K cubature points, K x 9 x n.
+    pub cubature_jacobians: &'a [f64],
+    /// Cubature weights w_k >= 0, K, m^3.
+    pub cubature_weights: &'a [f64],
+    /// Material of the solid.
+    pub material: StableNeoHookean,
+    /// Basis rows W_j at the C contact points, C x 3 x n.
+    pub contact_basis: &'a [f64],
+    /// Rest positions relative to the centre of mass, Xbar_j, C x 3, m.
+    pub contact_rest: &'a [f64],
+    /// Boundary area a_j >= 0 carried by each contact point, C, m^2.
+    pub contact_areas: &'a [f64],
+    /// Contact planes.
+    pub planes: &'a [Plane],
+    /// k_n, N/m^3.
+    pub normal_stiffness: f64,
+    /// k_d, N s/m^3.
+    pub normal_damping: f64,
+    /// k_f, N s/m^3.
+    pub friction_stiffness: f64,
+    /// Time step h, s.
+    pub dt: f64,
+}
+
+/// Position of the body: centre of mass c (m), rotation R, modal coordinates q.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pose {
+    /// Centre of mass, m.
+    pub center: Vector3<f64>,
+    /// Rotation from the body frame to the world.
+    pub rotation: Matrix3<f64>,
+    /// Modal coordinates, n.
+    pub q: Vec<f64>,
+}
+
+impl Pose {
+    /// At the origin, unrotated and undeformed.
+    pub fn rest(n: usize) -> Self {
+        Self { center: Vector3::zeros(), rotation: Matrix3::identity(), q: vec![0.0; n] }
+    }
+
+    /// `self = base (+) alpha dir`: c and q moved along dir, R turned by
+    /// `exp(alpha [omega]x)`; dir is `(dc, omega, dq)`.
+    pub fn retract(&mut self, base: &Pose, dir: &[f64], alpha: f64) {
+        self.center = base.center + Vector3::new(dir[0], dir[1], dir[2]) * alpha;
+        self.rotation = rotation::exp_map(&(Vector3::new(dir[3], dir[4], dir[5]) * alpha)) * base.rotation;
+        for ((q, b), d) in self.q.iter_mut().zip(&base.q).zip(&dir[6..]) {
+            *q = b + alpha * d;
+        }
+    }
+
+    /// Copies `other` without allocating.
+    pub fn assign(&mut self, other: &Pose) {
+        self.center = other.center;
+        self.rotation = other.rotation;
+        self.q.copy_from_slice(&other.q);
+    }
+}
+
+/// What a step needs from its start: the inertial target and the contact
+/// points' positions and lagged normal forces.
+#[derive(Debug, Clone)]
+pub struct BodyStart {
+    inertia: InertiaTarget,
+    contact: ContactStart,
+}
+
+/// Which Hessian [`BodyFrameSystem::hessian`] assembles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BodyHessian {
+    /// Positive definite: Gauss-Newton inertia and contact, PSD-projected elastic.
+    GaussNewton,
+    /// The exact Hessian of the pulled-back energy (may be indefinite).
+    Exact,
+}
+
+/// The elastic part: a world-frame system on q alone, with its fixed start.
+#[derive(Debug, Clone)]
+struct Elastic {
+    system: ReducedSystem,
+    start: StepStart,
+}
+
+/// Preallocated scratch of the evaluations.
+#[derive(Debug, Clone)]
+pub struct BodyWorkspace {
+    /// Gradient of the last evaluation with gradient, 6 + n.
+    pub grad: Vec<f64>,
+    elastic: Option<Workspace>,
+    rows: ContactRows,
+    /// n x n scratch for the elastic Hessian.
+    square: Vec<f64>,
+}
+
+/// Validated, owned body-frame model.
+#[derive(Debug, Clone)]
+pub struct BodyFrameSystem {
+    n: usize,
+    h: f64,
+    gravity: Vector3<f64>,
+    moments: MassMoments,
+    elastic: Option<Elastic>,
+    contacts: BodyContacts,
+}
+
+impl BodyFrameSystem {
+    /// Validates and copies the inputs. With n = 0 (a rigid body) there is no
+    /// elastic part.
+    pub fn new(inp: &BodyFrameInputs<'_>) -> Result<Self> {
+        let moments = MassMoments::new(inp.total_mass, inp.inertia_moments, inp.mode_moments, inp.mode_products)?;
+        let n = moments.n_modes();
+        check_finite("gravity", &inp.gravity)?;
+        check_positive("dt", inp.dt)?;
+        let contact_model = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
+        let contacts = BodyContacts::new(n, inp.contact_basis, inp.contact_rest, inp.contact_areas, inp.planes, contact_model)?;
+        let k = inp.cubature_weights.len();
+        if inp.cubature_jacobians.len() != 9 * n * k {
+            return Err(LicromError::shape("cubature_jacobians", format!("({k}, 9, {n})"), format!("{} values", inp.cubature_jacobians.len())));
+        }
+        let elastic = if n == 0 {
+            None
+        } else {
+            let mass = moments.mode_mass();
+            let zeros = vec![0.0; n];
+            let system = ReducedSystem::new(&ReducedInputs {
+                mass: &mass,
+                gravity_force: &zeros,
+                cubature_jacobians: inp.cubature_jacobians,
+                cubature_weights: inp.cubature_weights,
+                material: inp.material,
+                contact_basis: &[],
+                contact_rest: &[],
+                contact_areas: &[],
+                planes: &[],
+                normal_stiffness: inp.normal_stiffness,
+                normal_damping: inp.normal_damping,
+                friction_stiffness: inp.friction_stiffness,
+                dt: inp.dt,
+            })?;
+            let mut start = system.step_start();
+            system.begin_step(&zeros, &zeros, &mut start);
+            Some(Elastic { system, start })
+        };
+        Ok(Self { n, h: inp.dt, gravity: Vector3::from(inp.gravity), moments, elastic, contacts })
+    }
+
+    /// Number of modes n (the Newton system has 6 + n unknowns).
+    pub fn n_modes(&self) -> usize {
+        self.n
+    }
+
+    /// Number of contact points C.
+    pub fn n_contacts(&self) -> usize {
+        self.contacts.len()
+    }
+
+    /// Time step h, s.
+    pub fn dt(&self) -> f64 {
+        self.h
+    }
+
+    /// Total mass M, kg.
+    pub fn total_mass(&self) -> f64 {
+        self.moments.total
+    }
+
+    /// Gravity acceleration, m/s^2.
+    pub fn gravity(&self) -> Vector3<f64> {
+        self.gravity
+    }
+
+    /// The mass moments.
+    pub fn moments(&self) -> &MassMoments {
+        &self.moments
+    }
+
+    /// Zeroed start-of-step buffers.
+    pub fn step_start(&self) -> BodyStart {
+        BodyStart { inertia: InertiaTarget::new(self.n), contact: self.contacts.start() }
+    }
+
+    /// Buffers for the evaluations.
+    pub fn workspace(&self) -> BodyWorkspace {
+        BodyWorkspace {
+            grad: vec![0.0; 6 + self.n],
+            elastic: self.elastic.as_ref().map(|e| e.system.workspace()),
+            rows: self.contacts.rows(),
+            square: vec![0.0; self.n * self.n],
+        }
+    }
+
+    /// Fills `start` for a step from pose `cur` (time t) after `prev` (t - 1).
+    pub fn begin_step(&self, cur: &Pose, prev: &Pose, start: &mut BodyStart) {
+        start.inertia.begin(&self.moments, cur, prev, &self.gravity, self.h);
+        self.contacts.begin(cur, &mut start.contact);
+    }
+
+    /// The step's energy at `pose` (J, without the step's constant); with
+    /// `with_gradient` its gradient in `(c, omega, q)` into `ws.grad`.
+    pub fn evaluate(&self, start: &BodyStart, pose: &Pose, with_gradient: bool, ws: &mut BodyWorkspace) -> f64 {
+        let mut e = 0.0;
+        if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
+            e += el.system.evaluate(&el.start, &pose.q, with_gradient, ews);
+            if with_gradient {
+                ws.grad[6..].copy_from_slice(&ews.grad);
+            }
+        }
+        if with_gradient {
+            ws.grad[..6].fill(0.0);
+        }
+        let grad = with_gradient.then_some(&mut ws.grad[..]);
+        e += start.inertia.energy(&self.moments, pose, self.h, grad);
+        let out = ContactOut { grad: with_gradient.then_some(&mut ws.grad[..]), rows: None, geometric: None };
+        e + self.contacts.evaluate(&start.contact, pose, out)
+    }
+
+    /// Energy alone (J), allocating its scratch: for tests and probes.
+    pub fn energy(&self, start: &BodyStart, pose: &Pose) -> f64 {
+        self.evaluate(start, pose, false, &mut self.workspace())
+    }
+
+    /// The Hessian at `pose` into `out` ((6 + n)^2, full symmetric), and the
+    /// convergence metric (the Gauss-Newton inertia times h^2) into `metric`
+    /// when given.
+    pub fn hessian(&self, start: &BodyStart, pose: &Pose, kind: BodyHessian, ws: &mut BodyWorkspace, out: &mut [f64], metric: Option<&mut [f64]>) {
+        let n = self.n;
+        let big = 6 + n;
+        let h2 = self.h * self.h;
+        out.fill(0.0);
+        if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
+            // Mqq/h^2 + K_el (projected, or exact = projected - clamped).
+            let exact = kind == BodyHessian::Exact;
+            let mut clamped = std::mem::take(&mut ws.square);
+            let mut projected = std::mem::take(&mut ews.hess);
+            el.system.elastic_hessian(&pose.q, ews, &mut projected, exact.then_some(&mut clamped[..]));
+            let mass = el.system.mass();
+            for r in 0..n {
+                for c in 0..n {
+                    let mut v = projected[r * n + c] + mass[r * n + c] / h2;
+                    if exact {
+                        v -= clamped[r * n + c];
+                    }
+                    out[(6 + r) * big + 6 + c] = v;
+                }
+            }
+            ews.hess = projected;
+            ws.square = clamped;
+        }
+        if let Some(m) = metric {
+            m.fill(0.0);
+            inertia::add_gauss_newton(&self.moments, pose, 1.0, m);
+            if let Some(el) = &self.elastic {
+                for r in 0..n {
+                    m[(6 + r) * big + 6..(6 + r) * big + big].copy_from_slice(&el.system.mass()[r * n..(r + 1) * n]);
+                }
+            }
+        }
+        let geometric = match kind {
+            BodyHessian::GaussNewton => {
+                inertia::add_gauss_newton(&self.moments, pose, 1.0 / h2, out);
+                None
+            }
+            BodyHessian::Exact => {
+                start.inertia.add_exact_hessian(&self.moments, pose, self.h, out);
+                Some(&mut out[..])
+            }
+        };
+        let out_c = ContactOut { grad: None, rows: Some(&mut ws.rows), geometric };
+        self.contacts.evaluate(&start.contact, pose, out_c);
+        self.contacts.add_rows(&ws.rows, out);
+    }
+
+    /// Contact forces (N) on the C points at `pose` over the step that started
+    /// at `start`, C x 3.
+    pub fn contact_forces(&self, start: &BodyStart, pose: &Pose, out: &mut [f64]) {
+        self.contacts.forces(&start.contact, pose, out);
+    }
+}

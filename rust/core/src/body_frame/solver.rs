@@ -1,0 +1,387 @@
+//! Time stepping of the body-frame model: minimisation of the step's energy
+//! over `(c, R, q)` by Newton iterations on `(dc, omega, dq)`.
+//!
+//! **Initial guess.** The previous motion extrapolated: `c = 2c^t - c^{t-1} + h^2 g`,
+//! `R = (R^t R^{t-1 T}) R^t`, `q = 2q^t - q^{t-1}`.
+//!
+//! **Hessian.** Positive definite by construction: the inertia by its
+//! Gauss-Newton form `J^T M J` over all vertices (the rotation block is the
+//! world inertia tensor `R (tr C I - C) R^T`, C = sum m y y^T, from the
+//! moments), the contact terms by theirs, the elastic part PSD-projected,
+//! factored with [`Cholesky`]. The Gauss-Newton inertia is chosen over the
+//! exact one projected to PSD because it is PSD as a whole, cross terms
+//! included, with no eigen-decomposition, and differs from the exact one only
+//! by terms proportional to the inertial residual `R y_v - a_v`, which are of
+//! order h^2 times the accelerations: the iteration stays close to Newton's.
+//!
+//! **Line search** along `alpha -> (c + alpha dc, exp(alpha [omega]x) R, q + alpha dq)`,
+//! whose slope is the gradient at the trial point dotted with the direction
+//! (the rotations of the line share their axis): Armijo sufficient decrease;
+//! where the full step overshoots the line minimum (its slope turned positive
+//! beyond [`CURVATURE`] of the initial one, typical where friction switches
+//! between stick and slip) the minimum is bracketed by safeguarded secant
+//! steps; otherwise the step is halved. Near convergence, where the decrease
+//! hides in the round-off of the energy (whose terms are much larger than its
+//! changes), a step at the line minimum (small slope) is accepted.
+//!
+//! **Convergence** as in the world-frame solver: on the Newton direction
+//! `Delta` at the iterate, `r = sqrt(Delta^T Mg Delta / M) / h` (m/s) with Mg the
+//! Gauss-Newton inertia times h^2: the mass-weighted length of the vertex
+//! displacements over h. When `r < tolerance` the step `Delta` is taken and the
+//! solve stops.
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::rotation::{exp_map, is_rotation, log_map};
+use super::{BodyFrameSystem, BodyHessian, BodyStart, BodyWorkspace, Pose};
+use crate::cholesky::Cholesky;
+use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::solver::CURVATURE;
+
+/// Armijo sufficient-decrease constant.
+const ARMIJO: f64 = 1e-4;
+/// Secant steps locating an overshot line minimum.
+const MAX_SECANT: usize = 8;
+/// Backtracking halvings before the line search gives up.
+const MAX_HALVINGS: usize = 40;
+/// Energy differences below this many ulps of the energy scale are round-off.
+const ROUNDOFF_ULPS: f64 = 64.0;
+/// Relative energy increase still taken as round-off at the line minimum.
+const NOISE: f64 = 1e-8;
+/// Tolerance of the orthonormality of a given rotation.
+pub const ROTATION_TOLERANCE: f64 = 1e-8;
+
+/// Solver parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyFrameSettings {
+    /// Convergence threshold on r, m/s.
+    pub tolerance: f64,
+    /// Newton directions allowed per step.
+    pub max_iterations: usize,
+}
+
+/// Outcome of a converged step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyStepReport {
+    /// Newton directions computed.
+    pub iterations: usize,
+    /// Final convergence measure r, m/s.
+    pub residual: f64,
+}
+
+/// State of a body-frame model (current and previous pose) and the
+/// preallocated machinery to step it.
+#[derive(Debug)]
+pub struct BodyFrameSolver {
+    system: BodyFrameSystem,
+    settings: BodyFrameSettings,
+    pose: Pose,
+    prev: Pose,
+    current: BodyStart,
+    /// Start of the last accepted step, for contact forces (valid if `has_last`).
+    last: BodyStart,
+    has_last: bool,
+    probe: BodyStart,
+    ws: BodyWorkspace,
+    iterate: Pose,
+    trial: Pose,
+    grad: Vec<f64>,
+    dir: Vec<f64>,
+    hess: Vec<f64>,
+    metric: Vec<f64>,
+    chol: Cholesky,
+}
+
+/// `r` made orthonormal (two Björck iterations `R <- R (3I - R^T R)/2`, which
+/// converge quadratically from a rotation perturbed by round-off).
+fn reorthonormalize(r: &Matrix3<f64>) -> Matrix3<f64> {
+    let mut m = *r;
+    for _ in 0..2 {
+        m = m * (Matrix3::identity() * 3.0 - m.transpose() * m) * 0.5;
+    }
+    m
+}
+
+impl BodyFrameSolver {
+    /// Solver at rest at the origin.
+    pub fn new(system: BodyFrameSystem, settings: BodyFrameSettings) -> Result<Self> {
+        check_positive("tolerance", settings.tolerance)?;
+        if settings.max_iterations == 0 {
+            return Err(LicromError::invalid("max_iterations", "must be >= 1, got 0"));
+        }
+        let n = system.n_modes();
+        let big = 6 + n;
+        Ok(Self {
+            settings,
+            pose: Pose::rest(n),
+            prev: Pose::rest(n),
+            current: system.step_start(),
+            last: system.step_start(),
+            has_last: false,
+            probe: system.step_start(),
+            ws: system.workspace(),
+            iterate: Pose::rest(n),
+            trial: Pose::rest(n),
+            grad: vec![0.0; big],
+            dir: vec![0.0; big],
+            hess: vec![0.0; big * big],
+            metric: vec![0.0; big * big],
+            chol: Cholesky::new(big),
+            system,
+        })
+    }
+
+    /// The model.
+    pub fn system(&self) -> &BodyFrameSystem {
+        &self.system
+    }
+
+    /// Current pose.
+    pub fn pose(&self) -> &Pose {
+        &self.pose
+    }
+
+    /// Velocity of the centre of mass, m/s.
+    pub fn velocity(&self) -> Vector3<f64> {
+        (self.pose.center - self.prev.center) / self.system.dt()
+    }
+
+    /// Angular velocity in the world frame, rad/s: `log(R R'^T) / h`.
+    pub fn angular_velocity(&self) -> Vector3<f64> {
+        log_map(&(self.pose.rotation * self.prev.rotation.transpose())) / self.system.dt()
+    }
+
+    /// Modal velocities into `out` (n), per second.
+    pub fn qdot(&self, out: &mut [f64]) {
+        let h = self.system.dt();
+        for ((o, q), p) in out.iter_mut().zip(&self.pose.q).zip(&self.prev.q) {
+            *o = (q - p) / h;
+        }
+    }
+
+    fn check_vector(&self, name: &str, v: &[f64], len: usize) -> Result<()> {
+        if v.len() != len {
+            return Err(LicromError::shape(name, format!("({len},)"), format!("{} values", v.len())));
+        }
+        check_finite(name, v)
+    }
+
+    /// A validated pose from its parts (`rotation` row-major 3 x 3, a rotation
+    /// to [`ROTATION_TOLERANCE`], made exactly orthonormal).
+    pub fn make_pose(&self, center: &[f64], rotation: &[f64], q: &[f64]) -> Result<Pose> {
+        self.check_vector("center", center, 3)?;
+        self.check_vector("rotation", rotation, 9)?;
+        self.check_vector("q", q, self.system.n_modes())?;
+        let r = Matrix3::from_row_slice(rotation);
+        if !is_rotation(&r, ROTATION_TOLERANCE) {
+            return Err(LicromError::invalid("rotation", format!("must be orthonormal with determinant +1 (to {ROTATION_TOLERANCE})")));
+        }
+        Ok(Pose { center: Vector3::from_column_slice(center), rotation: reorthonormalize(&r), q: q.to_vec() })
+    }
+
+    /// Replaces the state: pose and velocities (m/s, world angular velocity in
+    /// rad/s, modal per second). The previous pose becomes
+    /// `(c - h v, exp(-h [w]x) R, q - h qdot)`. Contact forces read zero until
+    /// the next step.
+    pub fn set_state(&mut self, pose: &Pose, velocity: &[f64], angular_velocity: &[f64], qdot: &[f64]) -> Result<()> {
+        let n = self.system.n_modes();
+        let checked = self.make_pose(pose.center.as_slice(), pose.rotation.transpose().as_slice(), &pose.q)?;
+        self.check_vector("velocity", velocity, 3)?;
+        self.check_vector("angular_velocity", angular_velocity, 3)?;
+        self.check_vector("qdot", qdot, n)?;
+        let h = self.system.dt();
+        self.pose.assign(&checked);
+        self.prev.center = checked.center - Vector3::from_column_slice(velocity) * h;
+        self.prev.rotation = exp_map(&(Vector3::from_column_slice(angular_velocity) * -h)) * checked.rotation;
+        for ((p, q), v) in self.prev.q.iter_mut().zip(&checked.q).zip(qdot) {
+            *p = q - h * v;
+        }
+        self.has_last = false;
+        Ok(())
+    }
+
+    /// Advances one time step. On error the state is left unchanged.
+    pub fn step(&mut self) -> Result<BodyStepReport> {
+        let h = self.system.dt();
+        self.system.begin_step(&self.pose, &self.prev, &mut self.current);
+        self.iterate.center = 2.0 * self.pose.center - self.prev.center + self.system.gravity() * (h * h);
+        self.iterate.rotation = self.pose.rotation * self.prev.rotation.transpose() * self.pose.rotation;
+        for ((x, q), p) in self.iterate.q.iter_mut().zip(&self.pose.q).zip(&self.prev.q) {
+            *x = 2.0 * q - p;
+        }
+        let mut energy = self.system.evaluate(&self.current, &self.iterate, true, &mut self.ws);
+        self.grad.copy_from_slice(&self.ws.grad);
+        if !energy.is_finite() {
+            return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
+        }
+        let mut residual = f64::INFINITY;
+        for iteration in 1..=self.settings.max_iterations {
+            if !self.grad.iter().all(|g| g.is_finite()) {
+                return Err(LicromError::Diverged { iteration, what: "gradient" });
+            }
+            residual = self.direction(iteration)?;
+            if residual < self.settings.tolerance {
+                self.trial.retract(&self.iterate, &self.dir, 1.0);
+                std::mem::swap(&mut self.iterate, &mut self.trial);
+                self.finish_step();
+                return Ok(BodyStepReport { iterations: iteration, residual });
+            }
+            match self.line_search(energy) {
+                Some(e) => energy = e,
+                None => return Err(LicromError::NotConverged { iterations: iteration, residual }),
+            }
+        }
+        Err(LicromError::NotConverged { iterations: self.settings.max_iterations, residual })
+    }
+
+    /// Newton direction at the iterate into `dir`; returns its residual r.
+    fn direction(&mut self, iteration: usize) -> Result<f64> {
+        let big = self.dir.len();
+        self.system.hessian(&self.current, &self.iterate, BodyHessian::GaussNewton, &mut self.ws, &mut self.hess, Some(&mut self.metric));
+        if !self.hess.iter().all(|v| v.is_finite()) {
+            return Err(LicromError::Diverged { iteration, what: "Hessian" });
+        }
+        self.chol.factor_shifted(&self.hess, 0.0, &self.hess).map_err(|_| LicromError::Diverged { iteration, what: "Hessian (not positive definite)" })?;
+        for (d, g) in self.dir.iter_mut().zip(&self.grad) {
+            *d = -g;
+        }
+        self.chol.solve_in_place(&mut self.dir);
+        let mut dmd = 0.0;
+        for r in 0..big {
+            let row: f64 = (0..big).map(|c| self.metric[r * big + c] * self.dir[c]).sum();
+            dmd += self.dir[r] * row;
+        }
+        let residual = (dmd.max(0.0) / self.system.total_mass()).sqrt() / self.system.dt();
+        if !residual.is_finite() {
+            return Err(LicromError::Diverged { iteration, what: "direction" });
+        }
+        Ok(residual)
+    }
+
+    /// Energy and slope at `alpha` along the direction (trial point in `trial`,
+    /// its gradient in `ws.grad`).
+    fn line_trial(&mut self, alpha: f64) -> (f64, f64) {
+        self.trial.retract(&self.iterate, &self.dir, alpha);
+        let e = self.system.evaluate(&self.current, &self.trial, true, &mut self.ws);
+        let d = self.ws.grad.iter().zip(&self.dir).map(|(g, d)| g * d).sum();
+        (e, d)
+    }
+
+    fn accept_trial(&mut self) {
+        std::mem::swap(&mut self.iterate, &mut self.trial);
+        self.grad.copy_from_slice(&self.ws.grad);
+    }
+
+    /// Line search from the iterate (energy `e0`); the accepted point becomes
+    /// the iterate. Returns its energy, or None when no acceptable step is found.
+    fn line_search(&mut self, e0: f64) -> Option<f64> {
+        let d0: f64 = self.grad.iter().zip(&self.dir).map(|(g, d)| g * d).sum();
+        let ok = |a: f64, e: f64, d: f64| {
+            if !e.is_finite() {
+                return false;
+            }
+            let scale = e0.abs().max(e.abs());
+            e <= e0 + ARMIJO * a * d0 + ROUNDOFF_ULPS * f64::EPSILON * scale
+                || (e <= e0 + NOISE * scale && d.is_finite() && d.abs() <= CURVATURE * d0.abs())
+        };
+        let (e1, d1) = self.line_trial(1.0);
+        let good1 = ok(1.0, e1, d1);
+        if good1 && d1 <= CURVATURE * d0.abs() {
+            self.accept_trial();
+            return Some(e1);
+        }
+        let mut hi = 1.0;
+        if d1.is_finite() && d1 > 0.0 {
+            // Overshoot: the line minimum lies in (0, 1); bracket it by secant steps.
+            let mut best = good1.then_some((1.0, e1));
+            let (mut lo, mut dlo, mut dhi) = (0.0, d0, d1);
+            let mut last = 1.0;
+            for _ in 0..MAX_SECANT {
+                let width = hi - lo;
+                let a = (lo - dlo * width / (dhi - dlo)).clamp(lo + 0.05 * width, hi - 0.05 * width);
+                let (e, d) = self.line_trial(a);
+                last = a;
+                let good = ok(a, e, d);
+                if good && best.is_none_or(|(_, eb)| e < eb) {
+                    best = Some((a, e));
+                }
+                if good && d.abs() <= CURVATURE * d0.abs() {
+                    self.accept_trial();
+                    return Some(e);
+                }
+                if good && d < 0.0 {
+                    (lo, dlo) = (a, d);
+                } else if d.is_finite() && d > 0.0 {
+                    (hi, dhi) = (a, d);
+                } else {
+                    break;
+                }
+            }
+            if let Some((a, e)) = best {
+                if a != last {
+                    self.line_trial(a);
+                }
+                self.accept_trial();
+                return Some(e);
+            }
+        } else if good1 {
+            self.accept_trial();
+            return Some(e1);
+        }
+        let mut alpha = 0.5 * hi;
+        for _ in 0..MAX_HALVINGS {
+            let (e, d) = self.line_trial(alpha);
+            if ok(alpha, e, d) {
+                self.accept_trial();
+                return Some(e);
+            }
+            alpha *= 0.5;
+        }
+        None
+    }
+
+    fn finish_step(&mut self) {
+        self.iterate.rotation = reorthonormalize(&self.iterate.rotation);
+        std::mem::swap(&mut self.prev, &mut self.pose);
+        self.pose.assign(&self.iterate);
+        std::mem::swap(&mut self.last, &mut self.current);
+        self.has_last = true;
+    }
+
+    /// Contact forces (C x 3, N) at the current pose over the last step; zeros
+    /// before any step.
+    pub fn contact_forces(&self, out: &mut [f64]) -> Result<()> {
+        let c = self.system.n_contacts();
+        if out.len() != 3 * c {
+            return Err(LicromError::shape("out", format!("({c}, 3)"), format!("{} values", out.len())));
+        }
+        if self.has_last {
+            self.system.contact_forces(&self.last, &self.pose, out);
+        } else {
+            out.fill(0.0);
+        }
+        Ok(())
+    }
+
+    /// Energy (J, without the step's constant) at `pose` of a step from the current state.
+    pub fn energy(&mut self, pose: &Pose) -> f64 {
+        self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        self.system.evaluate(&self.probe, pose, false, &mut self.ws)
+    }
+
+    /// Gradient (6 + n) at `pose` of a step from the current state.
+    pub fn gradient(&mut self, pose: &Pose) -> &[f64] {
+        self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        self.system.evaluate(&self.probe, pose, true, &mut self.ws);
+        &self.ws.grad
+    }
+
+    /// Hessian ((6 + n)^2, full symmetric) at `pose` of a step from the current
+    /// state: exact, or the solver's positive definite one.
+    pub fn hessian(&mut self, pose: &Pose, exact: bool) -> &[f64] {
+        self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        let kind = if exact { BodyHessian::Exact } else { BodyHessian::GaussNewton };
+        self.system.hessian(&self.probe, pose, kind, &mut self.ws, &mut self.hess, None);
+        &self.hess
+    }
+}

@@ -1,0 +1,321 @@
+//! Tests of the body-frame model: derivatives against finite differences,
+//! moments against sums over vertices, physics against analytic results.
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::rotation::{exp_map, log_map};
+use super::solver::{BodyFrameSettings, BodyFrameSolver};
+use super::synthetic::{body_block, BodyBlock};
+use super::*;
+use crate::synthetic::BlockScene;
+use crate::testing::{fd_gradient, fd_jacobian, rel_err, Rng};
+
+fn block(learned_modes: usize, cubature_points: usize, contact_points: usize, affine: bool) -> BodyBlock {
+    let scene = BlockScene { learned_modes, cubature_points, contact_points, normal_damping: 5.0e3, ..Default::default() };
+    body_block(&scene, affine).unwrap()
+}
+
+fn random_rotation(rng: &mut Rng, angle: f64) -> Matrix3<f64> {
+    exp_map(&(Vector3::new(rng.uniform(), rng.uniform(), rng.uniform()).normalize() * angle))
+}
+
+fn random_pose(rng: &mut Rng, n: usize, q_scale: f64) -> Pose {
+    Pose { center: Vector3::new(rng.uniform(), rng.uniform(), rng.uniform()), rotation: random_rotation(rng, 2.0), q: rng.vec(n, q_scale) }
+}
+
+/// `pose (+) x` for x = (dc, omega, dq).
+fn moved(pose: &Pose, x: &[f64]) -> Pose {
+    let mut out = pose.clone();
+    out.retract(pose, x, 1.0);
+    out
+}
+
+/// Checks the gradient against central differences of the energy, and the
+/// exact Hessian against the symmetrised Jacobian of the gradient (the
+/// Jacobian of the left-trivialised gradient differs from the Hessian of the
+/// pulled-back function only by an antisymmetric omega-omega block).
+fn check_derivatives(sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose, what: &str) {
+    let big = 6 + sys.n_modes();
+    let mut ws = sys.workspace();
+    sys.evaluate(start, pose, true, &mut ws);
+    let grad = ws.grad.clone();
+    let zero = vec![0.0; big];
+    let fd = fd_gradient(|x| sys.energy(start, &moved(pose, x)), &zero, 1e-7);
+    assert!(rel_err(&grad, &fd, 1e-6) < 1e-6, "{what}: gradient vs FD {}\n{grad:?}\n{fd:?}", rel_err(&grad, &fd, 1e-6));
+    let mut hess = vec![0.0; big * big];
+    sys.hessian(start, pose, BodyHessian::Exact, &mut ws, &mut hess, None);
+    let jac = fd_jacobian(
+        |x| {
+            let mut w = sys.workspace();
+            sys.evaluate(start, &moved(pose, x), true, &mut w);
+            w.grad
+        },
+        &zero,
+        1e-8,
+    );
+    let sym: Vec<f64> = (0..big * big).map(|i| 0.5 * (jac[i / big][i % big] + jac[i % big][i / big])).collect();
+    assert!(rel_err(&hess, &sym, 1e-6) < 2e-6, "{what}: Hessian vs FD {}", rel_err(&hess, &sym, 1e-6));
+    // The solver's matrix is positive definite.
+    sys.hessian(start, pose, BodyHessian::GaussNewton, &mut ws, &mut hess, None);
+    assert!(crate::cholesky::Cholesky::factor(&hess, big).is_ok(), "{what}: Gauss-Newton Hessian not positive definite");
+}
+
+#[test]
+fn moments_match_sums_over_vertices() {
+    let b = block(3, 0, 0, true);
+    let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+    let n = b.n;
+    let h = b.scene.dt;
+    let mut rng = Rng::new(11);
+    let (cur, prev) = (random_pose(&mut rng, n, 0.05), random_pose(&mut rng, n, 0.05));
+    let mut start = sys.step_start();
+    sys.begin_step(&cur, &prev, &mut start);
+    let y = |pose: &Pose, v: usize| {
+        let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
+        b.vertices[v] + Vector3::from_fn(|c, _| (0..n).map(|k| w[c * n + k] * pose.q[k]).sum())
+    };
+    let mut b0 = Matrix3::zeros();
+    let mut bk = vec![Matrix3::zeros(); n];
+    for (v, m) in b.masses.iter().enumerate() {
+        let a = 2.0 * cur.rotation * y(&cur, v) - prev.rotation * y(&prev, v);
+        b0 += a * b.vertices[v].transpose() * *m;
+        let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
+        for (k, bk) in bk.iter_mut().enumerate() {
+            *bk += a * Vector3::new(w[k], w[n + k], w[2 * n + k]).transpose() * *m;
+        }
+    }
+    assert!((start.inertia.b0 - b0).amax() < 1e-12 * b0.amax());
+    for k in 0..n {
+        assert!((start.inertia.bk[k] - bk[k]).amax() < 1e-12 * b0.amax(), "B_{k}");
+    }
+    // The whole inertia (no cubature, no contact) against the sum over vertices,
+    // up to the constant of the step.
+    let g = sys.gravity();
+    let brute = |pose: &Pose| -> f64 {
+        (0..b.masses.len())
+            .map(|v| {
+                let xt = 2.0 * (cur.center + cur.rotation * y(&cur, v)) - (prev.center + prev.rotation * y(&prev, v)) + g * (h * h);
+                0.5 * b.masses[v] * (pose.center + pose.rotation * y(pose, v) - xt).norm_squared() / (h * h)
+            })
+            .sum()
+    };
+    let (p1, p2) = (random_pose(&mut rng, n, 0.05), random_pose(&mut rng, n, 0.05));
+    let d_sys = sys.energy(&start, &p1) - sys.energy(&start, &p2);
+    let d_brute = brute(&p1) - brute(&p2);
+    assert!((d_sys - d_brute).abs() < 1e-10 * d_brute.abs(), "{d_sys} vs {d_brute}");
+    // Orthogonality to the rigid modes makes c the centre of mass.
+    for k in 0..n {
+        let (mut lin, mut ang) = (Vector3::zeros(), Vector3::zeros());
+        for (v, m) in b.masses.iter().enumerate() {
+            let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
+            let wk = Vector3::new(w[k], w[n + k], w[2 * n + k]);
+            lin += wk * *m;
+            ang += b.vertices[v].cross(&wk) * *m;
+        }
+        assert!(lin.norm() < 1e-14 && ang.norm() < 1e-14, "mode {k} carries momentum");
+    }
+}
+
+#[test]
+fn inertia_and_elastic_derivatives_match_finite_differences() {
+    let mut rng = Rng::new(3);
+    // Inertia alone, then with the elastic energy.
+    for cubature in [0, 9] {
+        let b = block(3, cubature, 0, true);
+        let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+        let (cur, prev) = (random_pose(&mut rng, b.n, 0.02), random_pose(&mut rng, b.n, 0.02));
+        let mut start = sys.step_start();
+        sys.begin_step(&cur, &prev, &mut start);
+        check_derivatives(&sys, &start, &random_pose(&mut rng, b.n, 0.05), &format!("{cubature} cubature points"));
+    }
+}
+
+/// A block with contact points on its bottom face over a level plane, whose
+/// step starts `depth` (m) in the ground and moves by `slide` (m, along x) and
+/// `sink` (m, down) with a small turn and deformation.
+fn contact_case(depth: f64, slide: f64, sink: f64) -> (BodyBlock, BodyFrameSystem, BodyStart, Pose) {
+    let b = block(2, 7, 12, true);
+    let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+    let mut rng = Rng::new(5);
+    let cur = Pose { center: Vector3::new(0.01, 0.02, b.scene.size / 2.0 - depth), rotation: Matrix3::identity(), q: vec![0.0; b.n] };
+    let mut start = sys.step_start();
+    sys.begin_step(&cur, &cur, &mut start);
+    let mut pose = cur.clone();
+    pose.center += Vector3::new(slide, 0.3 * slide, -sink);
+    pose.rotation = exp_map(&Vector3::new(0.0, 0.0, 1e-3 * slide / b.scene.size));
+    pose.q = rng.vec(b.n, 1e-3 * slide.max(sink) / b.scene.size);
+    (b, sys, start, pose)
+}
+
+/// Tangential force on each point with a lagged normal force, relative to its Coulomb limit.
+fn coulomb_ratios(b: &BodyBlock, sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose) -> Vec<f64> {
+    let c = sys.n_contacts();
+    let mut forces = vec![0.0; 3 * c];
+    sys.contact_forces(start, pose, &mut forces);
+    (0..c)
+        .filter(|&j| start.contact.normal_force[j] > 0.0)
+        .map(|j| (forces[3 * j].powi(2) + forces[3 * j + 1].powi(2)).sqrt() / (b.scene.friction * start.contact.normal_force[j]))
+        .collect()
+}
+
+#[test]
+fn contact_derivatives_match_finite_differences() {
+    // Penalty only: not in contact at the start, sunk at the trial pose.
+    let (_, sys, start, pose) = contact_case(-1e-4, 1e-4, 3e-4);
+    assert!(start.contact.normal_force.iter().all(|f| *f == 0.0));
+    let mut forces = vec![0.0; 3 * sys.n_contacts()];
+    sys.contact_forces(&start, &pose, &mut forces);
+    assert!(forces.chunks_exact(3).filter(|f| f[2] > 0.0).count() >= 2, "no point pushed out of the ground");
+    check_derivatives(&sys, &start, &pose, "penalty");
+    // In contact, sinking (damping on) and sticking.
+    let (b, sys, start, pose) = contact_case(4e-4, 1e-7, 1e-6);
+    let ratios = coulomb_ratios(&b, &sys, &start, &pose);
+    assert!(!ratios.is_empty() && ratios.iter().all(|r| *r < 0.99), "not sticking: {ratios:?}");
+    check_derivatives(&sys, &start, &pose, "damping and stick");
+    // In contact and slipping.
+    let (b, sys, start, pose) = contact_case(4e-4, 1e-3, 1e-6);
+    let ratios = coulomb_ratios(&b, &sys, &start, &pose);
+    assert!(!ratios.is_empty() && ratios.iter().all(|r| (r - 1.0).abs() < 1e-9), "not slipping: {ratios:?}");
+    check_derivatives(&sys, &start, &pose, "slip");
+}
+
+#[test]
+fn total_derivatives_match_finite_differences_on_a_turned_block() {
+    // Turned, an edge in the ground; slipping there.
+    let b = block(3, 11, 60, true);
+    let b = BodyBlock { scene: b.scene, ..body_block(&BlockScene { contact_on_all_faces: true, ..b.scene }, true).unwrap() };
+    let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+    let mut rng = Rng::new(9);
+    let r = random_rotation(&mut rng, 0.4);
+    let mut heights: Vec<f64> = (0..b.contact_rest.len() / 3).map(|j| (r * Vector3::from_column_slice(&b.contact_rest[3 * j..3 * j + 3])).z).collect();
+    heights.sort_by(f64::total_cmp);
+    // The third lowest point 5 mm deep.
+    let cur = Pose { center: Vector3::new(0.0, 0.0, -heights[2] - 5e-3), rotation: r, q: rng.vec(b.n, 1e-3) };
+    let mut prev = cur.clone();
+    prev.center += Vector3::new(-5e-3, 2e-3, 1e-3);
+    let mut start = sys.step_start();
+    sys.begin_step(&cur, &prev, &mut start);
+    assert!(start.contact.normal_force.iter().filter(|f| **f > 0.0).count() >= 3);
+    let mut pose = cur.clone();
+    pose.retract(&cur, &[4e-3, -1e-3, -1e-4, 0.02, -0.01, 0.03, 1e-3, 0.0, -1e-3, 2e-3, 0.0, 0.0, 1e-3, -2e-3, 1e-3], 1.0);
+    check_derivatives(&sys, &start, &pose, "turned block");
+}
+
+fn solver(b: &BodyBlock, tolerance: f64, max_iterations: usize) -> BodyFrameSolver {
+    let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+    BodyFrameSolver::new(sys, BodyFrameSettings { tolerance, max_iterations }).unwrap()
+}
+
+#[test]
+fn a_free_rigid_body_is_ballistic_and_spins_about_a_principal_axis() {
+    // A rigid box 10 x 10 x 10 cm (n = 0): every axis is principal; z is turned
+    // to a tilted axis so that the spin is not about a world axis.
+    let b = block(0, 0, 0, false);
+    assert_eq!(b.n, 0);
+    let mut s = solver(&b, 1e-12, 20);
+    let h = b.scene.dt;
+    let axis = Vector3::new(0.3, -0.5, 0.8).normalize();
+    let spin = 20.0;
+    let r0 = exp_map(&Vector3::new(0.2, 0.4, -0.1));
+    let (c0, v0) = (Vector3::new(0.1, -0.2, 1.0), Vector3::new(0.3, 0.0, 1.5));
+    s.set_state(&Pose { center: c0, rotation: r0, q: vec![] }, v0.as_slice(), (axis * spin).as_slice(), &[]).unwrap();
+    // Backward Euler on SO(3) about a principal axis: the turn per step follows
+    // d_{t+1} = atan2(sin d_t, 2 - cos d_t) (the polar factor of (2I - E^T) R J).
+    let (mut c, mut v) = (c0, v0);
+    let mut turn = spin * h;
+    let mut angle = 0.0;
+    for step in 0..50 {
+        s.step().unwrap();
+        v += s.system().gravity() * h;
+        c += v * h;
+        assert!((s.pose().center - c).norm() < 1e-12, "step {step}: centre off by {}", (s.pose().center - c).norm());
+        turn = turn.sin().atan2(2.0 - turn.cos());
+        angle += turn;
+        let expected = exp_map(&(axis * angle)) * r0;
+        assert!((s.pose().rotation - expected).amax() < 1e-10, "step {step}: rotation off by {}", (s.pose().rotation - expected).amax());
+        let w = s.angular_velocity();
+        assert!((w - axis * (turn / h)).norm() < 1e-8 * spin, "step {step}: angular velocity {w}");
+    }
+    // The spin is damped only at order (h w)^2 per step.
+    assert!((s.angular_velocity().norm() - spin).abs() < 50.0 * (spin * h).powi(2) * spin);
+}
+
+/// Runs the block resting on an incline of `incline` degrees with Coulomb
+/// coefficient `mu` for 0.6 s; returns the acceleration of its centre of mass
+/// along the slope and the mean speed along the slope of the centre of its
+/// bottom face (the slip: the block may rock on the penalty springs), both
+/// between 0.2 s and 0.6 s.
+fn incline_motion(incline: f64, mu: f64, affine: bool) -> (f64, f64) {
+    let scene = BlockScene { learned_modes: 0, cubature_points: 50, contact_points: 200, incline, friction: mu, normal_damping: 3e4, ..Default::default() };
+    let b = body_block(&scene, affine).unwrap();
+    let mut s = solver(&b, 1e-8, 50);
+    let (c, r) = b.resting_pose();
+    s.set_state(&Pose { center: c, rotation: r, q: vec![0.0; b.n] }, &[0.0; 3], &[0.0; 3], &vec![0.0; b.n]).unwrap();
+    let down = Vector3::new(incline.to_radians().cos(), 0.0, -incline.to_radians().sin());
+    let bottom = Vector3::new(0.0, 0.0, -scene.size / 2.0);
+    let mut samples = vec![];
+    for step in 1..=60 {
+        let report = s.step().unwrap();
+        assert!(report.iterations <= 20, "{report:?}");
+        if step == 20 || step == 60 {
+            let pose = s.pose();
+            samples.push((s.velocity().dot(&down), (pose.center + pose.rotation * bottom).dot(&down)));
+        }
+    }
+    let span = 40.0 * scene.dt;
+    ((samples[1].0 - samples[0].0) / span, (samples[1].1 - samples[0].1) / span)
+}
+
+#[test]
+fn a_block_on_an_incline_sticks_or_slides_with_coulomb_acceleration() {
+    let (incline, g) = (30.0_f64, 9.81);
+    let (sin, cos) = incline.to_radians().sin_cos();
+    for affine in [false, true] {
+        let mu = 0.3;
+        let (a, _) = incline_motion(incline, mu, affine);
+        let expected = g * (sin - mu * cos);
+        assert!((a - expected).abs() < 0.02 * expected, "affine {affine}: slides at {a} m/s^2, expected {expected}");
+        // tan 30 = 0.577 < 0.7: it sticks. The rigid block rocks on the penalty
+        // springs (period about 0.3 s), which moves its face centre by about a
+        // millimetre; sliding at mu = 0.3 it would move at 1 m/s by then.
+        let (_, slip) = incline_motion(incline, 0.7, affine);
+        assert!(slip.abs() < 2e-3, "affine {affine}: slips at {slip} m/s while it should stick");
+    }
+}
+
+#[test]
+fn failed_steps_leave_the_state_and_bad_inputs_are_rejected() {
+    let b = block(2, 10, 20, true);
+    let mut s = solver(&b, 1e-14, 1);
+    let (c, r) = b.resting_pose();
+    let pose = Pose { center: c, rotation: r, q: vec![1e-3; b.n] };
+    s.set_state(&pose, &[0.5, 0.0, 0.0], &[0.0, 1.0, 0.0], &vec![0.1; b.n]).unwrap();
+    let before = s.pose().clone();
+    assert!(matches!(s.step(), Err(LicromError::NotConverged { iterations: 1, .. })));
+    assert_eq!(s.pose(), &before);
+    // Not a rotation, wrong lengths, non-finite values.
+    let mut bad = pose.clone();
+    bad.rotation[(0, 0)] += 1e-6;
+    assert!(matches!(s.set_state(&bad, &[0.0; 3], &[0.0; 3], &vec![0.0; b.n]), Err(LicromError::InvalidParameter { .. })));
+    let mut mirrored = pose.clone();
+    mirrored.rotation = -Matrix3::<f64>::identity();
+    assert!(s.set_state(&mirrored, &[0.0; 3], &[0.0; 3], &vec![0.0; b.n]).is_err());
+    assert!(matches!(s.set_state(&pose, &[0.0; 2], &[0.0; 3], &vec![0.0; b.n]), Err(LicromError::ShapeMismatch { .. })));
+    assert!(matches!(s.set_state(&pose, &[f64::NAN, 0.0, 0.0], &[0.0; 3], &vec![0.0; b.n]), Err(LicromError::NonFinite { .. })));
+    let mut inp = b.inputs();
+    let short = &b.mode_products[1..];
+    inp.mode_products = short;
+    assert!(matches!(BodyFrameSystem::new(&inp), Err(LicromError::ShapeMismatch { .. })));
+    let mut inp = b.inputs();
+    let flat = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0];
+    inp.inertia_moments = &flat;
+    assert!(matches!(BodyFrameSystem::new(&inp), Err(LicromError::InvalidParameter { .. })));
+    let mut inp = b.inputs();
+    inp.dt = -1.0;
+    assert!(BodyFrameSystem::new(&inp).is_err());
+    // Velocities come back as given.
+    s.set_state(&pose, &[0.5, 0.0, -0.2], &[0.0, 1.0, 0.3], &vec![0.1; b.n]).unwrap();
+    assert!((s.velocity() - Vector3::new(0.5, 0.0, -0.2)).norm() < 1e-12);
+    assert!((s.angular_velocity() - Vector3::new(0.0, 1.0, 0.3)).norm() < 1e-10);
+    assert!((log_map(&s.pose().rotation) - log_map(&r)).norm() < 1e-12);
+}
