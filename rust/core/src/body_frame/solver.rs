@@ -81,6 +81,8 @@ pub struct BodyFrameSolver {
     /// Start of the last accepted step, for contact forces (valid if `has_last`).
     last: BodyStart,
     has_last: bool,
+    /// Whether `iterate` holds the last iterate of a step that just failed.
+    has_failed: bool,
     probe: BodyStart,
     ws: BodyWorkspace,
     iterate: Pose,
@@ -118,6 +120,7 @@ impl BodyFrameSolver {
             current: system.step_start(),
             last: system.step_start(),
             has_last: false,
+            has_failed: false,
             probe: system.step_start(),
             ws: system.workspace(),
             iterate: Pose::rest(n),
@@ -197,11 +200,15 @@ impl BodyFrameSolver {
             *p = q - h * v;
         }
         self.has_last = false;
+        self.has_failed = false;
         Ok(())
     }
 
-    /// Advances one time step. On error the state is left unchanged.
+    /// Advances one time step. On error the state is left unchanged; after
+    /// [`LicromError::NotConverged`] the last iterate can be taken with
+    /// [`Self::accept_last_iterate`].
     pub fn step(&mut self) -> Result<BodyStepReport> {
+        self.has_failed = false;
         let h = self.system.dt();
         self.system.begin_step(&self.pose, &self.prev, &mut self.current);
         self.iterate.center = 2.0 * self.pose.center - self.prev.center + self.system.gravity() * (h * h);
@@ -228,10 +235,26 @@ impl BodyFrameSolver {
             }
             match self.line_search(energy) {
                 Some(e) => energy = e,
-                None => return Err(LicromError::NotConverged { iterations: iteration, residual }),
+                None => return Err(self.fail(iteration, residual)),
             }
         }
-        Err(LicromError::NotConverged { iterations: self.settings.max_iterations, residual })
+        Err(self.fail(self.settings.max_iterations, residual))
+    }
+
+    fn fail(&mut self, iterations: usize, residual: f64) -> LicromError {
+        self.has_failed = true;
+        LicromError::NotConverged { iterations, residual }
+    }
+
+    /// Takes the last iterate of the step that just failed to converge as the
+    /// new pose, as if the step had converged.
+    pub fn accept_last_iterate(&mut self) -> Result<()> {
+        if !self.has_failed {
+            return Err(LicromError::invalid("accept_last_iterate", "needs a step that did not converge just before"));
+        }
+        self.finish_step();
+        self.has_failed = false;
+        Ok(())
     }
 
     /// Newton direction at the iterate into `dir`; returns its residual r.

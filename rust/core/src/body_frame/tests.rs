@@ -293,6 +293,9 @@ fn failed_steps_leave_the_state_and_bad_inputs_are_rejected() {
     let before = s.pose().clone();
     assert!(matches!(s.step(), Err(LicromError::NotConverged { iterations: 1, .. })));
     assert_eq!(s.pose(), &before);
+    s.accept_last_iterate().unwrap();
+    assert_ne!(s.pose(), &before);
+    assert!(s.accept_last_iterate().is_err());
     // Not a rotation, wrong lengths, non-finite values.
     let mut bad = pose.clone();
     bad.rotation[(0, 0)] += 1e-6;
