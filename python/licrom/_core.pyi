@@ -151,6 +151,118 @@ class ReducedCore:
         minus the gradient of the contact potentials at the current state relative
         to the start of the last step; zeros before any step."""
 
+class BodyFrameCore:
+    """Body-frame reduced model, pose history and time stepper of one simulation.
+
+    Positions ``x_v = c + R (Xbar_v + W_v q)``, every column of W mass-orthogonal to
+    the rigid modes. Each step minimises the backward-Euler energy over
+    ``(c, R, q)``: inertia exact from the mass moments, elastic energy
+    ``sum_k w_k Psi(I + G_k q)``, contact and friction at the contact points as in
+    :class:`ReducedCore`, with the lagged normal force and the slip measured from
+    the positions at the start of the step. Newton on ``(dc, omega, dq)`` with
+    ``R <- exp([omega]x) R``; convergence measure ``r`` (m/s) as in ReducedCore.
+
+    Args:
+        total_mass: M in kg, > 0.
+        inertia_moments: (3, 3) ``J = sum m Xbar Xbar^T`` in kg m^2, symmetric positive definite.
+        mode_moments: (n, 3, 3) ``P_k = sum m W^k Xbar^T``.
+        mode_products: (n, n, 3, 3) ``Q_kl = sum m W^k W^l^T`` (``Q_kl = Q_lk^T``).
+        gravity: (3,) gravity acceleration in m/s^2.
+        cubature_jacobians: (K, 9, n) ``G_k = d vec(F) / dq`` at the cubature points.
+        cubature_weights: (K,) weights w_k >= 0 in m^3.
+        mu: SNH shear parameter in Pa, > 0.
+        lam: SNH volume parameter in Pa, > 0.
+        contact_basis: (C, 3, n) basis rows W_j at the contact points.
+        contact_rest: (C, 3) ``Xbar_j`` of the contact points in m.
+        contact_areas: (C,) boundary area a_j >= 0 carried by each contact point in m^2.
+        planes: (P, 5) rows ``[nx, ny, nz, d, friction]``.
+        normal_stiffness: k_n in N/m^3, >= 0.
+        normal_damping: k_d in N s/m^3, >= 0.
+        friction_stiffness: k_f in N s/m^3, >= 0.
+        dt: time step h in s, > 0.
+        tolerance: convergence threshold on r in m/s, > 0.
+        max_iterations: Newton directions allowed per step, >= 1.
+
+    n, K, C and P may be zero (n = 0: a rigid body).
+    """
+
+    def __init__(
+        self,
+        total_mass: float,
+        inertia_moments: Float64Array,
+        mode_moments: Float64Array,
+        mode_products: Float64Array,
+        gravity: Float64Array,
+        cubature_jacobians: Float64Array,
+        cubature_weights: Float64Array,
+        mu: float,
+        lam: float,
+        contact_basis: Float64Array,
+        contact_rest: Float64Array,
+        contact_areas: Float64Array,
+        planes: Float64Array,
+        normal_stiffness: float,
+        normal_damping: float,
+        friction_stiffness: float,
+        dt: float,
+        tolerance: float,
+        max_iterations: int,
+    ) -> None: ...
+    @property
+    def n_dofs(self) -> int:
+        """Number of modes n."""
+    def set_state(
+        self,
+        center: Float64Array,
+        rotation: Float64Array,
+        q: Float64Array,
+        velocity: Float64Array,
+        angular_velocity: Float64Array,
+        qdot: Float64Array,
+    ) -> None:
+        """Replace the state; the previous pose becomes ``(c - h v, exp(-h [w]x) R, q - h qdot)``.
+
+        Raises:
+            ShapeError: wrong shapes, NaN/inf, or ``rotation`` not orthonormal with
+                determinant +1 (to 1e-8).
+        """
+    def step(self) -> tuple[int, float]:
+        """Advance one time step; return (iterations, residual in m/s).
+
+        Raises:
+            SolverError: no convergence within ``max_iterations`` (attributes
+                ``iterations`` and ``residual``) or non-finite values; the state is
+                left unchanged.
+        """
+    def accept_last_iterate(self) -> None:
+        """After a step that did not converge, take its last iterate as the new pose."""
+    @property
+    def center(self) -> Float64Array:
+        """(3,) centre of mass in m."""
+    @property
+    def rotation(self) -> Float64Array:
+        """(3, 3) rotation from the body frame to the world."""
+    @property
+    def q(self) -> Float64Array:
+        """(n,) modal coordinates."""
+    @property
+    def velocity(self) -> Float64Array:
+        """(3,) ``(c - c_prev) / h`` in m/s."""
+    @property
+    def angular_velocity(self) -> Float64Array:
+        """(3,) ``log(R R_prev^T) / h`` in rad/s (world frame)."""
+    @property
+    def qdot(self) -> Float64Array:
+        """(n,) ``(q - q_prev) / h`` per second."""
+    def contact_forces(self) -> Float64Array:
+        """(C, 3) contact + friction force on each contact point over the last step in N; zeros before any step."""
+    def energy(self, center: Float64Array, rotation: Float64Array, q: Float64Array) -> float:
+        """Energy in J at the pose of a step from the current state, up to a constant of the step."""
+    def gradient(self, center: Float64Array, rotation: Float64Array, q: Float64Array) -> Float64Array:
+        """(6 + n,) gradient in ``(c, omega, q)`` at the pose (omega: left rotation increment)."""
+    def hessian(self, center: Float64Array, rotation: Float64Array, q: Float64Array, exact: bool = True) -> Float64Array:
+        """(6 + n, 6 + n) Hessian at the pose: exact, or the solver's positive definite one."""
+
 class Reconstruction:
     """Positions ``x = X + W q`` of N points.
 

@@ -2,6 +2,7 @@
 //! conversions and GIL release; every numerical decision lives in the core.
 
 mod arrays;
+mod body_frame;
 mod errors;
 mod material;
 mod reconstruction;
@@ -15,6 +16,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(material::snh_pk1, m)?)?;
     m.add_function(wrap_pyfunction!(material::snh_hessian, m)?)?;
     m.add_class::<reduced::ReducedCore>()?;
+    m.add_class::<body_frame::BodyFrameCore>()?;
     m.add_class::<reconstruction::Reconstruction>()?;
     Ok(())
 }

@@ -1,0 +1,229 @@
+//! The body-frame simulation state and its solver.
+
+use licrom_core::body_frame::rotation::is_rotation;
+use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver, ROTATION_TOLERANCE};
+use licrom_core::body_frame::{BodyFrameInputs, BodyFrameSystem, Pose};
+use licrom_core::contact::Plane;
+use licrom_core::StableNeoHookean;
+use nalgebra::{Matrix3, Vector3};
+use numpy::PyArrayDyn;
+use pyo3::prelude::*;
+
+use crate::arrays::{read, write, Dim};
+use crate::errors::{error, IntoPy, Kind};
+
+/// Body-frame model, pose history and solver of one simulation.
+#[pyclass(module = "licrom._core")]
+pub struct BodyFrameCore {
+    inner: BodyFrameSolver,
+}
+
+/// Row-major values of a 3x3 matrix.
+fn row_major(m: &Matrix3<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
+}
+
+impl BodyFrameCore {
+    fn n(&self) -> usize {
+        self.inner.system().n_modes()
+    }
+
+    /// A validated pose from numpy arrays.
+    fn pose(&self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<Pose> {
+        let center = read(center, "center", &[Dim::Is(3)])?;
+        let rotation = read(rotation, "rotation", &[Dim::Is(3), Dim::Is(3)])?;
+        let q = read(q, "q", &[Dim::Is(self.n())])?;
+        if !is_rotation(&Matrix3::from_row_slice(&rotation.data), ROTATION_TOLERANCE) {
+            return Err(error(py, Kind::Shape, format!("rotation must be a rotation matrix (orthonormal, determinant +1, to {ROTATION_TOLERANCE})")));
+        }
+        self.inner.make_pose(&center.data, &rotation.data, &q.data).py_err(py)
+    }
+}
+
+#[pymethods]
+impl BodyFrameCore {
+    #[new]
+    #[pyo3(signature = (
+        total_mass, inertia_moments, mode_moments, mode_products, gravity, cubature_jacobians, cubature_weights,
+        mu, lam, contact_basis, contact_rest, contact_areas, planes, normal_stiffness, normal_damping,
+        friction_stiffness, dt, tolerance, max_iterations
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        total_mass: f64,
+        inertia_moments: &Bound<'_, PyAny>,
+        mode_moments: &Bound<'_, PyAny>,
+        mode_products: &Bound<'_, PyAny>,
+        gravity: &Bound<'_, PyAny>,
+        cubature_jacobians: &Bound<'_, PyAny>,
+        cubature_weights: &Bound<'_, PyAny>,
+        mu: f64,
+        lam: f64,
+        contact_basis: &Bound<'_, PyAny>,
+        contact_rest: &Bound<'_, PyAny>,
+        contact_areas: &Bound<'_, PyAny>,
+        planes: &Bound<'_, PyAny>,
+        normal_stiffness: f64,
+        normal_damping: f64,
+        friction_stiffness: f64,
+        dt: f64,
+        tolerance: f64,
+        max_iterations: i64,
+    ) -> PyResult<Self> {
+        if max_iterations < 1 {
+            return Err(error(py, Kind::Config, format!("max_iterations must be an integer >= 1, got {max_iterations}")));
+        }
+        let material = StableNeoHookean::new(mu, lam).py_err(py)?;
+        let j = read(inertia_moments, "inertia_moments", &[Dim::Is(3), Dim::Is(3)])?;
+        let p = read(mode_moments, "mode_moments", &[Dim::Any("n"), Dim::Is(3), Dim::Is(3)])?;
+        let n = p.shape[0];
+        let q = read(mode_products, "mode_products", &[Dim::Is(n), Dim::Is(n), Dim::Is(3), Dim::Is(3)])?;
+        let g = read(gravity, "gravity", &[Dim::Is(3)])?;
+        let weights = read(cubature_weights, "cubature_weights", &[Dim::Any("K")])?;
+        let k = weights.shape[0];
+        let jacobians = read(cubature_jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
+        let areas = read(contact_areas, "contact_areas", &[Dim::Any("C")])?;
+        let c = areas.shape[0];
+        let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
+        let rest = read(contact_rest, "contact_rest", &[Dim::Is(c), Dim::Is(3)])?;
+        let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(5)])?;
+        let planes = planes
+            .data
+            .chunks_exact(5)
+            .map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4]))
+            .collect::<Result<Vec<_>, _>>()
+            .py_err(py)?;
+        let inputs = BodyFrameInputs {
+            total_mass,
+            inertia_moments: &j.data,
+            mode_moments: &p.data,
+            mode_products: &q.data,
+            gravity: [g.data[0], g.data[1], g.data[2]],
+            cubature_jacobians: &jacobians.data,
+            cubature_weights: &weights.data,
+            material,
+            contact_basis: &basis.data,
+            contact_rest: &rest.data,
+            contact_areas: &areas.data,
+            planes: &planes,
+            normal_stiffness,
+            normal_damping,
+            friction_stiffness,
+            dt,
+        };
+        let settings = BodyFrameSettings { tolerance, max_iterations: max_iterations as usize };
+        let inner = py.detach(|| BodyFrameSystem::new(&inputs).and_then(|system| BodyFrameSolver::new(system, settings))).py_err(py)?;
+        Ok(Self { inner })
+    }
+
+    /// Number of modes n.
+    #[getter]
+    fn n_dofs(&self) -> usize {
+        self.n()
+    }
+
+    /// Replaces the state: pose, velocity of the centre of mass (m/s), angular
+    /// velocity in the world frame (rad/s) and modal velocities (per second).
+    #[allow(clippy::too_many_arguments)]
+    fn set_state(
+        &mut self,
+        py: Python<'_>,
+        center: &Bound<'_, PyAny>,
+        rotation: &Bound<'_, PyAny>,
+        q: &Bound<'_, PyAny>,
+        velocity: &Bound<'_, PyAny>,
+        angular_velocity: &Bound<'_, PyAny>,
+        qdot: &Bound<'_, PyAny>,
+    ) -> PyResult<()> {
+        let pose = self.pose(py, center, rotation, q)?;
+        let v = read(velocity, "velocity", &[Dim::Is(3)])?;
+        let w = read(angular_velocity, "angular_velocity", &[Dim::Is(3)])?;
+        let qdot = read(qdot, "qdot", &[Dim::Is(self.n())])?;
+        self.inner.set_state(&pose, &v.data, &w.data, &qdot.data).py_err(py)
+    }
+
+    /// Advances one step; returns (iterations, residual in m/s).
+    fn step(&mut self, py: Python<'_>) -> PyResult<(usize, f64)> {
+        let solver = &mut self.inner;
+        let report = py.detach(|| solver.step()).py_err(py)?;
+        Ok((report.iterations, report.residual))
+    }
+
+    /// Takes the last iterate of a step that just failed to converge as the state.
+    fn accept_last_iterate(&mut self, py: Python<'_>) -> PyResult<()> {
+        self.inner.accept_last_iterate().py_err(py)
+    }
+
+    /// Centre of mass (3,), m.
+    #[getter]
+    fn center<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        write(py, self.inner.pose().center.as_slice().to_vec(), &[3])
+    }
+
+    /// Rotation (3, 3) from the body frame to the world.
+    #[getter]
+    fn rotation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        write(py, row_major(&self.inner.pose().rotation), &[3, 3])
+    }
+
+    /// Modal coordinates (n,).
+    #[getter]
+    fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        write(py, self.inner.pose().q.clone(), &[self.n()])
+    }
+
+    /// Velocity of the centre of mass (3,), m/s.
+    #[getter]
+    fn velocity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        write(py, self.inner.velocity().as_slice().to_vec(), &[3])
+    }
+
+    /// Angular velocity in the world frame (3,), rad/s.
+    #[getter]
+    fn angular_velocity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        write(py, self.inner.angular_velocity().as_slice().to_vec(), &[3])
+    }
+
+    /// Modal velocities (n,), per second.
+    #[getter]
+    fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let mut out = vec![0.0; self.n()];
+        self.inner.qdot(&mut out);
+        write(py, out, &[self.n()])
+    }
+
+    /// Contact forces (C, 3) in N at the current state over the last step.
+    fn contact_forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let c = self.inner.system().n_contacts();
+        let mut out = vec![0.0; 3 * c];
+        self.inner.contact_forces(&mut out).py_err(py)?;
+        write(py, out, &[c, 3])
+    }
+
+    /// Energy (J) at the pose of a step from the current state, up to the
+    /// step's constant.
+    fn energy(&mut self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
+        let pose = self.pose(py, center, rotation, q)?;
+        let solver = &mut self.inner;
+        Ok(py.detach(|| solver.energy(&pose)))
+    }
+
+    /// Gradient (6 + n,) in (c, omega, q) at the pose, omega the left rotation increment.
+    fn gradient<'py>(&mut self, py: Python<'py>, center: &Bound<'py, PyAny>, rotation: &Bound<'py, PyAny>, q: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let pose = self.pose(py, center, rotation, q)?;
+        let solver = &mut self.inner;
+        let grad = py.detach(|| solver.gradient(&pose).to_vec());
+        write(py, grad, &[6 + self.n()])
+    }
+
+    /// Hessian (6 + n, 6 + n) at the pose: exact, or the solver's positive definite one.
+    #[pyo3(signature = (center, rotation, q, exact = true))]
+    fn hessian<'py>(&mut self, py: Python<'py>, center: &Bound<'py, PyAny>, rotation: &Bound<'py, PyAny>, q: &Bound<'py, PyAny>, exact: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let pose = self.pose(py, center, rotation, q)?;
+        let big = 6 + self.n();
+        let solver = &mut self.inner;
+        let hess = py.detach(|| solver.hessian(&pose, exact).to_vec());
+        write(py, hess, &[big, big])
+    }
+}
