@@ -1,0 +1,423 @@
+"""Reduced simulation in the body frame: rigid motion exact, learned modes in the body.
+
+Positions are ``x_v = c + R (Xbar_v + W_v q)`` with ``Xbar = X - X_com``, ``c`` the
+centre of mass, ``R`` a rotation and ``W`` body-frame modes that carry no linear
+or angular momentum (every column mass-orthogonal to the six rigid modes). The
+rigid motion is then exact and nonlinear, so one set of modes serves every
+orientation of the body (see DESIGN.md, "Reduced model in the body frame").
+
+:class:`BodyFrameBasis` builds such modes on a mesh: the 6 symmetric affine modes
+``S Xbar`` plus learned modes, orthogonalised against the rigid modes.
+:class:`BodyFrameSim` prepares the mass moments, cubature Jacobians and contact
+rows once and steps ``licrom._core.BodyFrameCore``, with the user API of
+:class:`licrom.reduced_sim.ReducedSim`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .basis import SubspaceProjector, check_basis_output
+from .cubature import ContactPoints, Cubature
+from .errors import ConfigError, ShapeError
+from .mesh import Mesh
+from .reduced_sim import _DEFAULT_CUBATURE_POINTS
+from .rigid import center_of_mass, rigid_fit
+from .scene import Scene
+from .trajectory import Trajectory
+
+__all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
+
+N_SYMMETRIC = 6
+"""Number of symmetric affine modes ``S Xbar`` (stretches and shears)."""
+
+# Relative size of the linear and angular momentum a mode may carry on the mesh
+# (round-off of the orthogonalisation on large meshes stays far below).
+_ORTHOGONALITY = 1e-8
+
+
+def _symmetric_matrices() -> np.ndarray:
+    """(6, 3, 3) basis of symmetric matrices: three stretches, three shears."""
+    out = np.zeros((N_SYMMETRIC, 3, 3))
+    for k, (a, b) in enumerate([(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]):
+        out[k, a, b] = out[k, b, a] = 1.0 if a == b else 0.5
+    return out
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices ``[w]x``."""
+    w = np.asarray(w)
+    out = np.zeros(w.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
+    return out
+
+
+def _inertia_tensor(arms: np.ndarray, masses: np.ndarray) -> np.ndarray:
+    """``sum m (|r|^2 I - r r^T)`` of (n, 3) arms about the centre of mass."""
+    second = np.einsum("v,vi,vj->ij", masses, arms, arms)
+    return np.trace(second) * np.eye(3) - second
+
+
+def _rigid_momenta(values: np.ndarray, xbar: np.ndarray, masses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column k of (n, 3, k) values: the mean ``t_k`` and the infinitesimal rotation
+    ``w_k`` of the mass-weighted least-squares fit ``W^k ~ t_k + w_k x Xbar``."""
+    total = masses.sum()
+    t = np.einsum("v,vik->ki", masses, values) / total
+    moment = np.einsum("v,vik->ki", masses, np.cross(xbar[:, :, None], values, axis=1))
+    return t, np.linalg.solve(_inertia_tensor(xbar, masses), moment.T).T
+
+
+class BodyFrameBasis:
+    """Body-frame modes on a mesh: 6 symmetric affine modes plus learned ones.
+
+    Every column ``W^k`` is made mass-orthogonal to the rigid modes on this mesh by
+    subtracting its least-squares translation ``t_k`` and infinitesimal rotation
+    ``w_k x Xbar`` (the Jacobians change by ``-[w_k]x``). The symmetric affine modes
+    need it too: on an anisotropic body a shear carries angular momentum.
+
+    Args:
+        mesh: the mesh that defines the masses (and ``X_com``).
+        learned: a basis whose values are body-frame displacements at rest points
+            (a body-frame :class:`licrom.Model`, a :class:`licrom.MeshBasis`, ...),
+            or None for the affine modes alone. It must not contain affine modes.
+        density: kg/m^3; only weights the masses (uniform density: no effect on W).
+
+    Raises:
+        ShapeError: the learned basis returns arrays of the wrong shape or NaN/inf.
+        ConfigError: the learned basis is not a basis.
+    """
+
+    def __init__(self, mesh: Mesh, learned: Any = None, density: float = 1000.0) -> None:
+        if learned is not None:
+            for name in ("n_modes", "values", "jacobians"):
+                if not hasattr(learned, name):
+                    raise ConfigError(f"{type(learned).__name__} is not a basis: it lacks '{name}' (see licrom.basis)")
+        if not (np.isfinite(density) and density > 0):
+            raise ConfigError(f"density must be a finite number > 0, got {density}")
+        self.mesh = mesh
+        self.learned = learned
+        self.density = float(density)
+        self.n_modes = N_SYMMETRIC + (int(learned.n_modes) if learned is not None else 0)
+        masses = mesh.vertex_masses(self.density)
+        self.center = center_of_mass(mesh.vertices, masses)
+        self._t, self._w = _rigid_momenta(self._raw_values(mesh.vertices), mesh.vertices - self.center, masses)
+
+    def _raw_values(self, points: np.ndarray) -> np.ndarray:
+        xbar = points - self.center
+        sym = np.einsum("kij,pj->pik", _symmetric_matrices(), xbar)
+        if self.learned is None:
+            return sym
+        learned = check_basis_output("values", self.learned.values(points), (len(points), 3, self.learned.n_modes))
+        return np.concatenate([sym, learned], axis=2)
+
+    def values(self, points: np.ndarray) -> np.ndarray:
+        """(p, 3) rest points -> (p, 3, n) orthogonalised mode values."""
+        p = self._points(points)
+        xbar = p - self.center
+        rigid = self._t.T[None] + np.cross(self._w[None], xbar[:, None], axis=2).transpose(0, 2, 1)
+        return self._raw_values(p) - rigid
+
+    def jacobians(self, points: np.ndarray) -> np.ndarray:
+        """(p, 3) rest points -> (p, 3, 3, n) ``dW_ic/dX_j`` of the orthogonalised modes."""
+        p = self._points(points)
+        sym = np.broadcast_to(_symmetric_matrices().transpose(1, 2, 0), (len(p), 3, 3, N_SYMMETRIC))
+        jac = sym
+        if self.learned is not None:
+            shape = (len(p), 3, 3, self.learned.n_modes)
+            jac = np.concatenate([sym, check_basis_output("jacobians", self.learned.jacobians(p), shape)], axis=3)
+        return jac - _skew(self._w).transpose(1, 2, 0)[None]
+
+    @staticmethod
+    def _points(points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
+        return p
+
+    def on(self, mesh: Mesh) -> BodyFrameBasis:
+        """The same modes orthogonalised on another mesh of the object."""
+        return BodyFrameBasis(mesh, self.learned, self.density)
+
+    def __repr__(self) -> str:
+        return f"BodyFrameBasis(n_modes={self.n_modes}, learned={self.learned!r})"
+
+
+def _sampling(mesh: Mesh, cubature: Cubature | None, contact_points: ContactPoints | None) -> tuple[Cubature, ContactPoints]:
+    """ReducedSim's defaults (naive cubature, every boundary vertex), checked against the mesh."""
+    cubature = cubature if cubature is not None else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
+    contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
+    if cubature.count and int(cubature.tets.max()) >= mesh.n_tets:
+        raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
+    if contact_points.count and int(contact_points.indices.max()) >= mesh.n_vertices:
+        raise ConfigError("contact points do not belong to this mesh (index out of range)")
+    return cubature, contact_points
+
+
+class BodyFrameSim:
+    """Simulate a solid as a rigid frame plus body-frame modes.
+
+    The user API is that of :class:`licrom.reduced_sim.ReducedSim`: ``step``, ``run``,
+    ``positions``, ``velocities``, ``set_state``, ``contact_forces``, ``transfer``,
+    plus the pose ``center``, ``rotation`` and ``q``.
+
+    Args:
+        basis: body-frame modes (a :class:`BodyFrameBasis`, or any basis whose
+            columns carry no linear or angular momentum on ``mesh``).
+        mesh: the mesh to simulate (default: the basis' mesh).
+        scene: the scene (default: the learned model's default scene).
+        cubature: cubature tets and weights (default: as ReducedSim).
+        contact_points: where contact acts (default: every boundary vertex).
+
+    Raises:
+        ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass.
+        ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
+    """
+
+    def __init__(
+        self,
+        basis: Any,
+        mesh: Mesh | None = None,
+        scene: Scene | None = None,
+        cubature: Cubature | None = None,
+        contact_points: ContactPoints | None = None,
+    ) -> None:
+        for name in ("n_modes", "values", "jacobians"):
+            if not hasattr(basis, name):
+                raise ConfigError(f"{type(basis).__name__} is not a basis: it lacks '{name}' (see licrom.basis)")
+        mesh = mesh if mesh is not None else getattr(basis, "mesh", None)
+        if mesh is None:
+            raise ConfigError("BodyFrameSim needs a mesh: pass mesh=... or a basis that stores one")
+        if scene is None:
+            scene = getattr(basis, "default_scene", None) or getattr(getattr(basis, "learned", None), "default_scene", None)
+            if scene is None:
+                raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
+        self.basis, self.mesh, self.scene = basis, mesh, scene
+        self.cubature, self.contact_points = _sampling(mesh, cubature, contact_points)
+        k = int(basis.n_modes)
+        n = mesh.n_vertices
+        self._masses = mesh.vertex_masses(scene.material.density)
+        total = float(self._masses.sum())
+        self._xbar = mesh.vertices - center_of_mass(mesh.vertices, self._masses)
+        self._values = check_basis_output("values", basis.values(mesh.vertices), (n, 3, k))
+        t, w = _rigid_momenta(self._values, self._xbar, self._masses)
+        size = np.sqrt(np.einsum("v,vik,vik->", self._masses, self._values, self._values) / (total * max(k, 1)))
+        if k and max(np.abs(t).max(), np.abs(w).max() * mesh.size) > _ORTHOGONALITY * max(size, 1e-300):
+            raise ConfigError(
+                "the modes carry linear or angular momentum on this mesh: wrap the basis in "
+                "BodyFrameBasis(mesh, learned=basis) to orthogonalise it against the rigid modes"
+            )
+        self._projector = SubspaceProjector(self._values, self._masses) if k else None
+        jac = check_basis_output("jacobians", basis.jacobians(self.cubature.points), (self.cubature.count, 3, 3, k))
+        a = self._values.reshape(n, 3 * k)
+        products = (a.T @ (self._masses[:, None] * a)).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
+        mu, lam = scene.material.snh_parameters
+        idx = self.contact_points.indices
+        self._core = _core.BodyFrameCore(
+            total_mass=total,
+            inertia_moments=np.einsum("v,vi,vj->ij", self._masses, self._xbar, self._xbar),
+            mode_moments=np.ascontiguousarray(np.einsum("v,vik,vj->kij", self._masses, self._values, self._xbar)),
+            mode_products=np.ascontiguousarray(products),
+            gravity=np.asarray(scene.gravity, dtype=np.float64),
+            cubature_jacobians=np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k)),
+            cubature_weights=np.ascontiguousarray(self.cubature.weights, dtype=np.float64),
+            mu=mu,
+            lam=lam,
+            contact_basis=np.ascontiguousarray(self._values[idx]),
+            contact_rest=np.ascontiguousarray(self._xbar[idx]),
+            contact_areas=np.ascontiguousarray(self.contact_points.areas, dtype=np.float64),
+            planes=scene.plane_array(),
+            normal_stiffness=scene.contact.normal_stiffness,
+            normal_damping=scene.contact.normal_damping,
+            friction_stiffness=scene.contact.friction_stiffness,
+            dt=scene.dt,
+            tolerance=scene.solver.tolerance,
+            max_iterations=scene.solver.max_iterations,
+        )
+        self._body = _core.Reconstruction(self._values, self._xbar) if k else None
+        self.time = 0.0
+        self.set_state(*scene.initial.apply(mesh.vertices, self._masses))
+
+    # --- state -------------------------------------------------------------------------
+    @property
+    def n_modes(self) -> int:
+        return self._core.n_dofs
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) centre of mass, m."""
+        return self._core.center
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) rotation from the body frame to the world."""
+        return self._core.rotation
+
+    @property
+    def q(self) -> np.ndarray:
+        """(k,) modal coordinates."""
+        return self._core.q
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """(k,) modal velocities, per second."""
+        return self._core.qdot
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """(3,) velocity of the centre of mass, m/s."""
+        return self._core.velocity
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) angular velocity in the world frame, rad/s."""
+        return self._core.angular_velocity
+
+    def _body_points(self, q: np.ndarray) -> np.ndarray:
+        """(n, 3) body-frame shape ``Xbar + W q``."""
+        return self._xbar if self._body is None else self._body.positions(q)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(n, 3) vertex positions ``c + R (Xbar + W q)`` in m."""
+        return self.center + self._body_points(self.q) @ self.rotation.T
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(n, 3) vertex velocities ``v + w x R y + R W q_dot`` in m/s."""
+        r = self.rotation
+        arms = self._body_points(self.q) @ r.T
+        deformation = (self._body_points(self.qdot) - self._xbar) @ r.T
+        return self.velocity + np.cross(self.angular_velocity, arms) + deformation
+
+    def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
+        arr = np.asarray(a, dtype=np.float64)
+        if arr.shape != (self.mesh.n_vertices, 3):
+            raise ShapeError(f"{name} must have shape ({self.mesh.n_vertices}, 3), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ShapeError(f"{name} hold NaN or inf")
+        return arr
+
+    def _project(self, field: np.ndarray) -> np.ndarray:
+        return np.zeros(0) if self._projector is None else self._projector.project(field)
+
+    def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
+        """Set the state from full-space positions/velocities (either may be omitted).
+
+        ``c`` is the centre of mass, ``R`` the rotation of the best rigid fit, ``q`` the
+        mass-weighted least squares of the body-frame displacement; ``v`` the mean
+        velocity, ``w`` from the angular momentum and the inertia tensor, ``q_dot`` the
+        least squares of the body-frame deformation velocity.
+        """
+        x = self.positions if positions is None else self._check_field("positions", positions)
+        vel = self.velocities if velocities is None else self._check_field("velocities", velocities)
+        m = self._masses
+        c, r = rigid_fit(x, self.mesh.vertices, m)
+        q = self._project((x - c) @ r - self._xbar)
+        arms = x - c
+        v = center_of_mass(vel, m)
+        w = np.linalg.solve(_inertia_tensor(arms, m), np.einsum("v,vi->i", m, np.cross(arms, vel - v)))
+        qdot = self._project((vel - v - np.cross(w, arms)) @ r)
+        self._core.set_state(c, r, q, v, w, qdot)
+
+    # --- stepping ----------------------------------------------------------------------
+    def step(self) -> tuple[int, float]:
+        """Advance one time step; return (Newton iterations, final residual in m/s).
+
+        Raises:
+            SolverError: no convergence within ``scene.solver.max_iterations`` (the state
+                is left at the start of the step).
+        """
+        result = self._core.step()
+        self.time += self.scene.dt
+        return result
+
+    def contact_forces(self) -> np.ndarray:
+        """(C, 3) contact + friction force at each contact point over the last step, N."""
+        return self._core.contact_forces()
+
+    def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
+        """Step ``steps`` times and record every ``record_every``-th state (frame 0 is now).
+
+        With ``scene.solver.on_failure == "record"``, a step that does not converge is
+        recorded as unconverged and the run continues from the last iterate.
+        """
+        from .errors import SolverError
+
+        if not isinstance(steps, (int, np.integer)) or steps < 0:
+            raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
+        if not isinstance(record_every, (int, np.integer)) or record_every < 1:
+            raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
+        xs, vs, times = [self.positions], [self.velocities], [self.time]
+        iterations, residuals, converged, seconds = [], [], [], []
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=steps, desc="body frame", unit="step")
+        for s in range(1, steps + 1):
+            start = time.perf_counter()
+            try:
+                its, res = self.step()
+                ok = True
+            except SolverError as exc:
+                if self.scene.solver.on_failure == "raise":
+                    raise
+                its, res, ok = self.scene.solver.max_iterations, float(getattr(exc, "residual", np.nan)), False
+                self._core.accept_last_iterate()
+                self.time += self.scene.dt
+            seconds.append(time.perf_counter() - start)
+            iterations.append(its)
+            residuals.append(res)
+            converged.append(ok)
+            if s % record_every == 0:
+                xs.append(self.positions)
+                vs.append(self.velocities)
+                times.append(self.time)
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+        return Trajectory(
+            rest_positions=self.mesh.vertices,
+            tets=self.mesh.tets,
+            displacements=np.array(xs) - self.mesh.vertices,
+            velocities=np.array(vs),
+            times=np.array(times),
+            scene=self.scene,
+            iterations=np.array(iterations),
+            residuals=np.array(residuals),
+            converged=np.array(converged),
+            step_seconds=np.array(seconds),
+            info={
+                "source": "reduced",
+                "frame": "body",
+                "solver": "newton",
+                "n_modes": int(self.n_modes),
+                "cubature": self.cubature.scheme,
+                "cubature_points": int(self.cubature.count),
+                "contact_points": int(self.contact_points.count),
+            },
+        )
+
+    # --- other meshes ------------------------------------------------------------------
+    def transfer(self, mesh: Mesh, cubature: Cubature | None = None, contact_points: ContactPoints | None = None) -> BodyFrameSim:
+        """The same state on another mesh of the same object.
+
+        The new simulation has the new mesh's own ``Xbar`` and ``W`` (a
+        :class:`BodyFrameBasis` is orthogonalised again on it); ``c``, ``R``, ``q``,
+        ``v``, ``w`` and ``q_dot`` carry over (cubature: the naive scheme with as many
+        points as this one, unless given).
+        """
+        if cubature is None:
+            cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
+        basis = self.basis.on(mesh) if isinstance(self.basis, BodyFrameBasis) else self.basis
+        other = BodyFrameSim(basis, mesh, self.scene, cubature=cubature, contact_points=contact_points)
+        other._core.set_state(self.center, self.rotation, self.q, self.velocity, self.angular_velocity, self.qdot)
+        other.time = self.time
+        return other

@@ -1,0 +1,207 @@
+"""The body-frame reduced model tied to the full simulation."""
+
+import numpy as np
+import pytest
+from licrom import (
+    ConfigError,
+    ContactParams,
+    FullSim,
+    InitialState,
+    Material,
+    MeshBasis,
+    Plane,
+    Scene,
+    ShapeError,
+    SolverParams,
+    _core,
+    meshes,
+)
+from licrom.basis import AffineBasis
+from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+from licrom.cubature import Cubature
+from licrom.rigid import center_of_mass, rigid_fit
+from scipy.spatial.transform import Rotation
+
+TIGHT = SolverParams(tolerance=1e-11, max_iterations=100)
+
+
+def _complement_of_affine(mesh, density):
+    """Every vertex displacement mass-orthogonal to the 12 affine modes (3n - 12 modes):
+    with the 6 symmetric affine modes of BodyFrameBasis it spans everything but the
+    rigid modes, so the body-frame model is the full space."""
+    m3 = np.repeat(mesh.vertex_masses(density), 3)
+    affine = AffineBasis().values(mesh.vertices).reshape(-1, 12)
+    identity = MeshBasis.identity(mesh).modes.reshape(-1, 3 * mesh.n_vertices)
+    coefficients = np.linalg.solve(affine.T @ (m3[:, None] * affine), affine.T @ (m3[:, None] * identity))
+    rest = identity - affine @ coefficients
+    # Mass-orthonormal columns spanning what is left.
+    left, sigma, _ = np.linalg.svd(np.sqrt(m3)[:, None] * rest, full_matrices=False)
+    keep = left[:, : 3 * mesh.n_vertices - 12] / np.sqrt(m3)[:, None]
+    assert sigma[3 * mesh.n_vertices - 13] > 1e-8 * sigma[0] and sigma[3 * mesh.n_vertices - 12] < 1e-10 * sigma[0]
+    return MeshBasis(mesh, keep.reshape(mesh.n_vertices, 3, -1))
+
+
+def _full_space_pair(scene, steps, same_start=False):
+    """FullSim and the body-frame model with a full-space basis on the 43-vertex cheese.
+
+    With ``same_start`` the body-frame state is set from the full solver's own
+    previous positions ``x - h v`` (its velocities are differences of poses, while
+    ``set_state`` reads the continuous rigid + deformation velocities, which differ
+    at order h |w|^2 for a spinning body).
+    """
+    mesh = meshes.cheese(resolution=4)
+    assert mesh.n_vertices == 43
+    basis = BodyFrameBasis(mesh, _complement_of_affine(mesh, scene.material.density), density=scene.material.density)
+    assert basis.n_modes == 3 * mesh.n_vertices - 6
+    full = FullSim(mesh, scene).run(steps)
+    sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+    if same_start:
+        h, masses = scene.dt, mesh.vertex_masses(scene.material.density)
+        x, v = scene.initial.apply(mesh.vertices, masses)
+        c0, r0 = rigid_fit(x - h * v, mesh.vertices, masses)
+        q0 = sim._projector.project((x - h * v - c0) @ r0 - (mesh.vertices - center_of_mass(mesh.vertices, masses)))
+        w = Rotation.from_matrix(sim.rotation @ r0.T).as_rotvec() / h
+        sim._core.set_state(sim.center, sim.rotation, sim.q, (sim.center - c0) / h, w, (sim.q - q0) / h)
+    reduced = sim.run(steps)
+    assert full.converged.all() and reduced.converged.all()
+    return full, reduced
+
+
+def test_full_space_body_frame_basis_reproduces_full_simulation_on_an_incline():
+    # Both solvers stop at 1e-11 m/s: per step their positions differ by about
+    # h * 1e-11 m, far below the 1e-8 relative tolerance (as in the world-frame test).
+    scene = Scene(
+        material=Material(youngs_modulus=2e4, poisson_ratio=0.35),
+        planes=(Plane.incline(25.0, 0.3, offset=0.06),),
+        contact=ContactParams(normal_stiffness=1e6, normal_damping=50.0, friction_stiffness=1e6),
+        solver=TIGHT,
+        initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.2)),
+    )
+    full, reduced = _full_space_pair(scene, 40)
+    scale = np.abs(full.displacements).max()
+    assert scale > 0.01  # it moved and touched (contact + friction active)
+    err = np.abs(reduced.displacements - full.displacements).max() / scale
+    print(f"body-frame full-space basis vs full: max relative position difference {err:.2e}")
+    assert err < 1e-8
+
+
+def test_tumbling_free_flight_matches_full_simulation():
+    w = np.array([3.0, -5.0, 8.0])
+    scene = Scene(
+        material=Material(youngs_modulus=5e4, poisson_ratio=0.3),
+        planes=(),
+        solver=TIGHT,
+        initial=InitialState(rotation=(0.4, -0.3, 0.2), velocity=(0.5, 0.0, 1.0), angular_velocity=tuple(w)),
+    )
+    full, reduced = _full_space_pair(scene, 30, same_start=True)
+    # It tumbled (the orientation turned by almost 3 rad) and spun itself out of shape.
+    assert np.linalg.norm(w) * scene.dt * 30 > 2.5
+    scale = np.abs(full.displacements).max()
+    err = np.abs(reduced.displacements - full.displacements).max() / scale
+    print(f"tumbling: max relative position difference {err:.2e}")
+    assert err < 1e-8
+
+
+def test_basis_carries_no_momentum_on_an_anisotropic_body():
+    mesh = meshes.box((0.2, 0.06, 0.03), resolution=3)
+    learned = MeshBasis(mesh, np.random.default_rng(0).normal(size=(mesh.n_vertices, 3, 4)))
+    basis = BodyFrameBasis(mesh, learned, density=800.0)
+    m = mesh.vertex_masses(800.0)
+    w = basis.values(mesh.vertices)
+    xbar = mesh.vertices - center_of_mass(mesh.vertices, m)
+    scale = np.abs(w).max() * m.sum()
+    assert np.abs(np.einsum("v,vik->ik", m, w)).max() < 1e-12 * scale
+    assert np.abs(np.einsum("v,vik->ik", m, np.cross(xbar[:, :, None], w, axis=1))).max() < 1e-12 * scale * 0.2
+    # The Jacobians are the derivatives of the values (finite differences inside a tet).
+    p = mesh.centroids[:5]
+    d = 1e-6
+    fd = np.stack([(basis.values(p + d * e) - basis.values(p - d * e)) / (2 * d) for e in np.eye(3)], axis=2)
+    np.testing.assert_allclose(basis.jacobians(p), fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_transfer_to_a_finer_mesh_keeps_the_pose():
+    coarse, fine = meshes.cheese(resolution=4), meshes.cheese(resolution=6)
+    scene = Scene(planes=(Plane((0, 0, 1), 0.06, 0.5),), initial=InitialState(velocity=(0.2, 0, 0), angular_velocity=(0, 0, 2.0)))
+    sim = BodyFrameSim(BodyFrameBasis(coarse), coarse, scene)
+    for _ in range(5):
+        sim.step()
+    other = sim.transfer(fine)
+    np.testing.assert_allclose(other.center, sim.center, atol=1e-15)
+    np.testing.assert_allclose(other.rotation, sim.rotation, atol=1e-15)
+    np.testing.assert_allclose(other.q, sim.q, atol=1e-15)
+    # The new mesh's modes carry no momentum there, so c is its centre of mass.
+    m_fine = fine.vertex_masses(scene.material.density)
+    np.testing.assert_allclose(center_of_mass(other.positions, m_fine), sim.center, atol=1e-12)
+    other.step()
+
+
+def test_state_round_trip_and_bad_inputs():
+    mesh = meshes.cheese(resolution=4)
+    scene = Scene(planes=(), gravity=(0, 0, 0), solver=TIGHT)
+    sim = BodyFrameSim(BodyFrameBasis(mesh), mesh, scene)
+    m = mesh.vertex_masses(scene.material.density)
+    # A rigid motion plus an affine stretch is represented exactly.
+    r = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    r *= np.sign(np.linalg.det(r))
+    xbar = mesh.vertices - center_of_mass(mesh.vertices, m)
+    stretch = np.diag([1.01, 0.99, 1.02])
+    positions = np.array([0.1, 0.2, 0.3]) + xbar @ (r @ stretch).T
+    w = np.array([0.5, -1.0, 2.0])
+    velocities = np.array([1.0, 0.0, -1.0]) + np.cross(w, positions - center_of_mass(positions, m))
+    sim.set_state(positions, velocities)
+    np.testing.assert_allclose(sim.positions, positions, atol=1e-12)
+    np.testing.assert_allclose(sim.velocities, velocities, atol=1e-12)
+    np.testing.assert_allclose(sim.rotation @ sim.rotation.T, np.eye(3), atol=1e-12)
+    with pytest.raises(ShapeError, match="positions must have shape"):
+        sim.set_state(positions=np.zeros((3, 3)))
+    with pytest.raises(ShapeError, match="NaN"):
+        sim.set_state(velocities=np.full((mesh.n_vertices, 3), np.nan))
+    with pytest.raises(ShapeError, match="rotation"):
+        sim._core.set_state(sim.center, 1.001 * np.eye(3), sim.q, np.zeros(3), np.zeros(3), sim.q)
+    with pytest.raises(ShapeError, match="rotation"):
+        sim._core.set_state(sim.center, np.diag([1.0, 1.0, -1.0]), sim.q, np.zeros(3), np.zeros(3), sim.q)
+    with pytest.raises(ShapeError, match="q must have shape"):
+        sim._core.set_state(sim.center, np.eye(3), np.zeros(2), np.zeros(3), np.zeros(3), sim.q)
+    with pytest.raises(ConfigError, match="momentum"):
+        BodyFrameSim(MeshBasis.identity(mesh), mesh, scene)
+    with pytest.raises(ConfigError, match="not a basis"):
+        BodyFrameBasis(mesh, learned=object())
+    with pytest.raises(ConfigError, match="needs a scene"):
+        BodyFrameSim(BodyFrameBasis(mesh))
+    n = sim.n_modes
+    core_args = {
+        "total_mass": 1.0, "inertia_moments": np.eye(3), "mode_moments": np.zeros((n, 3, 3)), "mode_products": np.zeros((n, n, 3, 3)),
+        "gravity": np.zeros(3), "cubature_jacobians": np.zeros((0, 9, n)), "cubature_weights": np.zeros(0), "mu": 1e4, "lam": 1e4,
+        "contact_basis": np.zeros((0, 3, n)), "contact_rest": np.zeros((0, 3)), "contact_areas": np.zeros(0), "planes": np.zeros((0, 5)),
+        "normal_stiffness": 1e6, "normal_damping": 0.0, "friction_stiffness": 1e6, "dt": 0.01, "tolerance": 1e-6, "max_iterations": 10,
+    }
+    with pytest.raises(ConfigError, match="max_iterations"):
+        _core.BodyFrameCore(**{**core_args, "max_iterations": 0})
+    with pytest.raises(ShapeError, match="mode_products"):
+        _core.BodyFrameCore(**{**core_args, "mode_products": np.zeros((n, n, 3))})
+    with pytest.raises(ConfigError, match="inertia_moments"):
+        _core.BodyFrameCore(**{**core_args, "inertia_moments": np.diag([1.0, 1.0, 0.0])})
+
+
+def test_binding_gradient_and_hessian_match_finite_differences():
+    mesh = meshes.cheese(resolution=4)
+    scene = Scene(planes=(Plane((0, 0, 1), 0.05, 0.5),), initial=InitialState(velocity=(0.3, 0, -0.5), angular_velocity=(1, 2, 0)))
+    sim = BodyFrameSim(BodyFrameBasis(mesh), mesh, scene)
+    for _ in range(3):
+        sim.step()
+    core = sim._core
+    c, r, q = sim.center + 1e-4, Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix() @ sim.rotation, sim.q + 1e-3
+
+    def moved(x):
+        return c + x[:3], Rotation.from_rotvec(x[3:6]).as_matrix() @ r, q + x[6:]
+
+    n = 6 + sim.n_modes
+    eps = 1e-7
+    fd = np.array([(core.energy(*moved(eps * e)) - core.energy(*moved(-eps * e))) / (2 * eps) for e in np.eye(n)])
+    grad = core.gradient(c, r, q)
+    np.testing.assert_allclose(grad, fd, atol=1e-6 * np.abs(fd).max())
+    # Jacobian of the (left-trivialised) gradient, symmetrised: the Hessian of the pulled-back energy.
+    jac = np.array([(core.gradient(*moved(eps * e)) - core.gradient(*moved(-eps * e))) / (2 * eps) for e in np.eye(n)])
+    hess = core.hessian(c, r, q, exact=True)
+    np.testing.assert_allclose(hess, 0.5 * (jac + jac.T), atol=1e-5 * np.abs(hess).max())
+    assert np.linalg.eigvalsh(core.hessian(c, r, q, exact=False)).min() > 0
