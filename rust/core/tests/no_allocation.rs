@@ -1,9 +1,14 @@
-//! `ReducedSolver::step` must not allocate once warm: this test binary counts
-//! heap allocations with a wrapping global allocator.
+//! `ReducedSolver::step` and `BodyFrameSolver::step` must not allocate once
+//! warm: this test binary counts heap allocations with a wrapping global
+//! allocator, and its tests take turns so that one does not count the other's.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 
+use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver};
+use licrom_core::body_frame::synthetic::body_block;
+use licrom_core::body_frame::{BodyFrameSystem, Pose};
 use licrom_core::reduced::ReducedSystem;
 use licrom_core::solver::{ReducedSolver, SolverKind, SolverSettings};
 use licrom_core::synthetic::BlockScene;
@@ -25,8 +30,11 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+static SERIAL: Mutex<()> = Mutex::new(());
+
 #[test]
 fn steps_do_not_allocate() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     for kind in [SolverKind::Newton, SolverKind::Prefactored] {
         let model = BlockScene { learned_modes: 6, cubature_points: 40, contact_points: 30, ..Default::default() }.build().unwrap();
         let system = ReducedSystem::new(&model.inputs()).unwrap();
@@ -45,4 +53,27 @@ fn steps_do_not_allocate() {
         solver.contact_forces(&mut forces).unwrap();
         assert_eq!(ALLOCATIONS.load(Ordering::Relaxed) - before, 0, "{kind:?} allocated while stepping");
     }
+}
+
+#[test]
+fn body_frame_steps_do_not_allocate() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = BlockScene { learned_modes: 6, cubature_points: 40, contact_points: 30, ..Default::default() };
+    let model = body_block(&scene, true).unwrap();
+    let system = BodyFrameSystem::new(&model.inputs()).unwrap();
+    let mut solver = BodyFrameSolver::new(system, BodyFrameSettings { tolerance: 1e-6, max_iterations: 500 }).unwrap();
+    let (center, rotation) = model.resting_pose();
+    let pose = Pose { center, rotation, q: vec![0.0; model.n] };
+    let qdot = vec![0.0; model.n];
+    solver.set_state(&pose, &[0.3, 0.0, 0.0], &[0.0; 3], &qdot).unwrap();
+    // The first step may fill lazily created buffers (matrix-product packing).
+    solver.step().unwrap();
+    let mut forces = vec![0.0; 3 * 30];
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    for _ in 0..5 {
+        solver.set_state(&pose, &[0.3, 0.0, 0.0], &[0.0, 0.5, 0.0], &qdot).unwrap();
+        solver.step().unwrap();
+    }
+    solver.contact_forces(&mut forces).unwrap();
+    assert_eq!(ALLOCATIONS.load(Ordering::Relaxed) - before, 0, "the body-frame solver allocated while stepping");
 }

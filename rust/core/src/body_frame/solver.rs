@@ -169,9 +169,9 @@ impl BodyFrameSolver {
         check_finite(name, v)
     }
 
-    /// A validated pose from its parts (`rotation` row-major 3 x 3, a rotation
-    /// to [`ROTATION_TOLERANCE`], made exactly orthonormal).
-    pub fn make_pose(&self, center: &[f64], rotation: &[f64], q: &[f64]) -> Result<Pose> {
+    /// Checks the parts of a pose (`rotation` row-major 3 x 3, a rotation to
+    /// [`ROTATION_TOLERANCE`]); returns the rotation made exactly orthonormal.
+    fn check_pose(&self, center: &[f64], rotation: &[f64], q: &[f64]) -> Result<Matrix3<f64>> {
         self.check_vector("center", center, 3)?;
         self.check_vector("rotation", rotation, 9)?;
         self.check_vector("q", q, self.system.n_modes())?;
@@ -179,7 +179,13 @@ impl BodyFrameSolver {
         if !is_rotation(&r, ROTATION_TOLERANCE) {
             return Err(LicromError::invalid("rotation", format!("must be orthonormal with determinant +1 (to {ROTATION_TOLERANCE})")));
         }
-        Ok(Pose { center: Vector3::from_column_slice(center), rotation: reorthonormalize(&r), q: q.to_vec() })
+        Ok(reorthonormalize(&r))
+    }
+
+    /// A validated pose from its parts (see [`Self::set_state`]).
+    pub fn make_pose(&self, center: &[f64], rotation: &[f64], q: &[f64]) -> Result<Pose> {
+        let r = self.check_pose(center, rotation, q)?;
+        Ok(Pose { center: Vector3::from_column_slice(center), rotation: r, q: q.to_vec() })
     }
 
     /// Replaces the state: pose and velocities (m/s, world angular velocity in
@@ -188,15 +194,16 @@ impl BodyFrameSolver {
     /// the next step.
     pub fn set_state(&mut self, pose: &Pose, velocity: &[f64], angular_velocity: &[f64], qdot: &[f64]) -> Result<()> {
         let n = self.system.n_modes();
-        let checked = self.make_pose(pose.center.as_slice(), pose.rotation.transpose().as_slice(), &pose.q)?;
+        let rotation = self.check_pose(pose.center.as_slice(), pose.rotation.transpose().as_slice(), &pose.q)?;
         self.check_vector("velocity", velocity, 3)?;
         self.check_vector("angular_velocity", angular_velocity, 3)?;
         self.check_vector("qdot", qdot, n)?;
         let h = self.system.dt();
-        self.pose.assign(&checked);
-        self.prev.center = checked.center - Vector3::from_column_slice(velocity) * h;
-        self.prev.rotation = exp_map(&(Vector3::from_column_slice(angular_velocity) * -h)) * checked.rotation;
-        for ((p, q), v) in self.prev.q.iter_mut().zip(&checked.q).zip(qdot) {
+        self.pose.assign(pose);
+        self.pose.rotation = rotation;
+        self.prev.center = pose.center - Vector3::from_column_slice(velocity) * h;
+        self.prev.rotation = exp_map(&(Vector3::from_column_slice(angular_velocity) * -h)) * rotation;
+        for ((p, q), v) in self.prev.q.iter_mut().zip(&pose.q).zip(qdot) {
             *p = q - h * v;
         }
         self.has_last = false;

@@ -98,7 +98,8 @@ pub fn body_block(scene: &BlockScene, affine: bool) -> Result<BodyBlock> {
     };
     for _ in 0..scene.learned_modes {
         let dir = next().normalize();
-        let k = next().normalize() * (std::f64::consts::PI / l * 2.0);
+        // Wavelengths between 2L/3 and 2L, as in the world-frame block.
+        let k = next().normalize() * (std::f64::consts::PI / l * (1.0 + 2.0 * (next().x + 0.5)));
         let phase = 2.0 * std::f64::consts::PI * (next().x + 0.5);
         modes.push(Mode::Wave { dir, k, phase });
     }
