@@ -88,11 +88,14 @@ def test_model_config_rejects_bad_values(kwargs):
 
 def test_model_config_defaults_are_licrom():
     c = ModelConfig()
-    assert (c.field_layers, c.field_width, c.affine, c.frame) == (5, 60, True, "body")
+    assert (c.field_layers, c.field_width, c.affine, c.frame) == (5, 256, True, "body")
     net = LicromNet(c)
     linears = [m for m in net.field.mlp if isinstance(m, torch.nn.Linear)]
     assert len(linears) == 5 and linears[0].in_features == 3 + 2 * c.fourier_features
-    assert linears[-1].out_features == 3 * c.latent_dim and all(m.out_features == 60 for m in linears[:-1])
+    assert linears[-1].out_features == 3 * c.latent_dim and all(m.out_features == 256 for m in linears[:-1])
+    # the field's last hidden layer is what its output layer combines
+    x = torch.rand(7, 3)
+    torch.testing.assert_close(net.field(x), net.field.mlp[-1](net.field.hidden(x)).reshape(7, 3, c.latent_dim))
     plain = LicromNet(ModelConfig(fourier_features=0))  # LiCROM's plain input
     assert plain.field.mlp[0].in_features == 3
     assert all(isinstance(m, (torch.nn.Linear, torch.nn.ELU)) for m in net.field.mlp)

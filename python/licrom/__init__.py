@@ -33,6 +33,8 @@ _LAZY = {
     "StackedBasis": ".basis",
     "Cubature": ".cubature",
     "ReducedSim": ".reduced_sim",
+    "BodyFrameBasis": ".body_frame",
+    "BodyFrameSim": ".body_frame",
     "Model": ".model",
     "ModelConfig": ".model",
     "train": ".training",
@@ -77,6 +79,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # pragma: no cover
     from . import meshes
     from .basis import AffineBasis, MeshBasis, StackedBasis
+    from .body_frame import BodyFrameBasis, BodyFrameSim
     from .cubature import Cubature
     from .dataset import generate_dataset, report_dataset_spec
     from .full_sim import FullSim

@@ -5,6 +5,11 @@ reduced mass matrix and gravity force over all vertices, the basis Jacobians at 
 cubature points, the basis values at the contact points — and hands it to
 ``licrom._core.ReducedCore``, which runs the Newton solve of the reduced
 incremental potential without the GIL.
+
+``ReducedSim(model)`` of a body-frame model (``model.frame == "body"``) returns
+the body-frame simulation :class:`licrom.body_frame.BodyFrameSim` of
+``BodyFrameBasis(mesh, learned=model)`` instead, with the same user API, so one
+call runs either kind of model.
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ class ReducedSim:
 
     ``ReducedSim(model)`` runs a trained model on the mesh and default scene stored
     in it; ``ReducedSim(basis, mesh, scene)`` runs any basis on any mesh of the object.
+    A body-frame model gives a :class:`~licrom.body_frame.BodyFrameSim` (see the
+    module docstring); only the ``"newton"`` solver exists there.
 
     Args:
         basis: a basis (``n_modes``, ``values``, ``jacobians``) or a trained ``licrom.Model``.
@@ -48,6 +55,11 @@ class ReducedSim:
         ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
+
+    def __new__(cls, basis: Any = None, *args: Any, **kwargs: Any) -> Any:
+        if cls is ReducedSim and getattr(basis, "frame", "world") == "body":
+            return _body_frame_sim(basis, *args, **kwargs)
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -263,3 +275,22 @@ class ReducedSim:
         other._core.set_state(self.q, self.qdot)
         other.time = self.time
         return other
+
+
+def _body_frame_sim(
+    model: Any,
+    mesh: Mesh | None = None,
+    scene: Scene | None = None,
+    cubature: Cubature | None = None,
+    contact_points: ContactPoints | None = None,
+    solver: str = "newton",
+) -> Any:
+    """The body-frame simulation of a body-frame model, with ReducedSim's defaults."""
+    from .body_frame import BodyFrameBasis, BodyFrameSim
+
+    if solver != "newton":
+        raise ConfigError(f"a body-frame model runs with the 'newton' solver only, got solver={solver!r}")
+    mesh = model.mesh if mesh is None else mesh
+    scene = model.default_scene if scene is None else scene
+    basis = BodyFrameBasis(mesh, learned=model, density=scene.material.density)
+    return BodyFrameSim(basis, mesh=mesh, scene=scene, cubature=cubature, contact_points=contact_points)

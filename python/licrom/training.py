@@ -18,9 +18,12 @@ Two objectives (``TrainConfig.objective``):
   differentiable in X, so the model still transfers to other meshes, and its
   span approaches POD(r) of the training frames, the best r-dimensional
   subspace for them: this is how the learned subspace reaches the POD bound
-  (:func:`subspace_report`). The LiCROM autoencoder on the cheese set stayed above
-  the POD error of its own size on its own training frames even after long runs,
-  while the regression is a plain supervised fit that converges in CPU minutes.
+  (:func:`subspace_report`). Adam brings the field's hidden layers close, then the
+  output layer (linear in its weights) is solved exactly by mass-weighted least
+  squares at the vertices. On the demo data (r = 8, body frame, held-out scenes)
+  this left 1.01x the projection error of POD(8) after 60 epochs and 1.02x after
+  30, where the autoencoder left 1.9x (same field, 60 epochs): a supervised fit
+  to a known target converges in CPU minutes, the autoencoder's search does not.
 * ``"autoencoder"``: LiCROM's joint encoder/field training (plus the optional
   projection loss), kept for comparison.
 
@@ -259,7 +262,7 @@ def pod_targets(data: TrainingData, count: int) -> tuple[np.ndarray, np.ndarray,
         mass-weighted mean ``|phi|^2`` of 1 (the normalised field's target); each training
         frame's coordinates (F, count) divided by ``u_scale`` (the encoder's target, so
         that ``u ~ u_scale * sum_k z_k phi_k``); and the weight of each mode in the field
-        loss (count,), mean 1.
+        loss (count,), proportional to the RMS of its coordinate, mean 1.
 
     Raises:
         ConfigError: ``count`` exceeds the number of training frames (or 3 n).
@@ -272,7 +275,10 @@ def pod_targets(data: TrainingData, count: int) -> tuple[np.ndarray, np.ndarray,
     m = data.mesh.vertex_masses(1.0)
     modes = basis.modes * np.sqrt(m.sum())  # (n, 3, r): sum_v m_v |phi_v|^2 = m_total
     latents = np.einsum("fni,n,nic->fc", res.astype(np.float64), m, modes) / (m.sum() * data.u_scale)
-    weights = np.ones(count)
+    # sqrt(variance): the modes that carry more of the data count more, the small ones still
+    # count (uniform weights left 2.1x, sqrt 1.6x, variance 2.1x the POD error on the demo data
+    # at width 60, before the exact output-layer fit).
+    weights = np.sqrt(np.mean(latents**2, axis=0))
     return np.ascontiguousarray(np.moveaxis(modes, 2, 0)), latents, weights * (count / max(weights.sum(), 1e-300))
 
 
