@@ -295,8 +295,18 @@ def test_cli_train(data_dir, tmp_path):
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(out), "--modes", "2", "--epochs", "1", "--points", "128",
                                    "--batch-frames", "4", "--device", "cpu", "--quiet"])
     assert res.exit_code == 0, res.output
-    assert out.is_file() and "held-out projection error" in res.output
-    assert Model.load(out).n_learned == 2
+    assert out.is_file() and "held-out projection error" in res.output and "body frame" in res.output
+    back = Model.load(out)
+    assert back.n_learned == 2 and back.frame == "body"  # body frame by default
+    world = tmp_path / "world.lcm"
+    res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(world), "--modes", "2", "--epochs", "1", "--points", "128",
+                                   "--batch-frames", "4", "--device", "cpu", "--quiet", "--frame", "world", "--objective", "autoencoder"])
+    assert res.exit_code == 0, res.output
+    back = Model.load(world)
+    assert back.frame == "world" and back.n_modes == 14
+    assert back.metadata["train_config"]["objective"] == "autoencoder"
+    res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(tmp_path / "x.lcm"), "--frame", "lab"])
+    assert res.exit_code != 0 and "body" in res.output and "world" in res.output
 
 
 # --- the POD bound -------------------------------------------------------------------------
