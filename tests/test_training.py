@@ -349,6 +349,11 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     out = tmp_path / "body.lcm"
     model = train(data_dir, out, TrainConfig(**TINY, val_indices=(3,), seed=1), ModelConfig(latent_dim=3, field_width=32))
     assert model.frame == "body" and model.n_modes == 3 and model.metadata["data"]["frame"] == "body"
+    # the reported held-out projection error is the final model's (after the output-layer fit)
+    from licrom.training import subspace_report
+
+    rep = subspace_report(model, TrainingData(data_dir, val_indices=[3]))
+    assert model.metadata["final"]["val_proj_full"] == pytest.approx(rep["val"]["model"], rel=1e-4)
     back = Model.load(out)
     assert back.frame == "body" and back.n_modes == 3
     np.testing.assert_array_equal(back.values(mesh.vertices), model.values(mesh.vertices))

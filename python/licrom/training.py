@@ -73,8 +73,9 @@ class TrainConfig:
 
     Attributes:
         objective: ``"pod"`` (regress the field onto the POD modes of the training
-            residuals, the encoder onto their coordinates) or ``"autoencoder"``
-            (LiCROM's joint training); see the module docstring.
+            residuals, the encoder onto their coordinates; one SVD of the training
+            residuals before the first step) or ``"autoencoder"`` (LiCROM's joint
+            training); see the module docstring.
         epochs: passes over the training frames.
         batch_frames: frames per optimisation step (each frame is one point cloud).
         points_per_frame: points sampled per step, shared by the frames of the step
@@ -858,6 +859,12 @@ def train(
         "lightning_version": pl.__version__,
         "history": rows,
     }
+    if cfg.objective == "pod" and len(tdata.val):
+        # the output-layer fit changed the span after the last validation: report the final model's
+        val = tdata.val
+        metadata["final"].update({f"val_{k}": v for k, v in _evaluate_tensors(
+            net, torch.tensor(tdata.rest), torch.tensor(tdata.masses), torch.as_tensor(val.residuals),
+            torch.as_tensor(val.norm2_residual), torch.as_tensor(val.norm2_full), mcfg.affine).items()})
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
     if paths is not None and trainer.is_global_zero:
         model.save(paths["model"])
