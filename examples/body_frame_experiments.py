@@ -1,27 +1,32 @@
-"""Body-frame experiments: scenes a new user would try, with their noise floors and subspace bounds.
+"""Body-frame experiments: scenes a new user would try, with their noise floors, subspace bounds and reduced runs.
 
-    python examples/body_frame_experiments.py [--work out/body_frame] [--docs docs] [--small]
+    python examples/body_frame_experiments.py [--work out/body_frame] [--docs docs] [--r 20 40] [--small]
 
 Families (one mesh and material each; training runs and held-out runs):
 
-* ``cheese``: a soft cheese (peak non-rigid deformation 5-14 % of its size) dropped onto
-  inclines whose downhill direction is along x or off-axis (azimuth measured from +x),
-  sliding and sticking; held out: other slopes and friction coefficients and a new azimuth;
-* ``box``: a tall soft box that tips over once on a slope, and a box thrown with angular
-  velocity that tumbles down a slope; held out: a new slope / a new throw;
-* ``sphere``: a soft ball rolling down a slope (as in section 2), held out on another one.
+* ``cheese``: a soft cheese (E = 20 kPa) dropped onto inclines whose downhill direction is
+  along x or off-axis (azimuth measured from +x), sliding and sticking; held out: other
+  slopes and friction coefficients and a new azimuth;
+* ``box``: a tall soft box that tips over once on a slope, or is thrown spinning to tumble
+  down it like a square log; held out: a new slope / a new throw;
+* ``sphere``: a soft ball bouncing and rolling down a slope (as in section 2), held out on another.
 
 For every held-out run the script measures
 
 * the **noise floor**: the full run against itself dropped 0.1 mm higher;
 * the **subspace bounds**: the non-rigid projection error of the run onto affine + POD(r) of
-  the training frames in the world frame, onto the 6 symmetric affine modes + POD(r) of the
-  training frames in the body frame, and onto the same built from the run's own frames;
-* the reduced runs that the package offers (one function per column of the table).
+  the training frames in the world frame, onto the body-frame modes (6 symmetric affine +
+  POD(r)) of the training frames, of the run's own frames, and of the learned body-frame model;
+* the **reduced runs**, one function per column (:data:`COLUMNS`): world-frame POD and model,
+  body-frame POD and model, and the body-frame solver with the run's own modes.
 
-Every full run is cached as ``.npz`` under ``--work/full`` so reruns skip it; the script writes
-``--work/results.json`` and section 10 of ``docs/results.md``. ``--small`` runs tiny meshes for
-a few steps (a smoke test) and writes nothing under ``docs``.
+Full runs are cached as ``.npz`` under ``--work/full`` and models under ``--work/models``, so
+reruns skip them. Training on a CPU is slow: ``--train-only world body --device cuda`` trains the
+models from the cached training runs (on a GPU machine) and stops; copy the ``.lcm`` files back
+into ``--work/models``. The script writes ``--work/results.json``, section 10 of
+``docs/results.md`` (keeping its hand-written ``### Reading``) and filmstrips under
+``docs/figures``. ``--small`` runs tiny meshes for a few steps (a smoke test, under a minute)
+and writes nothing under ``docs``.
 """
 
 from __future__ import annotations
