@@ -324,8 +324,8 @@ class Setting:
         return BodyFrameBasis(self.mesh, learned, density=self.family.cases[0].scene.material.density)
 
     def model(self, frame: str, r: int) -> licrom.Model:
-        """The model of this family's training runs in ``frame`` with r learned modes, trained once and cached."""
-        path = self.models / f"{self.family.name}_{frame}_r{r}.lcm"
+        """The model of this family's training runs in ``frame`` with r learned modes, trained once and cached per epoch count."""
+        path = self.models / f"{self.family.name}_{frame}_r{r}_e{self.epochs}.lcm"
         if not path.exists():
             t0 = time.perf_counter()
             licrom.train(self.train, path, TrainConfig(epochs=self.epochs, val_fraction=0.0, progress=False, device=self.device),
@@ -435,7 +435,7 @@ def held_out_table(rows: list[dict], pod_sizes: tuple[int, ...]) -> str:
             row["family"], row["kind"], str(row["tets"]), _pct(row["peak_deformation"]), f"{row['rotation']:.0f} deg",
             "slides" if row["slides"] else "sticks",
             f"{_pct(nf['nonrigid_error'])} / {_pct(nf['com_error'])}" + (" chaotic" if row["chaotic"] else ""),
-            *(_pct(row["bounds"][f"{f}{r}"]) for r in pod_sizes for f in ("world", "body", "own", "learned")),
+            *(_pct(row["bounds"].get(f"{f}{r}")) for r in pod_sizes for f in ("world", "body", "own", "learned")),
         ]) + " |")
     return "\n".join(out)
 
@@ -481,7 +481,7 @@ def write_section(docs: Path, text: str) -> None:
     A ``### Reading`` subsection of the old section 10 (written by hand) is kept after the new tables.
     """
     path = docs / "results.md"
-    before, found, after = path.read_text().partition(SECTION_TITLE)
+    before, found, after = (path.read_text() if path.exists() else "").partition(SECTION_TITLE)
     end = after.find("\n## ") if found else -1
     old, rest = (after, "") if end < 0 else (after[:end], after[end:])
     reading = old[old.find(READING):].rstrip("\n") + "\n" if found and READING in old else ""
@@ -532,9 +532,10 @@ def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], s
     bounds = {}
     for r in pod_sizes:
         bounds[f"world{r}"] = world_projection_error(full, setting.world_pod(r).values(mesh.vertices))
-        for key, learned in (("body", setting.body_pod(r)), ("own", residual_pod(mesh, own_d, setting.masses, r)),
-                             ("learned", setting.model("body", r))):
+        for key, learned in (("body", setting.body_pod(r)), ("own", residual_pod(mesh, own_d, setting.masses, r))):
             bounds[f"{key}{r}"] = body_projection_error(full, setting.body_basis(learned).values(mesh.vertices))
+    for r in sizes:
+        bounds[f"learned{r}"] = body_projection_error(full, setting.body_basis(setting.model("body", r)).values(mesh.vertices))
     own = run_metrics(full, full)
     row = {"family": fam.name, "name": case.name, "kind": case.kind, "tets": mesh.n_tets, "peak_deformation": own["peak_deformation"],
            "rotation": own["rotation"], "slides": own["slides"], "noise_floor": floor,
