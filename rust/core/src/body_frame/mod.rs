@@ -155,8 +155,9 @@ pub struct BodyWorkspace {
     pub grad: Vec<f64>,
     elastic: Option<Workspace>,
     rows: ContactRows,
-    /// n x n scratch for the elastic Hessian.
+    /// n x n scratch for the elastic Hessian, and for the modal block.
     square: Vec<f64>,
+    block: Vec<f64>,
 }
 
 /// Validated, owned body-frame model.
@@ -253,6 +254,7 @@ impl BodyFrameSystem {
             elastic: self.elastic.as_ref().map(|e| e.system.workspace()),
             rows: self.contacts.rows(),
             square: vec![0.0; self.n * self.n],
+            block: vec![0.0; self.n * self.n],
         }
     }
 
@@ -286,32 +288,41 @@ impl BodyFrameSystem {
         self.evaluate(start, pose, false, &mut self.workspace())
     }
 
-    /// The Hessian at `pose` into `out` ((6 + n)^2, full symmetric), and the
-    /// convergence metric (the Gauss-Newton inertia times h^2) into `metric`
-    /// when given.
-    pub fn hessian(&self, start: &BodyStart, pose: &Pose, kind: BodyHessian, ws: &mut BodyWorkspace, out: &mut [f64], metric: Option<&mut [f64]>) {
+    /// The modal block `Mqq/h^2 + K_el` at q into `out` (n x n, full
+    /// symmetric): K_el PSD-projected, or exact (possibly indefinite).
+    pub fn elastic_block(&self, q: &[f64], exact: bool, ws: &mut BodyWorkspace, out: &mut [f64]) {
+        let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) else {
+            return;
+        };
+        let mut clamped = std::mem::take(&mut ws.square);
+        el.system.elastic_hessian(q, ews, out, exact.then_some(&mut clamped[..]));
+        let h2 = self.h * self.h;
+        for (i, (o, m)) in out.iter_mut().zip(el.system.mass()).enumerate() {
+            *o += m / h2 - if exact { clamped[i] } else { 0.0 };
+        }
+        ws.square = clamped;
+    }
+
+    /// The Hessian at `pose` into `out` ((6 + n)^2, full symmetric), with the
+    /// modal block `elastic` (from [`Self::elastic_block`], possibly of an
+    /// earlier pose) or, when None, the block at `pose`; and the convergence
+    /// metric (the Gauss-Newton inertia times h^2) into `metric` when given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn hessian(&self, start: &BodyStart, pose: &Pose, kind: BodyHessian, elastic: Option<&[f64]>, ws: &mut BodyWorkspace, out: &mut [f64], metric: Option<&mut [f64]>) {
         let n = self.n;
         let big = 6 + n;
         let h2 = self.h * self.h;
         out.fill(0.0);
-        if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
-            // Mqq/h^2 + K_el (projected, or exact = projected - clamped).
-            let exact = kind == BodyHessian::Exact;
-            let mut clamped = std::mem::take(&mut ws.square);
-            let mut projected = std::mem::take(&mut ews.hess);
-            el.system.elastic_hessian(&pose.q, ews, &mut projected, exact.then_some(&mut clamped[..]));
-            let mass = el.system.mass();
-            for r in 0..n {
-                for c in 0..n {
-                    let mut v = projected[r * n + c] + mass[r * n + c] / h2;
-                    if exact {
-                        v -= clamped[r * n + c];
-                    }
-                    out[(6 + r) * big + 6 + c] = v;
-                }
+        if n > 0 {
+            let mut block = std::mem::take(&mut ws.block);
+            match elastic {
+                Some(e) => block.copy_from_slice(e),
+                None => self.elastic_block(&pose.q, kind == BodyHessian::Exact, ws, &mut block),
             }
-            ews.hess = projected;
-            ws.square = clamped;
+            for r in 0..n {
+                out[(6 + r) * big + 6..(6 + r) * big + big].copy_from_slice(&block[r * n..(r + 1) * n]);
+            }
+            ws.block = block;
         }
         if let Some(m) = metric {
             m.fill(0.0);

@@ -14,6 +14,14 @@
 //! by terms proportional to the inertial residual `R y_v - a_v`, which are of
 //! order h^2 times the accelerations: the iteration stays close to Newton's.
 //!
+//! The elastic block `Mqq/h^2 + K_el` is the expensive part (a pass over the
+//! cubature points with an eigen-decomposition each); it is kept across
+//! iterations and steps and assembled again after a new state and, at most
+//! once per step, when an iteration reduced the residual by less than
+//! [`ELASTIC_REFRESH`]: a
+//! quasi-Newton iteration with the same minimiser, whose directions are
+//! descent directions because every matrix is positive definite.
+//!
 //! **Line search** along `alpha -> (c + alpha dc, exp(alpha [omega]x) R, q + alpha dq)`,
 //! whose slope is the gradient at the trial point dotted with the direction
 //! (the rotations of the line share their axis): Armijo sufficient decrease;
@@ -48,6 +56,9 @@ const MAX_HALVINGS: usize = 40;
 const ROUNDOFF_ULPS: f64 = 64.0;
 /// Relative energy increase still taken as round-off at the line minimum.
 const NOISE: f64 = 1e-8;
+/// The elastic block is assembled again when an iteration's residual is above
+/// this share of the previous one.
+pub const ELASTIC_REFRESH: f64 = 0.25;
 /// Tolerance of the orthonormality of a given rotation.
 pub const ROTATION_TOLERANCE: f64 = 1e-8;
 
@@ -92,6 +103,15 @@ pub struct BodyFrameSolver {
     hess: Vec<f64>,
     metric: Vec<f64>,
     chol: Cholesky,
+    /// The lagged elastic block (valid if `elastic_valid`), and the residuals of
+    /// the step's last two directions (infinite at its start).
+    elastic: Vec<f64>,
+    elastic_valid: bool,
+    /// Whether the block was assembled during this step (a stall from contact
+    /// switches is not cured by assembling it again).
+    elastic_fresh: bool,
+    last_residual: f64,
+    previous_residual: f64,
 }
 
 /// `r` made orthonormal (two Björck iterations `R <- R (3I - R^T R)/2`, which
@@ -130,6 +150,11 @@ impl BodyFrameSolver {
             hess: vec![0.0; big * big],
             metric: vec![0.0; big * big],
             chol: Cholesky::new(big),
+            elastic: vec![0.0; n * n],
+            elastic_valid: false,
+            elastic_fresh: false,
+            last_residual: f64::INFINITY,
+            previous_residual: f64::INFINITY,
             system,
         })
     }
@@ -208,6 +233,7 @@ impl BodyFrameSolver {
         }
         self.has_last = false;
         self.has_failed = false;
+        self.elastic_valid = false;
         Ok(())
     }
 
@@ -229,6 +255,9 @@ impl BodyFrameSolver {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
         }
         let mut residual = f64::INFINITY;
+        self.last_residual = f64::INFINITY;
+        self.previous_residual = f64::INFINITY;
+        self.elastic_fresh = false;
         for iteration in 1..=self.settings.max_iterations {
             if !self.grad.iter().all(|g| g.is_finite()) {
                 return Err(LicromError::Diverged { iteration, what: "gradient" });
@@ -267,7 +296,12 @@ impl BodyFrameSolver {
     /// Newton direction at the iterate into `dir`; returns its residual r.
     fn direction(&mut self, iteration: usize) -> Result<f64> {
         let big = self.dir.len();
-        self.system.hessian(&self.current, &self.iterate, BodyHessian::GaussNewton, &mut self.ws, &mut self.hess, Some(&mut self.metric));
+        if !self.elastic_valid || (self.stalled() && !self.elastic_fresh) {
+            self.system.elastic_block(&self.iterate.q, false, &mut self.ws, &mut self.elastic);
+            self.elastic_valid = true;
+            self.elastic_fresh = true;
+        }
+        self.system.hessian(&self.current, &self.iterate, BodyHessian::GaussNewton, Some(&self.elastic), &mut self.ws, &mut self.hess, Some(&mut self.metric));
         if !self.hess.iter().all(|v| v.is_finite()) {
             return Err(LicromError::Diverged { iteration, what: "Hessian" });
         }
@@ -285,7 +319,15 @@ impl BodyFrameSolver {
         if !residual.is_finite() {
             return Err(LicromError::Diverged { iteration, what: "direction" });
         }
+        self.previous_residual = self.last_residual;
+        self.last_residual = residual;
         Ok(residual)
+    }
+
+    /// Whether the step's last direction reduced the residual by less than
+    /// [`ELASTIC_REFRESH`] of the one before it.
+    fn stalled(&self) -> bool {
+        self.previous_residual.is_finite() && self.last_residual > ELASTIC_REFRESH * self.previous_residual
     }
 
     /// Energy and slope at `alpha` along the direction (trial point in `trial`,
@@ -411,7 +453,7 @@ impl BodyFrameSolver {
     pub fn hessian(&mut self, pose: &Pose, exact: bool) -> &[f64] {
         self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
         let kind = if exact { BodyHessian::Exact } else { BodyHessian::GaussNewton };
-        self.system.hessian(&self.probe, pose, kind, &mut self.ws, &mut self.hess, None);
+        self.system.hessian(&self.probe, pose, kind, None, &mut self.ws, &mut self.hess, None);
         &self.hess
     }
 }

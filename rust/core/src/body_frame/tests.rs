@@ -43,7 +43,7 @@ fn check_derivatives(sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose, what
     let fd = fd_gradient(|x| sys.energy(start, &moved(pose, x)), &zero, 1e-7);
     assert!(rel_err(&grad, &fd, 1e-6) < 1e-6, "{what}: gradient vs FD {}\n{grad:?}\n{fd:?}", rel_err(&grad, &fd, 1e-6));
     let mut hess = vec![0.0; big * big];
-    sys.hessian(start, pose, BodyHessian::Exact, &mut ws, &mut hess, None);
+    sys.hessian(start, pose, BodyHessian::Exact, None, &mut ws, &mut hess, None);
     let jac = fd_jacobian(
         |x| {
             let mut w = sys.workspace();
@@ -56,7 +56,7 @@ fn check_derivatives(sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose, what
     let sym: Vec<f64> = (0..big * big).map(|i| 0.5 * (jac[i / big][i % big] + jac[i % big][i / big])).collect();
     assert!(rel_err(&hess, &sym, 1e-6) < 2e-6, "{what}: Hessian vs FD {}", rel_err(&hess, &sym, 1e-6));
     // The solver's matrix is positive definite.
-    sys.hessian(start, pose, BodyHessian::GaussNewton, &mut ws, &mut hess, None);
+    sys.hessian(start, pose, BodyHessian::GaussNewton, None, &mut ws, &mut hess, None);
     assert!(crate::cholesky::Cholesky::factor(&hess, big).is_ok(), "{what}: Gauss-Newton Hessian not positive definite");
 }
 
