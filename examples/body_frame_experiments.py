@@ -539,7 +539,8 @@ def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], s
     own = run_metrics(full, full)
     row = {"family": fam.name, "name": case.name, "kind": case.kind, "tets": mesh.n_tets, "peak_deformation": own["peak_deformation"],
            "rotation": own["rotation"], "slides": own["slides"], "noise_floor": floor,
-           "chaotic": max(floor["nonrigid_error"], floor["com_error"]) > CHAOTIC_FLOOR, "bounds": bounds, "reduced": []}
+           "chaotic": max(floor["nonrigid_error"], floor["com_error"]) > CHAOTIC_FLOOR, "bounds": bounds, "reduced": [],
+           "figure": f"figures/body_frame_{case.name}.png" if figs is not None and case.figure else None}
     print(f"  {case.name}: peak {_pct(row['peak_deformation'])}, rotation {row['rotation']:.0f} deg, "
           f"floor {_pct(floor['nonrigid_error'])} / {_pct(floor['com_error'])}, "
           + ", ".join(f"{k} {_pct(v)}" for k, v in bounds.items()), flush=True)
@@ -605,7 +606,9 @@ def main() -> None:
                   f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s "
                   "(full runs cached; models trained with `--train-only` where the table says so).\n\n" + INTRO + "\n\n"
                   + training_table(train_rows) + "\n\n" + BOUNDS_INTRO + "\n\n" + held_out_table(test_rows, pod_sizes) + "\n\n"
-                  + REDUCED_INTRO + "\n\n" + summary_table(test_rows) + "\n\n" + reduced_table(test_rows) + "\n")
+                  + REDUCED_INTRO + "\n\n" + summary_table(test_rows) + "\n\n" + reduced_table(test_rows) + "\n\n"
+                  + f"Filmstrips: the full run, then each subspace at r = {sizes[0]}.\n\n"
+                  + "\n\n".join(f"![{row['family']}: {row['kind']}]({row['figure']})" for row in test_rows if row["figure"]) + "\n")
 
 if __name__ == "__main__":
     main()
