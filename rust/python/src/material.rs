@@ -5,7 +5,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::IntoPy;
+use crate::errors::CoreResultExt;
 
 const F_DIMS: [Dim; 3] = [Dim::Any("p"), Dim::Is(3), Dim::Is(3)];
 

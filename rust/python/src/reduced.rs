@@ -9,7 +9,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{error, CoreResultExt, Kind};
 
 /// Reduced model, state `(q, qdot)` and solver of one simulation.
 #[pyclass(module = "licrom._core")]
