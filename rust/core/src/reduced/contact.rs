@@ -71,6 +71,17 @@ fn close_terms(a: &RankOneTerms, b: &RankOneTerms, slack: f64, cos: f64) -> bool
         })
 }
 
+/// Writes the square-root factors `sqrt(c_t) d_t` of the rank-one `terms`
+/// into `out` from index `at` on; returns the index after them.
+#[inline(always)]
+fn write_factors(terms: &RankOneTerms, out: &mut [[f64; 3]], at: usize) -> usize {
+    for t in 0..terms.len {
+        let d = terms.dir[t] * terms.coef[t].sqrt();
+        out[at + t] = [d.x, d.y, d.z];
+    }
+    at + terms.len
+}
+
 impl ReducedSystem {
     /// The contact part of [`Self::begin_step`]: lagged normal forces, and the
     /// start positions of the points that carry one.
@@ -223,11 +234,7 @@ impl ReducedSystem {
             let mut count = 0;
             for (p, plane) in self.planes.iter().enumerate() {
                 let e = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
-                for t in 0..e.hessian.len {
-                    let d = e.hessian.dir[t] * e.hessian.coef[t].sqrt();
-                    ws.contact_coef[count] = [d.x, d.y, d.z];
-                    count += 1;
-                }
+                count = write_factors(&e.hessian, &mut ws.contact_coef, count);
             }
             if count > 0 {
                 let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
@@ -299,17 +306,9 @@ impl ReducedSystem {
                     continue;
                 }
                 if !rebuild {
-                    for t in 0..old.len {
-                        let d = old.dir[t] * old.coef[t].sqrt();
-                        ws.contact_coef_out[count_out] = [d.x, d.y, d.z];
-                        count_out += 1;
-                    }
+                    count_out = write_factors(&old, &mut ws.contact_coef_out, count_out);
                 }
-                for t in 0..new.len {
-                    let d = new.dir[t] * new.coef[t].sqrt();
-                    ws.contact_coef[count_in] = [d.x, d.y, d.z];
-                    count_in += 1;
-                }
+                count_in = write_factors(&new, &mut ws.contact_coef, count_in);
                 state.used[k] = new;
                 rows += new.len;
             }

@@ -88,6 +88,16 @@ fn write_rows<M: Madd>(at: usize, gs: &[F8; 9], coefs: [&[[F8; 9]; 9]; 2], count
 }
 
 impl ReducedSystem {
+    /// The elastic energy `sum_k w_k Psi(F_k(q))` alone (J) and, with
+    /// `with_gradient`, its gradient into `ws.grad`: for solvers that bring
+    /// their own inertia and contact terms.
+    pub fn elastic(&self, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
+        if with_gradient {
+            ws.grad.fill(0.0);
+        }
+        dispatch(ElasticKernel { sys: self, q, ws: with_gradient.then_some(ws) })
+    }
+
     /// Elastic energy and, when `grad` is not empty, its gradient added to
     /// `grad`, eight points at a time; `lane_grad` is scratch.
     #[inline(always)]
@@ -262,5 +272,22 @@ impl WithMadd for ElasticRowsKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) -> (usize, usize) {
         self.sys.elastic_rows_impl::<M>(self.q, self.split, self.range, self.ws)
+    }
+}
+
+struct ElasticKernel<'a> {
+    sys: &'a ReducedSystem,
+    q: &'a [f64],
+    ws: Option<&'a mut Workspace>,
+}
+
+impl WithMadd for ElasticKernel<'_> {
+    type Output = f64;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> f64 {
+        match self.ws {
+            Some(ws) => self.sys.elastic_impl::<M>(self.q, &mut ws.lane_grad, &mut ws.grad),
+            None => self.sys.elastic_impl::<M>(self.q, &mut [], &mut []),
+        }
     }
 }

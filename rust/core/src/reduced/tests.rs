@@ -295,3 +295,22 @@ fn invalid_inputs_are_rejected() {
     inp.dt = 0.0;
     assert!(matches!(ReducedSystem::new(&inp), Err(LicromError::InvalidParameter { .. })));
 }
+
+#[test]
+fn elastic_term_alone_matches_its_part_of_e_and_finite_differences() {
+    let model = small_block(3, 11, 9);
+    let sys = ReducedSystem::new(&model.inputs()).unwrap();
+    let (start, q0, _) = sliding_start(&model, &sys);
+    let n = sys.n_dofs();
+    let q: Vec<f64> = q0.iter().enumerate().map(|(i, x)| x + if i >= 12 { 0.01 } else { 0.0 }).collect();
+    let mut ws = sys.workspace();
+    sys.evaluate(&start, &q, true, &mut ws);
+    let (e_part, mut g_part) = (ws.elastic_energy, vec![0.0; n]);
+    ws.elastic_gradient(&mut g_part);
+    let e = sys.elastic(&q, true, &mut ws);
+    assert!(e > 0.0 && (e - e_part).abs() <= 1e-14 * e, "{e} vs {e_part}");
+    assert!(rel_err(&ws.grad, &g_part, 1e-12) < 1e-14, "gradient vs E's elastic part: {}", rel_err(&ws.grad, &g_part, 1e-12));
+    assert_eq!(sys.elastic(&q, false, &mut sys.workspace()), e);
+    let fd = fd_gradient(|x| sys.elastic(x, false, &mut sys.workspace()), &q, 1e-8);
+    assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-5, "gradient vs FD: {}", rel_err(&ws.grad, &fd, 1e-6));
+}
