@@ -170,12 +170,8 @@ fn newton_pieces(c: &mut Criterion) {
     group.sample_size(10).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
     group.bench_function("energy", |b| b.iter(|| black_box(sys.evaluate(&start, black_box(&trial), false, &mut ws))));
     group.bench_function("energy_and_gradient", |b| b.iter(|| black_box(sys.evaluate(&start, black_box(&trial), true, &mut ws))));
-    group.bench_function("elastic_hessian_projected", |b| {
-        b.iter(|| sys.elastic_hessian(black_box(&trial), &mut ws, &mut hess, None))
-    });
-    group.bench_function("elastic_hessian_split", |b| {
-        b.iter(|| sys.elastic_hessian(black_box(&trial), &mut ws, &mut hess, Some(&mut clamped)))
-    });
+    group.bench_function("elastic_hessian_projected", |b| b.iter(|| sys.elastic_hessian(black_box(&trial), &mut ws, &mut hess, None)));
+    group.bench_function("elastic_hessian_split", |b| b.iter(|| sys.elastic_hessian(black_box(&trial), &mut ws, &mut hess, Some(&mut clamped))));
     group.bench_function("contact_hessian", |b| b.iter(|| sys.contact_hessian(&start, black_box(&trial), &mut ws, &mut hess)));
     sys.assemble(&start, &trial, Hessian::Projected, &mut ws);
     let mut chol = Cholesky::new(n);
@@ -187,9 +183,7 @@ fn newton_pieces(c: &mut Criterion) {
             chol.solve_in_place(&mut rhs);
         })
     });
-    group.bench_function("gradient_and_projected_hessian", |b| {
-        b.iter(|| sys.assemble(&start, black_box(&trial), Hessian::Projected, &mut ws))
-    });
+    group.bench_function("gradient_and_projected_hessian", |b| b.iter(|| sys.assemble(&start, black_box(&trial), Hessian::Projected, &mut ws)));
     group.finish();
 }
 
@@ -222,17 +216,11 @@ fn snh_per_point(c: &mut Criterion) {
     let mut group = c.benchmark_group("snh_1000_points");
     group.sample_size(10).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
     group.bench_function("svd", |b| b.iter(|| fs.iter().map(|f| licrom_core::svd3::svd3(black_box(f)).s[2]).sum::<f64>()));
-    group.bench_function("eigensystem", |b| {
-        b.iter(|| fs.iter().map(|f| mat.eigensystem(black_box(f)).values[0]).sum::<f64>())
-    });
-    group.bench_function("projected_hessian", |b| {
-        b.iter(|| fs.iter().map(|f| mat.projected_hessian(black_box(f))[(0, 0)]).sum::<f64>())
-    });
+    group.bench_function("eigensystem", |b| b.iter(|| fs.iter().map(|f| mat.eigensystem(black_box(f)).values[0]).sum::<f64>()));
+    group.bench_function("projected_hessian", |b| b.iter(|| fs.iter().map(|f| mat.projected_hessian(black_box(f))[(0, 0)]).sum::<f64>()));
     let flat: Vec<f64> = fs.iter().flat_map(|f| f.transpose().as_slice().to_vec()).collect();
     let mut out = vec![0.0; 81 * fs.len()];
-    group.bench_function("projected_hessian_batched", |b| {
-        b.iter(|| mat.hessian_batch(black_box(&flat), true, &mut out).expect("valid batch"))
-    });
+    group.bench_function("projected_hessian_batched", |b| b.iter(|| mat.hessian_batch(black_box(&flat), true, &mut out).expect("valid batch")));
     group.bench_function("exact_hessian", |b| b.iter(|| fs.iter().map(|f| mat.hessian(black_box(f))[(0, 0)]).sum::<f64>()));
     group.bench_function("pk1", |b| b.iter(|| fs.iter().map(|f| mat.pk1(black_box(f))[(0, 0)]).sum::<f64>()));
     group.finish();

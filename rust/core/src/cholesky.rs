@@ -45,11 +45,9 @@ impl Cholesky {
         }
         let mat = MatMut::from_column_major_slice_mut(&mut self.factor, self.n, self.n);
         let stack = MemStack::new(&mut self.mem);
-        cholesky_in_place(mat, LltRegularization::default(), Par::Seq, stack, Default::default())
-            .map(|_| ())
-            .map_err(|e| match e {
-                faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } => index,
-            })
+        cholesky_in_place(mat, LltRegularization::default(), Par::Seq, stack, Default::default()).map(|_| ()).map_err(|e| match e {
+            faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } => index,
+        })
     }
 
     /// Solves `A x = rhs` in place with the last successful factorisation.

@@ -19,6 +19,11 @@
 //!
 //! All three Hessians are PSD; they are returned as at most three weighted
 //! rank-one terms so that assembly can stack their square-root factors.
+//!
+//! This is the friction law. Its sum over the contact points of the reduced
+//! model, with the stick switch that corrects Newton directions crossing the
+//! stick region, is in `reduced/contact.rs`; the solver's use of that switch
+//! in `solver/contact_model.rs`.
 
 use nalgebra::{Matrix3, Vector3};
 

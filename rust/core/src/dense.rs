@@ -1,9 +1,13 @@
-//! Vector kernels on contiguous slices, written in independent 8-wide lanes so
-//! that the compiler vectorises them at the level chosen by [`crate::simd`].
+//! Dense kernels: vector kernels on contiguous slices, written in independent
+//! 8-wide lanes so that the compiler vectorises them at the level chosen by
+//! [`crate::simd`], and the symmetric products `B^T B` of the Hessian
+//! assembly (faer's blocked kernels).
 
-use crate::simd::Madd;
+use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
+use faer::{Accum, MatMut, MatRef, Par};
 
-const LANES: usize = 8;
+use crate::real::LANES;
+use crate::simd::{lane_sum, Madd};
 
 /// Products `src[r] . x` of the `R` rows of `src` (`R x n`, row-major) with `x`.
 ///
@@ -27,7 +31,7 @@ pub fn rows_dot<M: Madd, const R: usize>(src: &[f64], x: &[f64]) -> [f64; R] {
     }
     let mut out = [0.0; R];
     for (r, (o, a)) in out.iter_mut().zip(&acc).enumerate() {
-        let mut s = ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
+        let mut s = lane_sum(a);
         for c in blocks * LANES..n {
             s = M::madd(src[r * n + c], x[c], s);
         }
@@ -49,7 +53,7 @@ pub fn dot<M: Madd>(a: &[f64], b: &[f64]) -> f64 {
             acc[l] = M::madd(x[l], y[l], acc[l]);
         }
     }
-    let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+    let mut s = lane_sum(&acc);
     for (x, y) in ar.iter().zip(br) {
         s = M::madd(*x, *y, s);
     }
@@ -63,13 +67,7 @@ pub fn dot<M: Madd>(a: &[f64], b: &[f64]) -> f64 {
 /// One pass over `src` in 8-column blocks keeps every block of the R source rows
 /// in registers while all outputs are formed from it.
 #[inline(always)]
-pub fn combine_rows<M: Madd, const R: usize>(
-    src: &[f64],
-    coef: &[[f64; R]],
-    out: &mut [f64],
-    acc_coef: &[f64; R],
-    acc: &mut [f64],
-) {
+pub fn combine_rows<M: Madd, const R: usize>(src: &[f64], coef: &[[f64; R]], out: &mut [f64], acc_coef: &[f64; R], acc: &mut [f64]) {
     let n = src.len() / R;
     let accumulate = !acc.is_empty();
     debug_assert!(src.len() == R * n && out.len() >= coef.len() * n && (!accumulate || acc.len() == n));
@@ -106,6 +104,57 @@ pub fn combine_rows<M: Madd, const R: usize>(
             acc[c] = (0..R).fold(acc[c], |s, r| M::madd(acc_coef[r], src[r * n + c], s));
         }
     }
+}
+
+/// `dst (lower triangle) = op(B^T B)` for the `count` rows of the row-major `rows` (width n).
+pub fn syrk_rows(dst: &mut [f64], n: usize, rows: &[f64], count: usize, accum: Accum) {
+    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_row_major_slice(&rows[..count * n], count, n)), accum, 1.0);
+}
+
+/// `dst (lower triangle) = op(B^T B)` for the first `count` rows of the
+/// column-major `rows` with column stride `stride`.
+pub fn syrk_columns(dst: &mut [f64], n: usize, rows: &[f64], stride: usize, count: usize, accum: Accum) {
+    syrk_lower(dst, n, (count > 0).then(|| MatRef::from_column_major_slice_with_stride(rows, count, n, stride)), accum, 1.0);
+}
+
+/// `dst (lower triangle) = op(alpha B^T B)` (nothing, or zeros for `Replace`, without B).
+pub fn syrk_lower(dst: &mut [f64], n: usize, b: Option<MatRef<'_, f64>>, accum: Accum, alpha: f64) {
+    let Some(b) = b else {
+        if accum == Accum::Replace {
+            dst.fill(0.0);
+        }
+        return;
+    };
+    let a = MatMut::from_column_major_slice_mut(dst, n, n);
+    triangular_matmul(
+        a,
+        BlockStructure::TriangularLower,
+        accum,
+        b.transpose(),
+        BlockStructure::Rectangular,
+        b,
+        BlockStructure::Rectangular,
+        alpha,
+        Par::Seq,
+    );
+}
+
+/// Copies the lower triangle of the n x n column-major `a` to its upper triangle.
+pub fn mirror_lower(a: &mut [f64], n: usize) {
+    for c in 0..n {
+        for r in c + 1..n {
+            a[r * n + c] = a[c * n + r];
+        }
+    }
+}
+
+/// Adds `B^T B` for the `count` row-major rows (width n) to the full symmetric `dst`.
+pub fn add_gram(dst: &mut [f64], n: usize, rows: &[f64], count: usize) {
+    if count == 0 {
+        return;
+    }
+    syrk_rows(dst, n, rows, count, Accum::Add);
+    mirror_lower(dst, n);
 }
 
 #[cfg(test)]

@@ -3,6 +3,21 @@
 //!
 //! Units are SI throughout. No Python types live here; the bindings validate
 //! arrays and map [`LicromError`] to exceptions.
+//!
+//! **Where things live.** The material ([`material`]: stable Neo-Hookean energy,
+//! stress, Hessian eigensystem, on [`svd3`]) and the contact point model
+//! ([`contact`]: penalty, damping and the Coulomb friction potential of one
+//! point against one plane) are per point. [`reduced`] sums them into the
+//! incremental potential of one step in reduced coordinates: inertia in
+//! `reduced/mod.rs`, the elastic term in `reduced/elastic.rs`, contact and
+//! friction (gradient, incremental Hessian, the stick switch) in
+//! `reduced/contact.rs`, the lane packing in `reduced/layout.rs`. [`solver`]
+//! minimises it: the outer iteration in `solver/mod.rs`, the Newton matrix in
+//! `solver/direction.rs`, the contact model and friction's stick correction in
+//! `solver/contact_model.rs`, the line search in [`solver::line_search`].
+//! The full-space simulation of the same physics (per tet and per vertex, on
+//! the GPU with warp) is `python/licrom/full_sim.py`: its elastic, contact and
+//! friction kernels, stick switch and line search follow the same formulas.
 
 // Indexed loops over fixed lane counts and small matrices are the form the
 // vectoriser handles best in the hot kernels; iterator chains would hide it.

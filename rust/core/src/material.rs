@@ -447,8 +447,7 @@ mod tests {
         let mat = material();
         let mut rng = Rng::new(5);
         for _ in 0..20 {
-            let r = nalgebra::Rotation3::from_scaled_axis(Vector3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 3.0)
-                .into_inner();
+            let r = nalgebra::Rotation3::from_scaled_axis(Vector3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 3.0).into_inner();
             assert!(mat.energy(&r).abs() < 1e-9 * mat.mu());
             assert!(mat.pk1(&r).norm() < 1e-9 * mat.mu());
         }

@@ -13,8 +13,20 @@
 //! compiler's loop vectoriser would rather vectorise across the blocks, with
 //! gathers, than within each block. The intrinsics pin the vectors down.
 
-/// Eight lanes.
-pub type F8 = [f64; 8];
+use crate::real::LANES;
+
+/// One value per lane.
+pub type F8 = [f64; LANES];
+
+// The intrinsics below hold eight lanes in one AVX-512 or two AVX2 vectors.
+const _: () = assert!(LANES == 8);
+
+/// Sum of the lanes, in a fixed pairwise order (the same in every kernel, so
+/// that results do not depend on which kernel reduced them).
+#[inline(always)]
+pub fn lane_sum(a: &F8) -> f64 {
+    ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]))
+}
 
 /// Multiply-add flavour of a kernel instantiation (one per instruction-set level).
 pub trait Madd: Copy {
@@ -24,7 +36,7 @@ pub trait Madd: Copy {
     #[inline(always)]
     fn madd8(a: &F8, b: &F8, c: F8) -> F8 {
         let mut r = c;
-        for l in 0..8 {
+        for l in 0..LANES {
             r[l] = Self::madd(a[l], b[l], c[l]);
         }
         r
@@ -32,7 +44,7 @@ pub trait Madd: Copy {
     /// `a * b + c` lane by lane with a scalar `a`.
     #[inline(always)]
     fn madd8_splat(a: f64, b: &F8, c: F8) -> F8 {
-        Self::madd8(&[a; 8], b, c)
+        Self::madd8(&[a; LANES], b, c)
     }
 }
 
@@ -66,7 +78,7 @@ impl Madd for Avx2 {
     #[inline(always)]
     fn madd8(a: &F8, b: &F8, c: F8) -> F8 {
         use std::arch::x86_64::{_mm256_fmadd_pd, _mm256_loadu_pd, _mm256_storeu_pd};
-        let mut r = [0.0; 8];
+        let mut r = [0.0; LANES];
         // SAFETY: this type is only instantiated inside `run_avx2`, compiled with
         // AVX2 and FMA after their detection; the pointers cover 8 values each.
         unsafe {
@@ -88,7 +100,7 @@ impl Madd for Avx512 {
     #[inline(always)]
     fn madd8(a: &F8, b: &F8, c: F8) -> F8 {
         use std::arch::x86_64::{_mm512_fmadd_pd, _mm512_loadu_pd, _mm512_storeu_pd};
-        let mut r = [0.0; 8];
+        let mut r = [0.0; LANES];
         // SAFETY: this type is only instantiated inside `run_avx512`, compiled with
         // AVX-512F after its detection; the pointers cover 8 values each.
         unsafe {

@@ -58,12 +58,12 @@ pub fn from_core(py: Python<'_>, e: LicromError) -> PyErr {
 }
 
 /// `Result` of the core mapped to a Python result.
-pub trait IntoPy<T> {
+pub trait CoreResultExt<T> {
     /// Maps the error with [`from_core`].
     fn py_err(self, py: Python<'_>) -> PyResult<T>;
 }
 
-impl<T> IntoPy<T> for licrom_core::Result<T> {
+impl<T> CoreResultExt<T> for licrom_core::Result<T> {
     fn py_err(self, py: Python<'_>) -> PyResult<T> {
         self.map_err(|e| from_core(py, e))
     }

@@ -5,7 +5,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::IntoPy;
+use crate::errors::CoreResultExt;
 
 const F_DIMS: [Dim; 3] = [Dim::Any("p"), Dim::Is(3), Dim::Is(3)];
 
@@ -43,13 +43,7 @@ pub fn snh_pk1<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -
 #[pyfunction]
 #[pyo3(signature = (F, mu, lam, project = true))]
 #[allow(non_snake_case)]
-pub fn snh_hessian<'py>(
-    py: Python<'py>,
-    F: &Bound<'py, PyAny>,
-    mu: f64,
-    lam: f64,
-    project: bool,
-) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+pub fn snh_hessian<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64, project: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     let (material, fs, p) = inputs(py, F, mu, lam)?;
     let mut out = vec![0.0; 81 * p];
     py.detach(|| material.hessian_batch(&fs, project, &mut out)).py_err(py)?;

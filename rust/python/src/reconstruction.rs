@@ -5,7 +5,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::IntoPy;
+use crate::errors::CoreResultExt;
 
 /// `x = X + W q` for N points with basis rows `W` (N, 3, n) and rest positions
 /// `X` (N, 3).

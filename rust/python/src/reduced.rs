@@ -9,7 +9,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{error, CoreResultExt, Kind};
 
 /// Reduced model, state `(q, qdot)` and solver of one simulation.
 #[pyclass(module = "licrom._core")]
@@ -68,12 +68,8 @@ impl ReducedCore {
         let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
         let rest = read(contact_rest, "contact_rest", &[Dim::Is(c), Dim::Is(3)])?;
         let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(5)])?;
-        let planes = planes
-            .data
-            .chunks_exact(5)
-            .map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4]))
-            .collect::<Result<Vec<_>, _>>()
-            .py_err(py)?;
+        let planes =
+            planes.data.chunks_exact(5).map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4])).collect::<Result<Vec<_>, _>>().py_err(py)?;
         let inputs = ReducedInputs {
             mass: &mass.data,
             gravity_force: &gravity.data,

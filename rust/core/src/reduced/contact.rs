@@ -1,0 +1,479 @@
+//! The contact term `sum_j,p C_jp(x_j(q))` of the reduced model: penalty,
+//! damping and lagged Coulomb friction of the point model in
+//! [`crate::contact`], mapped through the basis rows `W_j`.
+//!
+//! Energy and gradient are formed eight points at a time (see
+//! [`super::layout`]), only for points that touch a plane or carry a lagged
+//! normal force. The Hessian part is the product of the square-root factors of
+//! the points' rank-one terms times `W_j`, kept up to date incrementally by
+//! [`ContactHessian`]. The stick switch ([`ReducedSystem::stick_switch`]) is
+//! friction's correction of a Newton direction (used by the solver's contact
+//! model, [`crate::solver`]).
+
+use faer::{Accum, MatRef};
+use nalgebra::Vector3;
+
+use crate::contact::RankOneTerms;
+use crate::dense::{add_gram, combine_rows, mirror_lower, rows_dot, syrk_lower, syrk_rows};
+use crate::real::LANES;
+use crate::simd::{dispatch, lane_sum, Madd, Separate, WithMadd};
+
+use super::layout::lanes_at;
+use super::{ReducedSystem, StepStart, Workspace};
+
+/// A contact point whose gap, from its normal row, is above this (m) is
+/// skipped unless it carries a lagged normal force; its exact gap (from its
+/// position) decides everything else. The margin covers the round-off between
+/// the two ways of computing the gap.
+const CULL_MARGIN: f64 = 1e-9;
+
+/// Relative change of a contact curvature (and `1 - cos` of its direction)
+/// below which an incremental update keeps the old term.
+const CURVATURE_SLACK: f64 = 1.1;
+const DIRECTION_COS: f64 = 0.995;
+
+/// The contact part of the Hessian, kept up to date incrementally by
+/// [`ReducedSystem::update_contact_hessian`].
+#[derive(Debug, Clone)]
+pub struct ContactHessian {
+    /// The terms in `hess`, per contact point with area and plane.
+    used: Vec<RankOneTerms>,
+    /// n x n, full symmetric.
+    hess: Vec<f64>,
+    /// Rows in `hess`, and rows taken out since it was last formed from scratch.
+    rows: usize,
+    removed: usize,
+    /// Whether `hess` holds the terms `used` (else it is formed from scratch).
+    valid: bool,
+    /// Keep terms that changed by less than [`CURVATURE_SLACK`] (else only equal ones).
+    lagged: bool,
+}
+
+impl ContactHessian {
+    /// The matrix (n x n, full symmetric, PSD up to round-off).
+    pub fn matrix(&self) -> &[f64] {
+        &self.hess
+    }
+
+    /// Forms the matrix from scratch at the next update.
+    pub fn invalidate(&mut self) {
+        self.valid = false;
+    }
+}
+
+/// Whether the curvature terms `a` may stand in for `b` (`slack`: allowed ratio of
+/// the curvatures, `cos`: of the directions; 1, 1 for equality).
+fn close_terms(a: &RankOneTerms, b: &RankOneTerms, slack: f64, cos: f64) -> bool {
+    a.len == b.len
+        && (0..a.len).all(|t| {
+            let (ca, cb) = (a.coef[t], b.coef[t]);
+            ca <= slack * cb && cb <= slack * ca && a.dir[t].dot(&b.dir[t]) >= cos
+        })
+}
+
+/// Writes the square-root factors `sqrt(c_t) d_t` of the rank-one `terms`
+/// into `out` from index `at` on; returns the index after them.
+#[inline(always)]
+fn write_factors(terms: &RankOneTerms, out: &mut [[f64; 3]], at: usize) -> usize {
+    for t in 0..terms.len {
+        let d = terms.dir[t] * terms.coef[t].sqrt();
+        out[at + t] = [d.x, d.y, d.z];
+    }
+    at + terms.len
+}
+
+impl ReducedSystem {
+    /// The contact part of [`Self::begin_step`]: lagged normal forces, and the
+    /// start positions of the points that carry one.
+    #[inline(always)]
+    pub(super) fn begin_contacts<M: Madd>(&self, q: &[f64], start: &mut StepStart) {
+        let n_planes = self.planes.len();
+        start.normal_force.fill(0.0);
+        let k = self.contact.normal_stiffness;
+        for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
+            let mut engaged = 0u32;
+            for p in 0..n_planes {
+                let gap = self.contacts.group_gap::<M>(g, p, q);
+                for (l, &j) in slots.iter().enumerate() {
+                    // As `ContactModel::lagged_normal_force`.
+                    let f = self.areas[j] * k * (-gap[l]).max(0.0);
+                    start.normal_force[j * n_planes + p] = f;
+                    if f > 0.0 {
+                        engaged |= 1 << l;
+                    }
+                }
+            }
+            // Only points with a lagged normal force use their start position.
+            for (l, &j) in slots.iter().enumerate() {
+                if engaged & (1 << l) != 0 {
+                    let x = self.contact_position::<M>(j, q);
+                    start.x_prev[3 * j..3 * j + 3].copy_from_slice(x.as_slice());
+                }
+            }
+        }
+    }
+
+    /// Position of contact point `j` at `q`, m.
+    #[inline(always)]
+    pub(super) fn contact_position<M: Madd>(&self, j: usize, q: &[f64]) -> Vector3<f64> {
+        let n = self.n;
+        let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+        let x0 = &self.contact_rest[3 * j..3 * j + 3];
+        let wq = rows_dot::<M, 3>(w, q);
+        Vector3::new(x0[0] + wq[0], x0[1] + wq[1], x0[2] + wq[2])
+    }
+
+    /// Contact energy and, with `ws`, its gradient (added to `ws.grad`), the
+    /// Hessian terms and displacements of the points (into `ws`). Points that
+    /// touch no plane and carry no lagged normal force contribute nothing: eight
+    /// gaps at a time find them from the normal rows alone; the positions and
+    /// the gradient of the others are formed eight points at a time too.
+    #[inline(always)]
+    pub(super) fn contact_energy_impl<M: Madd>(&self, start: &StepStart, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
+        let n_planes = self.planes.len();
+        let mut e = 0.0;
+        if n_planes == 0 {
+            return e;
+        }
+        if let Some(ws) = ws.as_deref_mut() {
+            ws.contact_lane_grad.fill([0.0; LANES]);
+        }
+        let mut any_force = false;
+        for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
+            let mut active = 0u32;
+            for p in 0..n_planes {
+                let gap = self.contacts.group_gap::<M>(g, p, q);
+                for (l, &j) in slots.iter().enumerate() {
+                    if gap[l] < CULL_MARGIN || start.normal_force[j * n_planes + p] > 0.0 {
+                        active |= 1 << l;
+                    }
+                }
+            }
+            if active == 0 {
+                if let Some(ws) = ws.as_deref_mut() {
+                    for t in &mut ws.contact_terms[g * LANES * n_planes..(g * LANES + slots.len()) * n_planes] {
+                        t.len = 0;
+                    }
+                }
+                continue;
+            }
+            let x = self.contacts.group_positions::<M>(g, q);
+            let mut force = [[0.0; LANES]; 3];
+            let mut group_force = false;
+            for (l, &j) in slots.iter().enumerate() {
+                let slot = g * LANES + l;
+                if active & (1 << l) == 0 {
+                    if let Some(ws) = ws.as_deref_mut() {
+                        for t in &mut ws.contact_terms[slot * n_planes..(slot + 1) * n_planes] {
+                            t.len = 0;
+                        }
+                    }
+                    continue;
+                }
+                let xj = Vector3::new(x[0][l], x[1][l], x[2][l]);
+                let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
+                let mut g3 = Vector3::zeros();
+                for (p, plane) in self.planes.iter().enumerate() {
+                    let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &xj, &xp);
+                    e += c.energy;
+                    g3 += c.gradient;
+                    if let Some(ws) = ws.as_deref_mut() {
+                        ws.contact_terms[slot * n_planes + p] = c.hessian;
+                    }
+                }
+                if let Some(ws) = ws.as_deref_mut() {
+                    let dx = xj - xp;
+                    ws.contact_dx[slot] = [dx.x, dx.y, dx.z];
+                }
+                if g3 != Vector3::zeros() {
+                    for c in 0..3 {
+                        force[c][l] = g3[c];
+                    }
+                    group_force = true;
+                }
+            }
+            if let (Some(ws), true) = (ws.as_deref_mut(), group_force) {
+                any_force = true;
+                let w = self.contacts.group_basis(g);
+                for (wi, acc) in w.chunks_exact(3 * LANES).zip(ws.contact_lane_grad.iter_mut()) {
+                    let mut v = *acc;
+                    for c in 0..3 {
+                        v = M::madd8(lanes_at(wi, c * LANES), &force[c], v);
+                    }
+                    *acc = v;
+                }
+            }
+        }
+        if let (Some(ws), true) = (ws, any_force) {
+            for (g, a) in ws.grad.iter_mut().zip(&ws.contact_lane_grad) {
+                *g += lane_sum(a);
+            }
+        }
+        e
+    }
+
+    /// Contact part of the Hessian at `q` (PSD, n x n full symmetric) into `out`,
+    /// from the points that touch a plane or carry a lagged normal force.
+    pub fn contact_hessian(&self, start: &StepStart, q: &[f64], ws: &mut Workspace, out: &mut [f64]) {
+        let count = dispatch(ContactRowsKernel { sys: self, start, q, ws: &mut *ws });
+        syrk_rows(out, self.n, &ws.contact_rows, count, Accum::Replace);
+        mirror_lower(out, self.n);
+    }
+
+    #[inline(always)]
+    fn contact_rows_impl<M: Madd>(&self, start: &StepStart, q: &[f64], ws: &mut Workspace) -> usize {
+        let n = self.n;
+        let n_planes = self.planes.len();
+        let mut rows = 0;
+        if n_planes == 0 {
+            return 0;
+        }
+        for &j in &self.contacts.points {
+            let x = self.contact_position::<M>(j, q);
+            let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
+            let mut count = 0;
+            for (p, plane) in self.planes.iter().enumerate() {
+                let e = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
+                count = write_factors(&e.hessian, &mut ws.contact_coef, count);
+            }
+            if count > 0 {
+                let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+                combine_rows::<M, 3>(w, &ws.contact_coef[..count], &mut ws.contact_rows[rows * n..], &[0.0; 3], &mut []);
+                rows += count;
+            }
+        }
+        rows
+    }
+
+    /// An empty incremental contact Hessian for this system; `lagged` keeps
+    /// curvatures that changed by less than 10% (and directions that turned by
+    /// less than about 6 degrees), else only unchanged ones.
+    pub fn contact_hessian_state(&self, lagged: bool) -> ContactHessian {
+        ContactHessian {
+            used: vec![RankOneTerms::default(); self.contacts.points.len() * self.planes.len()],
+            hess: vec![0.0; self.n * self.n],
+            rows: 0,
+            removed: 0,
+            valid: false,
+            lagged,
+        }
+    }
+
+    /// Brings `state` to the contact terms of the last [`Self::evaluate`] with
+    /// gradient: the rows of the points whose terms changed are taken out of the
+    /// matrix and their new rows put in, so that a contact state that does not
+    /// change (sticking, resting) costs nothing. The matrix is formed from scratch
+    /// when invalid or once the rows taken out outnumber four times those in it,
+    /// which bounds the round-off of the updates. Returns the rows changed.
+    pub fn update_contact_hessian(&self, ws: &mut Workspace, state: &mut ContactHessian) -> usize {
+        let n = self.n;
+        let rebuild = !state.valid || state.removed > 4 * state.rows.max(64);
+        let (plus, minus, rows) = dispatch(ContactUpdateKernel { sys: self, ws: &mut *ws, state: &mut *state, rebuild });
+        if rebuild {
+            syrk_rows(&mut state.hess, n, &ws.contact_rows, plus, Accum::Replace);
+            state.removed = 0;
+        } else {
+            if plus > 0 {
+                syrk_rows(&mut state.hess, n, &ws.contact_rows, plus, Accum::Add);
+            }
+            if minus > 0 {
+                let b = MatRef::from_row_major_slice(&ws.contact_rows_out[..minus * n], minus, n);
+                syrk_lower(&mut state.hess, n, Some(b), Accum::Add, -1.0);
+            }
+            state.removed += minus;
+        }
+        mirror_lower(&mut state.hess, n);
+        state.rows = rows;
+        state.valid = true;
+        plus + minus
+    }
+
+    /// Rows in and out of an incremental update; returns their counts and the
+    /// rows in the matrix afterwards.
+    #[inline(always)]
+    fn update_contact_impl<M: Madd>(&self, ws: &mut Workspace, state: &mut ContactHessian, rebuild: bool) -> (usize, usize, usize) {
+        let n = self.n;
+        let n_planes = self.planes.len();
+        let (slack, cos) = if state.lagged { (CURVATURE_SLACK, DIRECTION_COS) } else { (1.0, 1.0) };
+        let (mut plus, mut minus, mut rows) = (0, 0, 0);
+        for (slot, &j) in self.contacts.points.iter().enumerate() {
+            let (mut count_in, mut count_out) = (0, 0);
+            for p in 0..n_planes {
+                let k = slot * n_planes + p;
+                let (new, old) = (ws.contact_terms[k], state.used[k]);
+                if !rebuild && (new.len == 0 && old.len == 0 || close_terms(&new, &old, slack, cos)) {
+                    rows += old.len;
+                    continue;
+                }
+                if !rebuild {
+                    count_out = write_factors(&old, &mut ws.contact_coef_out, count_out);
+                }
+                count_in = write_factors(&new, &mut ws.contact_coef, count_in);
+                state.used[k] = new;
+                rows += new.len;
+            }
+            let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+            if count_in > 0 {
+                combine_rows::<M, 3>(w, &ws.contact_coef[..count_in], &mut ws.contact_rows[plus * n..], &[0.0; 3], &mut []);
+                plus += count_in;
+            }
+            if count_out > 0 {
+                combine_rows::<M, 3>(w, &ws.contact_coef_out[..count_out], &mut ws.contact_rows_out[minus * n..], &[0.0; 3], &mut []);
+                minus += count_out;
+            }
+        }
+        (plus, minus, rows)
+    }
+
+    /// Stick correction of a Newton direction `dir` taken from the point of the
+    /// last [`Self::evaluate`] with gradient (whose contact displacements it
+    /// uses): the slipping
+    /// contact points whose slip the step would reverse or bring into the stick
+    /// region (where the friction force falls below the Coulomb limit) are modelled
+    /// as sticking. For each, the square-root rows of the Hessian change
+    /// `c T - (mu f_n / s)(T - t t^T)` (PSD: `c > mu f_n / s` while slipping) go to the
+    /// switch rows, and `W_j^T t (c s - mu f_n)` (stick force minus slip force) is
+    /// added to `rhs`. Returns the number of rows; [`Self::add_switch_rows`] adds
+    /// their product to a Hessian.
+    pub fn stick_switch(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
+        dispatch(StickKernel { sys: self, start, dir, ws, rhs })
+    }
+
+    /// Adds the product of the first `count` switch rows of [`Self::stick_switch`]
+    /// to the full symmetric `hess`.
+    pub fn add_switch_rows(&self, ws: &Workspace, count: usize, hess: &mut [f64]) {
+        add_gram(hess, self.n, &ws.contact_rows, count);
+    }
+
+    #[inline(always)]
+    fn stick_impl<M: Madd>(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
+        let n = self.n;
+        let n_planes = self.planes.len();
+        let h = self.dt();
+        let mut rows = 0;
+        for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
+            // Slipping points (all carry a lagged normal force, so they were
+            // evaluated and their displacement kept).
+            let mut slipping = 0u32;
+            for (l, &j) in slots.iter().enumerate() {
+                let c = self.areas[j] * self.contact.friction_stiffness / h;
+                let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
+                for (p, plane) in self.planes.iter().enumerate() {
+                    let cap = plane.friction() * start.normal_force[j * n_planes + p];
+                    if cap > 0.0 && c > 0.0 {
+                        let nrm = plane.normal();
+                        if c * (dx - nrm * nrm.dot(&dx)).norm() > cap {
+                            slipping |= 1 << l;
+                        }
+                    }
+                }
+            }
+            if slipping == 0 {
+                continue;
+            }
+            // Their motion along the direction, eight at a time.
+            let wd = self.contacts.group_motion::<M>(g, dir);
+            for (l, &j) in slots.iter().enumerate() {
+                if slipping & (1 << l) == 0 {
+                    continue;
+                }
+                let c = self.areas[j] * self.contact.friction_stiffness / h;
+                let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
+                let wd = Vector3::new(wd[0][l], wd[1][l], wd[2][l]);
+                let mut count = 0;
+                let mut force = Vector3::zeros();
+                for (p, plane) in self.planes.iter().enumerate() {
+                    let cap = plane.friction() * start.normal_force[j * n_planes + p];
+                    if cap <= 0.0 {
+                        continue;
+                    }
+                    let nrm = plane.normal();
+                    let delta = dx - nrm * nrm.dot(&dx);
+                    let slip = delta.norm();
+                    if c * slip <= cap {
+                        continue;
+                    }
+                    let t = delta / slip;
+                    let moved = delta + wd - nrm * nrm.dot(&wd);
+                    if t.dot(&moved) >= cap / c {
+                        continue;
+                    }
+                    let b = nrm.cross(&t);
+                    let (st, sb) = (c.sqrt(), (c - cap / slip).max(0.0).sqrt());
+                    ws.contact_coef[count] = [st * t.x, st * t.y, st * t.z];
+                    ws.contact_coef[count + 1] = [sb * b.x, sb * b.y, sb * b.z];
+                    count += 2;
+                    force += t * (c * slip - cap);
+                }
+                if count > 0 {
+                    let f: &[f64; 3] = force.as_slice().try_into().expect("3 components");
+                    let wj = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
+                    combine_rows::<M, 3>(wj, &ws.contact_coef[..count], &mut ws.contact_rows[rows * n..], f, rhs);
+                    rows += count;
+                }
+            }
+        }
+        rows
+    }
+
+    /// Contact force (N, world frame) on each contact point at `q`: minus the
+    /// gradient of penalty + damping + friction w.r.t. its position. `out`: C x 3.
+    pub fn contact_forces(&self, start: &StepStart, q: &[f64], out: &mut [f64]) {
+        let n_planes = self.planes.len();
+        for j in 0..self.n_contacts() {
+            let x = self.contact_position::<Separate>(j, q);
+            let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
+            let mut f = Vector3::zeros();
+            for (p, plane) in self.planes.iter().enumerate() {
+                f -= self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp).gradient;
+            }
+            out[3 * j..3 * j + 3].copy_from_slice(f.as_slice());
+        }
+    }
+}
+
+struct ContactRowsKernel<'a> {
+    sys: &'a ReducedSystem,
+    start: &'a StepStart,
+    q: &'a [f64],
+    ws: &'a mut Workspace,
+}
+
+impl WithMadd for ContactRowsKernel<'_> {
+    type Output = usize;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> usize {
+        self.sys.contact_rows_impl::<M>(self.start, self.q, self.ws)
+    }
+}
+
+struct ContactUpdateKernel<'a> {
+    sys: &'a ReducedSystem,
+    ws: &'a mut Workspace,
+    state: &'a mut ContactHessian,
+    rebuild: bool,
+}
+
+impl WithMadd for ContactUpdateKernel<'_> {
+    type Output = (usize, usize, usize);
+    #[inline(always)]
+    fn run<M: Madd>(self) -> (usize, usize, usize) {
+        self.sys.update_contact_impl::<M>(self.ws, self.state, self.rebuild)
+    }
+}
+
+struct StickKernel<'a> {
+    sys: &'a ReducedSystem,
+    start: &'a StepStart,
+    dir: &'a [f64],
+    ws: &'a mut Workspace,
+    rhs: &'a mut [f64],
+}
+
+impl WithMadd for StickKernel<'_> {
+    type Output = usize;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> usize {
+        self.sys.stick_impl::<M>(self.start, self.dir, self.ws, self.rhs)
+    }
+}

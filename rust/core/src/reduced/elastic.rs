@@ -1,0 +1,293 @@
+//! The elastic term `sum_k w_k Psi(F_k(q))` (stable Neo-Hookean at the
+//! cubature points): energy, gradient, and the square-root rows of its Hessian;
+//! and the quadratic stand-in for it used by the contact model.
+//!
+//! **Hessian.** The elastic part is `B^T B`, where B stacks, per cubature
+//! point, `sqrt(w_k lambda_i) e_i^T G_k` for the positive eigenpairs of the SNH
+//! Hessian (negative ones, with `|lambda_i|`, go into a second stack N, so that
+//! the exact elastic Hessian is `B^T B - N^T N`). The rows are written eight at
+//! a time (one per lane) into a column-major stack of cache size and multiplied
+//! chunk by chunk by faer's blocked symmetric kernels.
+
+use faer::Accum;
+
+use crate::dense::{mirror_lower, syrk_columns};
+use crate::real::{Lanes, Real, LANES};
+use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
+
+use super::layout::lanes_at;
+use super::{ReducedSystem, Workspace};
+
+/// A quadratic stand-in for the elastic energy about `origin`:
+/// `energy + gradient . d + d^T hessian d / 2`, `d = q - origin`.
+#[derive(Debug, Clone, Copy)]
+pub struct ElasticModel<'a> {
+    /// Expansion point, n.
+    pub origin: &'a [f64],
+    /// Elastic energy there, J.
+    pub energy: f64,
+    /// Elastic gradient there, n.
+    pub gradient: &'a [f64],
+    /// Symmetric n x n matrix.
+    pub hessian: &'a [f64],
+}
+
+impl ElasticModel<'_> {
+    /// The model's energy at `q`, and its gradient added to `grad` when given.
+    #[inline(always)]
+    pub(super) fn evaluate<M: Madd>(&self, q: &[f64], mut grad: Option<&mut [f64]>) -> f64 {
+        let n = q.len();
+        let mut em = self.energy;
+        for i in 0..n {
+            let mut kd = 0.0;
+            for j in 0..n {
+                kd = M::madd(self.hessian[i * n + j], q[j] - self.origin[j], kd);
+            }
+            em = M::madd(q[i] - self.origin[i], self.gradient[i] + 0.5 * kd, em);
+            if let Some(g) = grad.as_deref_mut() {
+                g[i] += self.gradient[i] + kd;
+            }
+        }
+        em
+    }
+}
+
+/// Adds the elastic gradient held per lane in `lane_grad` (varying columns,
+/// then the nine components of the summed stress) to `out` (n).
+pub(super) fn reduce_lane_gradient(lane_grad: &[F8], var_cols: &[usize], const_cols: &[(usize, [f64; 9])], out: &mut [f64]) {
+    for (a, &c) in lane_grad.iter().zip(var_cols) {
+        out[c] += lane_sum(a);
+    }
+    let nv = var_cols.len();
+    let stress: [f64; 9] = std::array::from_fn(|a| lane_sum(&lane_grad[nv + a]));
+    for (c, v) in const_cols {
+        out[*c] += (0..9).map(|a| v[a] * stress[a]).sum::<f64>();
+    }
+}
+
+/// Writes the combinations `sum_a coef[b][a] gs[a]` (for the first `count`
+/// modes b of each coefficient set, eight lanes each) into column `at` of the
+/// positive and clamped row stacks, from row `base` on. All nine combinations
+/// are formed at once: nine independent multiply-add chains reuse each lane
+/// block of G.
+#[inline(always)]
+fn write_rows<M: Madd>(at: usize, gs: &[F8; 9], coefs: [&[[F8; 9]; 9]; 2], counts: [(usize, usize); 2], outs: [&mut Vec<f64>; 2]) {
+    for ((coef, (count, base)), out) in coefs.into_iter().zip(counts).zip(outs) {
+        if count == 0 {
+            continue;
+        }
+        let mut v = [[0.0; LANES]; 9];
+        for a in 0..9 {
+            for b in 0..9 {
+                v[b] = M::madd8(&coef[b][a], &gs[a], v[b]);
+            }
+        }
+        let at = at + base;
+        out[at..at + count * LANES].copy_from_slice(v[..count].as_flattened());
+    }
+}
+
+impl ReducedSystem {
+    /// The elastic energy `sum_k w_k Psi(F_k(q))` alone (J) and, with
+    /// `with_gradient`, its gradient into `ws.grad`: for solvers that bring
+    /// their own inertia and contact terms.
+    pub fn elastic(&self, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
+        if with_gradient {
+            ws.grad.fill(0.0);
+        }
+        dispatch(ElasticKernel { sys: self, q, ws: with_gradient.then_some(ws) })
+    }
+
+    /// Elastic energy and, when `grad` is not empty, its gradient added to
+    /// `grad`, eight points at a time; `lane_grad` is scratch.
+    #[inline(always)]
+    pub(super) fn elastic_impl<M: Madd>(&self, q: &[f64], lane_grad: &mut [F8], grad: &mut [f64]) -> f64 {
+        let cub = &self.cubature;
+        let nv = cub.var_cols.len();
+        let with_gradient = !grad.is_empty();
+        if with_gradient {
+            lane_grad.fill([0.0; LANES]);
+        }
+        let f0 = cub.constant_deformation(q);
+        let mut elastic = [0.0; LANES];
+        let group_len = cub.group_len();
+        for (g, weights) in cub.weights.chunks_exact(LANES).enumerate() {
+            let group = &cub.packed[g * group_len..(g + 1) * group_len];
+            let f = cub.group_deformation::<M>(group, q, &f0);
+            let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            for l in 0..LANES {
+                elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
+            }
+            if with_gradient {
+                for row in p.iter_mut() {
+                    for l in 0..LANES {
+                        row[l] *= weights[l];
+                    }
+                }
+                let (var_acc, stress_acc) = lane_grad.split_at_mut(nv);
+                for (g, acc) in group.chunks_exact(9 * LANES).zip(var_acc.iter_mut()) {
+                    let mut v = *acc;
+                    for a in 0..9 {
+                        v = M::madd8(lanes_at(g, a * LANES), &p[a], v);
+                    }
+                    *acc = v;
+                }
+                for (acc, pa) in stress_acc.iter_mut().zip(&p) {
+                    for l in 0..LANES {
+                        acc[l] += pa[l];
+                    }
+                }
+            }
+        }
+        if with_gradient {
+            reduce_lane_gradient(lane_grad, &cub.var_cols, &cub.const_cols, grad);
+        }
+        lane_sum(&elastic)
+    }
+
+    /// Elastic part of the Hessian at `q`: the PSD projection (negative
+    /// eigenvalues of every point's SNH Hessian clamped to zero) into
+    /// `projected`, and what the clamping removed (PSD) into `clamped` when
+    /// given, both n x n full symmetric. Returns whether anything was clamped.
+    pub fn elastic_hessian(&self, q: &[f64], ws: &mut Workspace, projected: &mut [f64], mut clamped: Option<&mut [f64]>) -> bool {
+        let n = self.n;
+        let split = clamped.is_some();
+        projected.fill(0.0);
+        if let Some(c) = clamped.as_deref_mut() {
+            c.fill(0.0);
+        }
+        let mut any_clamped = false;
+        let groups = self.cubature.groups();
+        for first in (0..groups).step_by(ws.chunk) {
+            let range = first..groups.min(first + ws.chunk);
+            let (positive, negative) = dispatch(ElasticRowsKernel { sys: self, q, split, range, ws: &mut *ws });
+            syrk_columns(projected, n, &ws.rows, ws.row_stride, positive, Accum::Add);
+            if let Some(c) = clamped.as_deref_mut() {
+                syrk_columns(c, n, &ws.clamped_rows, ws.row_stride, negative, Accum::Add);
+            }
+            any_clamped |= negative > 0;
+        }
+        mirror_lower(projected, n);
+        if let Some(c) = clamped {
+            mirror_lower(c, n);
+        }
+        any_clamped
+    }
+
+    /// Square-root rows of the elastic Hessian for the groups in `range`, eight
+    /// (one per lane) per group and eigenmode, skipping modes that no lane of the
+    /// group needs; returns the numbers of positive and clamped rows written.
+    #[inline(always)]
+    fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, range: std::ops::Range<usize>, ws: &mut Workspace) -> (usize, usize) {
+        let cub = &self.cubature;
+        let stride = ws.row_stride;
+        let group_len = cub.group_len();
+        let f0 = cub.constant_deformation(q);
+        let (mut positive, mut negative) = (0, 0);
+        let mut values = [Lanes::splat(0.0); 9];
+        let mut vectors = [[Lanes::splat(0.0); 9]; 9];
+        let mut pos_coef = [[[0.0; LANES]; 9]; 9];
+        let mut neg_coef = [[[0.0; LANES]; 9]; 9];
+        let packed = &cub.packed[range.start * group_len..range.end * group_len];
+        let packed_weights = &cub.weights[range.start * LANES..range.end * LANES];
+        for (g, weights) in packed_weights.chunks_exact(LANES).enumerate() {
+            let group = &packed[g * group_len..(g + 1) * group_len];
+            let f = cub.group_deformation::<M>(group, q, &f0);
+            let mut lanes = [[Lanes::splat(0.0); 3]; 3];
+            for a in 0..9 {
+                lanes[a / 3][a % 3] = Lanes(f[a]);
+            }
+            self.material.eigensystem_of(&lanes, &mut values, &mut vectors);
+            let (mut n_pos, mut n_neg) = (0, 0);
+            for (lambda, v) in values.iter().zip(&vectors) {
+                let mut sp = [0.0; LANES];
+                let mut sn = [0.0; LANES];
+                let (mut any_pos, mut any_neg) = (false, false);
+                for l in 0..LANES {
+                    let s = (weights[l] * lambda.0[l].abs()).sqrt();
+                    if lambda.0[l] > 0.0 {
+                        sp[l] = s;
+                        any_pos |= s > 0.0;
+                    } else {
+                        sn[l] = s;
+                        any_neg |= s > 0.0;
+                    }
+                }
+                if any_pos {
+                    for a in 0..9 {
+                        for l in 0..LANES {
+                            pos_coef[n_pos][a][l] = sp[l] * v[a].0[l];
+                        }
+                    }
+                    n_pos += 1;
+                }
+                if split && any_neg {
+                    for a in 0..9 {
+                        for l in 0..LANES {
+                            neg_coef[n_neg][a][l] = sn[l] * v[a].0[l];
+                        }
+                    }
+                    n_neg += 1;
+                }
+            }
+            // All nine combinations at once: nine independent multiply-add
+            // chains reuse each loaded block of G; only the needed ones are stored.
+            let counts = [(n_pos, positive), (n_neg, negative)];
+            for (g, &c) in group.chunks_exact(9 * LANES).zip(&cub.var_cols) {
+                let mut gs = [[0.0; LANES]; 9];
+                for a in 0..9 {
+                    gs[a] = *lanes_at(g, a * LANES);
+                }
+                write_rows::<M>(c * stride, &gs, [&pos_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
+            }
+            for (c, v) in &cub.const_cols {
+                write_rows::<M>(*c * stride, &v.map(|x| [x; LANES]), [&pos_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
+            }
+            positive += n_pos * LANES;
+            negative += n_neg * LANES;
+        }
+        (positive, negative)
+    }
+
+    /// Elastic stiffness at the rest configuration `K = sum_k w_k G_k^T H(I) G_k`
+    /// (into `ws.hess`, full symmetric), Pa m^3 per unit of q squared.
+    pub fn rest_stiffness(&self, ws: &mut Workspace) {
+        let rest = vec![0.0; self.n];
+        let mut hess = std::mem::take(&mut ws.hess);
+        self.elastic_hessian(&rest, ws, &mut hess, None);
+        ws.hess = hess;
+    }
+}
+
+struct ElasticRowsKernel<'a> {
+    sys: &'a ReducedSystem,
+    q: &'a [f64],
+    split: bool,
+    range: std::ops::Range<usize>,
+    ws: &'a mut Workspace,
+}
+
+impl WithMadd for ElasticRowsKernel<'_> {
+    type Output = (usize, usize);
+    #[inline(always)]
+    fn run<M: Madd>(self) -> (usize, usize) {
+        self.sys.elastic_rows_impl::<M>(self.q, self.split, self.range, self.ws)
+    }
+}
+
+struct ElasticKernel<'a> {
+    sys: &'a ReducedSystem,
+    q: &'a [f64],
+    ws: Option<&'a mut Workspace>,
+}
+
+impl WithMadd for ElasticKernel<'_> {
+    type Output = f64;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> f64 {
+        match self.ws {
+            Some(ws) => self.sys.elastic_impl::<M>(self.q, &mut ws.lane_grad, &mut ws.grad),
+            None => self.sys.elastic_impl::<M>(self.q, &mut [], &mut []),
+        }
+    }
+}

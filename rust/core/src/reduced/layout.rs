@@ -1,0 +1,222 @@
+//! Packing of the per-point data in groups of [`LANES`] points.
+//!
+//! The cubature Jacobians of the points with `w_k > 0` (points of zero weight
+//! are dropped) are stored in groups of [`LANES`] points, each group as
+//! `[i][a][lane]` (column i of `G_k`, component a of `vec(F)`). One pass over a
+//! group forms the eight deformation gradients with vertical multiply-adds
+//! (`F[a][lane] += G[i][a][lane] q_i`, no horizontal sums), the stress and energy
+//! run eight points per instruction, and the gradient `G_k^T P_k` accumulates
+//! per lane until one final reduction. Columns of G that are the same at every
+//! point (the affine modes: a linear map of X has the same gradient
+//! everywhere) are factored out: they add a constant to every F, and their
+//! gradient is one product with the summed stress. Contact points are packed
+//! the same way (`W_j` as `[i][c][lane]`, plus their normal rows `n_p^T W_j`):
+//! the gaps of eight points cost one pass over the normal rows, and only groups
+//! with a point that touches a plane or carries a lagged normal force go on to
+//! positions, contact terms and gradient. Measured on one core (AVX-512), the
+//! elastic gradient costs about 30-40 ns per cubature point at n = 32 whether
+//! K is 100 or 5000, so it is compute bound: storing G in f32 would save
+//! bandwidth that is not the limit, and would perturb the model at 1e-7.
+
+use nalgebra::Vector3;
+
+use crate::contact::Plane;
+use crate::real::LANES;
+use crate::simd::{Madd, F8};
+
+/// The eight values of `s` from `at`.
+#[inline(always)]
+pub(super) fn lanes_at(s: &[f64], at: usize) -> &F8 {
+    s[at..at + LANES].try_into().expect("eight lanes")
+}
+
+/// The cubature Jacobians `G_k` of the points with `w_k > 0`, packed by lanes.
+#[derive(Debug, Clone)]
+pub(super) struct CubatureLayout {
+    /// Columns of G that differ between cubature points, and the columns that
+    /// are the same non-zero 9-vector at every point (the affine modes: a linear
+    /// map of X has the same gradient everywhere) with that vector. Columns that
+    /// are zero everywhere (translations) appear in neither.
+    pub(super) var_cols: Vec<usize>,
+    pub(super) const_cols: Vec<(usize, [f64; 9])>,
+    /// The varying columns of the Jacobians, in groups of LANES points, group g
+    /// at `g group_len()` as `[i][a][lane]`; the last group is padded with
+    /// G = 0, w = 0.
+    pub(super) packed: Vec<f64>,
+    /// Weights of the packed points, `LANES` per group, m^3.
+    pub(super) weights: Vec<f64>,
+}
+
+impl CubatureLayout {
+    /// Packs the K x 9 x n Jacobians (row-major) of the points of positive weight.
+    pub(super) fn new(jacobians: &[f64], weights: &[f64], n: usize) -> Self {
+        let kept: Vec<usize> = (0..weights.len()).filter(|&i| weights[i] > 0.0).collect();
+        let column = |point: usize, c: usize| -> [f64; 9] { std::array::from_fn(|a| jacobians[9 * n * point + a * n + c]) };
+        let (mut var_cols, mut const_cols) = (Vec::new(), Vec::new());
+        for c in 0..n {
+            let first = kept.first().map(|&p| column(p, c)).unwrap_or([0.0; 9]);
+            if kept.iter().any(|&p| column(p, c) != first) {
+                var_cols.push(c);
+            } else if first.iter().any(|v| *v != 0.0) {
+                const_cols.push((c, first));
+            }
+        }
+        let nv = var_cols.len();
+        let groups = kept.len().div_ceil(LANES);
+        let mut packed = vec![0.0; groups * nv * 9 * LANES];
+        let mut packed_weights = vec![0.0; groups * LANES];
+        for (slot, &point) in kept.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            packed_weights[slot] = weights[point];
+            let src = &jacobians[9 * n * point..9 * n * (point + 1)];
+            let dst = &mut packed[g * nv * 9 * LANES..(g + 1) * nv * 9 * LANES];
+            for (iv, &c) in var_cols.iter().enumerate() {
+                for a in 0..9 {
+                    dst[(iv * 9 + a) * LANES + l] = src[a * n + c];
+                }
+            }
+        }
+        Self { var_cols, const_cols, packed, weights: packed_weights }
+    }
+
+    /// Number of groups of LANES points.
+    pub(super) fn groups(&self) -> usize {
+        self.weights.len() / LANES
+    }
+
+    /// Values per packed group.
+    pub(super) fn group_len(&self) -> usize {
+        self.var_cols.len() * 9 * LANES
+    }
+
+    /// `vec(I) + sum_c v_c q_c` over the constant columns of G.
+    #[inline(always)]
+    pub(super) fn constant_deformation(&self, q: &[f64]) -> [f64; 9] {
+        let mut f0 = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        for (c, v) in &self.const_cols {
+            for a in 0..9 {
+                f0[a] += v[a] * q[*c];
+            }
+        }
+        f0
+    }
+
+    /// The eight deformation gradients of a packed group, `F[a][lane]`: `f0`
+    /// (identity plus the constant columns' part) plus the varying columns.
+    #[inline(always)]
+    pub(super) fn group_deformation<M: Madd>(&self, group: &[f64], q: &[f64], f0: &[f64; 9]) -> [F8; 9] {
+        let mut f = [[0.0; LANES]; 9];
+        for a in 0..9 {
+            f[a] = [f0[a]; LANES];
+        }
+        for (g, &c) in group.chunks_exact(9 * LANES).zip(&self.var_cols) {
+            let qc = q[c];
+            for a in 0..9 {
+                f[a] = M::madd8_splat(qc, lanes_at(g, a * LANES), f[a]);
+            }
+        }
+        f
+    }
+}
+
+/// The contact points with a non-zero area, packed by lanes.
+#[derive(Debug, Clone)]
+pub(super) struct ContactLayout {
+    n: usize,
+    n_planes: usize,
+    /// Indices of the contact points with a non-zero area (the others carry no
+    /// force), in packing order.
+    pub(super) points: Vec<usize>,
+    /// Basis rows `W_j` of those points in groups of LANES, group g at
+    /// `g n 3 LANES` as `[i][c][lane]`, and their rest positions `[g][c][lane]`.
+    basis: Vec<f64>,
+    rest: Vec<f64>,
+    /// Normal rows `n_p^T W_j` of those points in groups of LANES: group g and
+    /// plane p at `(g P + p) n LANES`, as `[i][lane]`.
+    normal_rows: Vec<f64>,
+    /// `n_p . X_j + d_p` at `(g P + p) LANES + lane` (+inf in padding lanes), so
+    /// that `gap = offset + row . q`.
+    normal_offsets: Vec<f64>,
+}
+
+impl ContactLayout {
+    /// Packs the C x 3 x n basis rows and C x 3 rest positions (row-major) of
+    /// the points with a non-zero area.
+    pub(super) fn new(basis: &[f64], rest: &[f64], areas: &[f64], planes: &[Plane], n: usize) -> Self {
+        let points: Vec<usize> = (0..areas.len()).filter(|&j| areas[j] > 0.0).collect();
+        let n_planes = planes.len();
+        let groups = points.len().div_ceil(LANES);
+        let mut normal_rows = vec![0.0; groups * n_planes * n * LANES];
+        let mut normal_offsets = vec![f64::INFINITY; groups * n_planes * LANES];
+        for (slot, &j) in points.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            let w = &basis[3 * n * j..3 * n * (j + 1)];
+            for (p, plane) in planes.iter().enumerate() {
+                let at = g * n_planes + p;
+                let nrm = plane.normal();
+                let x0 = Vector3::from_column_slice(&rest[3 * j..3 * j + 3]);
+                normal_offsets[at * LANES + l] = plane.gap(&x0);
+                for i in 0..n {
+                    normal_rows[(at * n + i) * LANES + l] = nrm.x * w[i] + nrm.y * w[n + i] + nrm.z * w[2 * n + i];
+                }
+            }
+        }
+        let mut packed = vec![0.0; groups * n * 3 * LANES];
+        let mut rest_packed = vec![0.0; groups * 3 * LANES];
+        for (slot, &j) in points.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            for c in 0..3 {
+                rest_packed[(g * 3 + c) * LANES + l] = rest[3 * j + c];
+                for i in 0..n {
+                    packed[((g * n + i) * 3 + c) * LANES + l] = basis[3 * n * j + c * n + i];
+                }
+            }
+        }
+        Self { n, n_planes, points, basis: packed, rest: rest_packed, normal_rows, normal_offsets }
+    }
+
+    /// The packed basis rows of group `g`, `[i][c][lane]`.
+    #[inline(always)]
+    pub(super) fn group_basis(&self, g: usize) -> &[f64] {
+        let n = self.n;
+        &self.basis[g * n * 3 * LANES..(g + 1) * n * 3 * LANES]
+    }
+
+    /// Gaps of the eight contact points of group `g` to plane `p` at `q`.
+    #[inline(always)]
+    pub(super) fn group_gap<M: Madd>(&self, g: usize, p: usize, q: &[f64]) -> F8 {
+        let n = self.n;
+        let at = g * self.n_planes + p;
+        let rows = &self.normal_rows[at * n * LANES..(at + 1) * n * LANES];
+        let mut gap = *lanes_at(&self.normal_offsets, at * LANES);
+        for (i, &qi) in q.iter().enumerate() {
+            gap = M::madd8_splat(qi, lanes_at(rows, i * LANES), gap);
+        }
+        gap
+    }
+
+    /// Positions `x[c][lane]` of the eight contact points of group `g` at `q`.
+    #[inline(always)]
+    pub(super) fn group_positions<M: Madd>(&self, g: usize, q: &[f64]) -> [F8; 3] {
+        let rest = std::array::from_fn(|c| *lanes_at(&self.rest, (g * 3 + c) * LANES));
+        self.group_combination::<M>(g, q, rest)
+    }
+
+    /// Motion `W_j d` of the eight contact points of group `g` along `d`, `[c][lane]`.
+    #[inline(always)]
+    pub(super) fn group_motion<M: Madd>(&self, g: usize, d: &[f64]) -> [F8; 3] {
+        self.group_combination::<M>(g, d, [[0.0; LANES]; 3])
+    }
+
+    /// `start + W_j v` for the eight contact points of group `g`, `[c][lane]`.
+    #[inline(always)]
+    fn group_combination<M: Madd>(&self, g: usize, v: &[f64], start: [F8; 3]) -> [F8; 3] {
+        let mut x = start;
+        for (wi, &vi) in self.group_basis(g).chunks_exact(3 * LANES).zip(v) {
+            for c in 0..3 {
+                x[c] = M::madd8_splat(vi, lanes_at(wi, c * LANES), x[c]);
+            }
+        }
+        x
+    }
+}

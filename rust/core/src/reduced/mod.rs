@@ -1,0 +1,386 @@
+//! The reduced incremental potential of one backward-Euler step and its
+//! derivatives.
+//!
+//! With reduced coordinates `q` (n = 12 affine + r learned, treated generically):
+//!
+//! `E(q) = 1/(2h^2) (q - qt)^T M (q - qt) - f.q + sum_k w_k Psi(F_k(q)) + sum_j,p C_jp(x_j(q))`
+//!
+//! with `qt = q_t + h qdot_t`, `vec(F_k) = vec(I) + G_k q` (G_k: 9 x n),
+//! `x_j = X_j + W_j q` (W_j: 3 x n) and `C_jp` the contact potential of point j
+//! against plane p ([`crate::contact`]). Units: q is dimensionless or m depending
+//! on the mode; E in J, gradient in J per unit of q.
+//!
+//! Where the parts live: inertia and gravity, and the sum of the terms, here;
+//! the packing of the per-point data in lanes in `layout.rs`; the elastic term
+//! (energy, gradient, Hessian rows) in `elastic.rs`; the contact term (energy,
+//! gradient, incremental Hessian, friction's stick switch) in `contact.rs`; the
+//! buffers in `workspace.rs`.
+//!
+//! **Hessian.** It is assembled in parts, so that the solver can refresh them
+//! at different rates: the elastic part (see `elastic.rs`) and the contact
+//! part, kept up to date incrementally ([`ContactHessian`]).
+//!
+//! **Contact model.** [`ReducedSystem::evaluate_model`] is E with the elastic
+//! energy replaced by a quadratic ([`ElasticModel`]): the solver minimises it
+//! inside each Newton iteration (see [`crate::solver`]).
+
+mod contact;
+mod elastic;
+mod layout;
+mod workspace;
+
+#[cfg(test)]
+mod tests;
+
+pub use contact::ContactHessian;
+pub use elastic::ElasticModel;
+pub use workspace::Workspace;
+
+use crate::contact::{ContactModel, Plane};
+use crate::dense::dot;
+use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::material::StableNeoHookean;
+use crate::simd::{dispatch, Madd, WithMadd};
+use layout::{ContactLayout, CubatureLayout};
+
+/// Borrowed description of a reduced model; all arrays row-major (C order).
+#[derive(Debug, Clone, Copy)]
+pub struct ReducedInputs<'a> {
+    /// Reduced mass matrix `W^T M W`, n x n, symmetric positive definite, kg.
+    pub mass: &'a [f64],
+    /// Reduced gravity force `W^T M g`, n, N.
+    pub gravity_force: &'a [f64],
+    /// `G_k = dvec(F)/dq` at the K cubature points, K x 9 x n.
+    pub cubature_jacobians: &'a [f64],
+    /// Cubature weights w_k >= 0, K, m^3.
+    pub cubature_weights: &'a [f64],
+    /// Material of the solid.
+    pub material: StableNeoHookean,
+    /// Basis rows W_j at the C contact points, C x 3 x n.
+    pub contact_basis: &'a [f64],
+    /// Rest positions X_j of the contact points, C x 3, m.
+    pub contact_rest: &'a [f64],
+    /// Boundary area a_j >= 0 carried by each contact point, C, m^2.
+    pub contact_areas: &'a [f64],
+    /// Contact planes.
+    pub planes: &'a [Plane],
+    /// k_n, N/m^3.
+    pub normal_stiffness: f64,
+    /// k_d, N s/m^3.
+    pub normal_damping: f64,
+    /// k_f, N s/m^3.
+    pub friction_stiffness: f64,
+    /// Time step h, s.
+    pub dt: f64,
+}
+
+/// Validated, owned reduced model.
+#[derive(Debug, Clone)]
+pub struct ReducedSystem {
+    n: usize,
+    mass: Vec<f64>,
+    gravity: Vec<f64>,
+    /// Number of cubature points given (zero weights included).
+    n_cubature: usize,
+    /// The cubature points of positive weight, packed by lanes.
+    cubature: CubatureLayout,
+    material: StableNeoHookean,
+    /// Contact points as given: basis rows (C x 3 x n), rest positions (C x 3)
+    /// and areas (C).
+    contact_basis: Vec<f64>,
+    contact_rest: Vec<f64>,
+    areas: Vec<f64>,
+    /// The contact points of non-zero area, packed by lanes.
+    contacts: ContactLayout,
+    planes: Vec<Plane>,
+    contact: ContactModel,
+}
+
+/// Quantities fixed at the start of a step: the state, the inertial target
+/// `qt = q_t + h qdot_t`, contact point positions and lagged normal forces.
+#[derive(Debug, Clone)]
+pub struct StepStart {
+    q: Vec<f64>,
+    qtilde: Vec<f64>,
+    x_prev: Vec<f64>,
+    normal_force: Vec<f64>,
+    /// `-f . qt`: the part of E that does not depend on q, left out of
+    /// [`ReducedSystem::evaluate`] so that energy differences keep their digits.
+    offset: f64,
+}
+
+impl StepStart {
+    /// Reduced coordinates at the start of the step.
+    pub fn q(&self) -> &[f64] {
+        &self.q
+    }
+}
+
+/// What [`ReducedSystem::assemble`] computes besides the gradient.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Hessian {
+    /// Gradient only.
+    None,
+    /// The projected Hessian (`Workspace::hess`).
+    Projected,
+    /// The projected Hessian and its clamped part (`Workspace::hess_clamped`),
+    /// from which the exact Hessian follows.
+    Split,
+}
+
+fn check_len(name: &str, data: &[f64], expected: usize, shape: impl FnOnce() -> String) -> Result<()> {
+    if data.len() == expected {
+        Ok(())
+    } else {
+        Err(LicromError::shape(name, shape(), format!("{} values", data.len())))
+    }
+}
+
+impl ReducedSystem {
+    /// Validates and copies the inputs: consistent sizes, finite values,
+    /// non-negative weights and areas, symmetric positive definite mass.
+    pub fn new(inp: &ReducedInputs<'_>) -> Result<Self> {
+        let n = inp.gravity_force.len();
+        if n == 0 {
+            return Err(LicromError::shape("gravity_force", "(n,) with n >= 1", "0 values"));
+        }
+        let k = inp.cubature_weights.len();
+        let c = inp.contact_areas.len();
+        check_len("mass", inp.mass, n * n, || format!("({n}, {n})"))?;
+        check_len("cubature_jacobians", inp.cubature_jacobians, k * 9 * n, || format!("({k}, 9, {n})"))?;
+        check_len("contact_basis", inp.contact_basis, c * 3 * n, || format!("({c}, 3, {n})"))?;
+        check_len("contact_rest", inp.contact_rest, c * 3, || format!("({c}, 3)"))?;
+        for (name, data) in [
+            ("mass", inp.mass),
+            ("gravity_force", inp.gravity_force),
+            ("cubature_jacobians", inp.cubature_jacobians),
+            ("cubature_weights", inp.cubature_weights),
+            ("contact_basis", inp.contact_basis),
+            ("contact_rest", inp.contact_rest),
+            ("contact_areas", inp.contact_areas),
+        ] {
+            check_finite(name, data)?;
+        }
+        if let Some(w) = inp.cubature_weights.iter().find(|w| **w < 0.0) {
+            return Err(LicromError::invalid("cubature_weights", format!("must be >= 0, found {w}")));
+        }
+        if let Some(a) = inp.contact_areas.iter().find(|a| **a < 0.0) {
+            return Err(LicromError::invalid("contact_areas", format!("must be >= 0, found {a}")));
+        }
+        let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
+        let mass = symmetrized_spd(inp.mass, n)?;
+        Ok(Self {
+            n,
+            mass,
+            gravity: inp.gravity_force.to_vec(),
+            n_cubature: k,
+            cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, n),
+            material: inp.material,
+            contact_basis: inp.contact_basis.to_vec(),
+            contact_rest: inp.contact_rest.to_vec(),
+            areas: inp.contact_areas.to_vec(),
+            contacts: ContactLayout::new(inp.contact_basis, inp.contact_rest, inp.contact_areas, inp.planes, n),
+            planes: inp.planes.to_vec(),
+            contact,
+        })
+    }
+
+    /// Number of reduced coordinates n.
+    pub fn n_dofs(&self) -> usize {
+        self.n
+    }
+
+    /// Number of cubature points K.
+    pub fn n_cubature(&self) -> usize {
+        self.n_cubature
+    }
+
+    /// Number of contact points C.
+    pub fn n_contacts(&self) -> usize {
+        self.areas.len()
+    }
+
+    /// Time step h, s.
+    pub fn dt(&self) -> f64 {
+        self.contact.dt
+    }
+
+    /// Reduced mass matrix (symmetrised), n x n, kg.
+    pub fn mass(&self) -> &[f64] {
+        &self.mass
+    }
+
+    /// Reduced gravity force, n, N.
+    pub fn gravity(&self) -> &[f64] {
+        &self.gravity
+    }
+
+    /// Whether the model has contact points with area and planes (friction and
+    /// contact terms can be non-zero).
+    pub fn has_contact(&self) -> bool {
+        !self.contacts.points.is_empty() && !self.planes.is_empty()
+    }
+
+    /// Zeroed start-of-step buffers for this system.
+    pub fn step_start(&self) -> StepStart {
+        let c = self.n_contacts();
+        StepStart {
+            q: vec![0.0; self.n],
+            qtilde: vec![0.0; self.n],
+            x_prev: vec![0.0; 3 * c],
+            normal_force: vec![0.0; c * self.planes.len()],
+            offset: 0.0,
+        }
+    }
+
+    /// Fills `start` for a step from state `(q, qdot)`: inertial target, contact
+    /// positions and lagged normal forces. Lengths must be n.
+    pub fn begin_step(&self, q: &[f64], qdot: &[f64], start: &mut StepStart) {
+        dispatch(BeginKernel { sys: self, q, qdot, start })
+    }
+
+    #[inline(always)]
+    fn begin_impl<M: Madd>(&self, q: &[f64], qdot: &[f64], start: &mut StepStart) {
+        let h = self.dt();
+        start.q.copy_from_slice(q);
+        for ((t, qi), vi) in start.qtilde.iter_mut().zip(q).zip(qdot) {
+            *t = qi + h * vi;
+        }
+        start.offset = -dot::<M>(&self.gravity, &start.qtilde);
+        self.begin_contacts::<M>(q, start);
+    }
+
+    /// Incremental potential E(q), J.
+    pub fn energy(&self, start: &StepStart, q: &[f64]) -> f64 {
+        dispatch(EvaluateKernel { sys: self, start, q, model: None, ws: None }).0 + start.offset
+    }
+
+    /// `E(q) - E0` (J) with the constant `E0 = -f . qt` of the step left out, so
+    /// that differences of nearby values keep their digits; with `with_gradient`
+    /// also the gradient (into `ws.grad`) and the contact points' Hessian terms
+    /// (for [`Self::update_contact_hessian`]).
+    /// The elastic energy goes to `ws.elastic_energy`.
+    pub fn evaluate(&self, start: &StepStart, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
+        self.evaluate_with(start, q, None, with_gradient, ws)
+    }
+
+    /// [`Self::evaluate`] with the elastic energy replaced by a quadratic `model`
+    /// (inertia, gravity and contact exact): a minimisation of it costs no pass
+    /// over the cubature points. `ws.elastic_gradient` is then not set.
+    pub fn evaluate_model(&self, start: &StepStart, q: &[f64], model: &ElasticModel<'_>, with_gradient: bool, ws: &mut Workspace) -> f64 {
+        self.evaluate_with(start, q, Some(model), with_gradient, ws)
+    }
+
+    fn evaluate_with(&self, start: &StepStart, q: &[f64], model: Option<&ElasticModel<'_>>, with_gradient: bool, ws: &mut Workspace) -> f64 {
+        let (e, elastic) = dispatch(EvaluateKernel { sys: self, start, q, model, ws: with_gradient.then_some(&mut *ws) });
+        ws.elastic_energy = elastic;
+        e
+    }
+
+    /// Energy (shifted as in [`Self::evaluate`]) and the elastic energy; with
+    /// `ws`, the gradient into `ws.grad`.
+    #[inline(always)]
+    fn evaluate_impl<M: Madd>(&self, start: &StepStart, q: &[f64], model: Option<&ElasticModel<'_>>, mut ws: Option<&mut Workspace>) -> (f64, f64) {
+        let n = self.n;
+        let inv_h2 = 1.0 / (self.dt() * self.dt());
+        // Inertia and gravity, relative to the inertial target.
+        let mut inertia = 0.0;
+        let mut work = 0.0;
+        for i in 0..n {
+            let mut md = 0.0;
+            for j in 0..n {
+                md = M::madd(self.mass[i * n + j], q[j] - start.qtilde[j], md);
+            }
+            let d = q[i] - start.qtilde[i];
+            inertia = M::madd(d, md, inertia);
+            work = M::madd(self.gravity[i], d, work);
+            if let Some(ws) = ws.as_deref_mut() {
+                ws.grad[i] = md * inv_h2 - self.gravity[i];
+            }
+        }
+        let mut e = 0.5 * inertia * inv_h2 - work;
+        let elastic_energy = match (model, ws.as_deref_mut()) {
+            (Some(m), ws) => m.evaluate::<M>(q, ws.map(|ws| &mut ws.grad[..])),
+            (None, Some(ws)) => self.elastic_impl::<M>(q, &mut ws.lane_grad, &mut ws.grad),
+            (None, None) => self.elastic_impl::<M>(q, &mut [], &mut []),
+        };
+        e += elastic_energy;
+        (e + self.contact_energy_impl::<M>(start, q, ws), elastic_energy)
+    }
+
+    /// Gradient (into `ws.grad`) and the requested Hessian parts (into `ws.hess`,
+    /// `ws.hess_clamped`, full symmetric) of E at `q`.
+    pub fn assemble(&self, start: &StepStart, q: &[f64], hessian: Hessian, ws: &mut Workspace) {
+        self.evaluate(start, q, true, ws);
+        if hessian == Hessian::None {
+            return;
+        }
+        let split = hessian == Hessian::Split;
+        let mut hess = std::mem::take(&mut ws.hess);
+        let mut clamped = std::mem::take(&mut ws.hess_clamped);
+        let mut contact = std::mem::take(&mut ws.contact_hess);
+        let has_clamped = self.elastic_hessian(q, ws, &mut hess, split.then_some(&mut clamped[..]));
+        self.contact_hessian(start, q, ws, &mut contact);
+        let inv_h2 = 1.0 / (self.dt() * self.dt());
+        for ((h, m), c) in hess.iter_mut().zip(&self.mass).zip(&contact) {
+            *h += m * inv_h2 + c;
+        }
+        ws.hess = hess;
+        ws.hess_clamped = clamped;
+        ws.contact_hess = contact;
+        if split {
+            ws.has_clamped = has_clamped;
+        }
+    }
+}
+
+struct EvaluateKernel<'a> {
+    sys: &'a ReducedSystem,
+    start: &'a StepStart,
+    q: &'a [f64],
+    model: Option<&'a ElasticModel<'a>>,
+    ws: Option<&'a mut Workspace>,
+}
+
+impl WithMadd for EvaluateKernel<'_> {
+    type Output = (f64, f64);
+    #[inline(always)]
+    fn run<M: Madd>(self) -> (f64, f64) {
+        self.sys.evaluate_impl::<M>(self.start, self.q, self.model, self.ws)
+    }
+}
+
+struct BeginKernel<'a> {
+    sys: &'a ReducedSystem,
+    q: &'a [f64],
+    qdot: &'a [f64],
+    start: &'a mut StepStart,
+}
+
+impl WithMadd for BeginKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        self.sys.begin_impl::<M>(self.q, self.qdot, self.start)
+    }
+}
+
+/// The symmetrised mass matrix, after checking symmetry (to a relative 1e-8, the
+/// round-off of `W^T M W` computed in any order) and positive definiteness.
+fn symmetrized_spd(mass: &[f64], n: usize) -> Result<Vec<f64>> {
+    let scale = mass.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    let mut sym = vec![0.0; n * n];
+    for r in 0..n {
+        for c in 0..n {
+            let (a, b) = (mass[r * n + c], mass[c * n + r]);
+            if (a - b).abs() > 1e-8 * scale {
+                return Err(LicromError::SingularMass { reason: format!("entries ({r}, {c}) and ({c}, {r}) differ: {a} vs {b}") });
+            }
+            sym[r * n + c] = 0.5 * (a + b);
+        }
+    }
+    check_positive("mass scale", scale).map_err(|_| LicromError::SingularMass { reason: "it is zero".into() })?;
+    crate::cholesky::Cholesky::factor(&sym, n)
+        .map_err(|index| LicromError::SingularMass { reason: format!("Cholesky pivot {index} is not positive") })?;
+    Ok(sym)
+}
