@@ -1,8 +1,12 @@
 //! Time stepping of the body-frame model: minimisation of the step's energy
 //! over `(c, R, q)` by Newton iterations on `(dc, omega, dq)`.
 //!
-//! **Initial guess.** The previous motion extrapolated: `c = 2c^t - c^{t-1} + h^2 g`,
-//! `R = (R^t R^{t-1 T}) R^t`, `q = 2q^t - q^{t-1}`.
+//! **Initial guess.** The previous motion extrapolated with the previous
+//! step's acceleration, as in the world-frame solver:
+//! `c = c^t + (c^t - c^{t-1}) + (c^t - 2c^{t-1} + c^{t-2})`, likewise q, and
+//! `R = exp([2 w_t - w_{t-1}]x) R^t` with `w_t = log(R^t R^{t-1 T})`; after a new
+//! state (no pose two steps back) the acceleration is gravity's. A body that
+//! rests, slides steadily or spins freely then starts almost at the solution.
 //!
 //! **Hessian.** Positive definite by construction: the inertia by its
 //! Gauss-Newton form `J^T M J` over all vertices (the rotation block is the
@@ -88,6 +92,9 @@ pub struct BodyFrameSolver {
     settings: BodyFrameSettings,
     pose: Pose,
     prev: Pose,
+    /// The pose two steps back (valid if `has_prev2`), for the initial guess.
+    prev2: Pose,
+    has_prev2: bool,
     current: BodyStart,
     /// Start of the last accepted step, for contact forces (valid if `has_last`).
     last: BodyStart,
@@ -137,6 +144,8 @@ impl BodyFrameSolver {
             settings,
             pose: Pose::rest(n),
             prev: Pose::rest(n),
+            prev2: Pose::rest(n),
+            has_prev2: false,
             current: system.step_start(),
             last: system.step_start(),
             has_last: false,
@@ -233,6 +242,7 @@ impl BodyFrameSolver {
         }
         self.has_last = false;
         self.has_failed = false;
+        self.has_prev2 = false;
         self.elastic_valid = false;
         Ok(())
     }
@@ -244,10 +254,21 @@ impl BodyFrameSolver {
         self.has_failed = false;
         let h = self.system.dt();
         self.system.begin_step(&self.pose, &self.prev, &mut self.current);
-        self.iterate.center = 2.0 * self.pose.center - self.prev.center + self.system.gravity() * (h * h);
-        self.iterate.rotation = self.pose.rotation * self.prev.rotation.transpose() * self.pose.rotation;
-        for ((x, q), p) in self.iterate.q.iter_mut().zip(&self.pose.q).zip(&self.prev.q) {
-            *x = 2.0 * q - p;
+        let (cur, prev, prev2) = (&self.pose, &self.prev, &self.prev2);
+        let turn = self.angular_velocity() * h;
+        if self.has_prev2 {
+            self.iterate.center = 3.0 * (cur.center - prev.center) + prev2.center;
+            let previous_turn = log_map(&(prev.rotation * prev2.rotation.transpose()));
+            self.iterate.rotation = exp_map(&(2.0 * turn - previous_turn)) * cur.rotation;
+            for (((x, q), p), p2) in self.iterate.q.iter_mut().zip(&cur.q).zip(&prev.q).zip(&prev2.q) {
+                *x = 3.0 * (q - p) + p2;
+            }
+        } else {
+            self.iterate.center = 2.0 * cur.center - prev.center + self.system.gravity() * (h * h);
+            self.iterate.rotation = exp_map(&turn) * cur.rotation;
+            for ((x, q), p) in self.iterate.q.iter_mut().zip(&cur.q).zip(&prev.q) {
+                *x = 2.0 * q - p;
+            }
         }
         let mut energy = self.system.evaluate(&self.current, &self.iterate, true, &mut self.ws);
         self.grad.copy_from_slice(&self.ws.grad);
@@ -414,8 +435,10 @@ impl BodyFrameSolver {
 
     fn finish_step(&mut self) {
         self.iterate.rotation = reorthonormalize(&self.iterate.rotation);
+        std::mem::swap(&mut self.prev2, &mut self.prev);
         std::mem::swap(&mut self.prev, &mut self.pose);
         self.pose.assign(&self.iterate);
+        self.has_prev2 = true;
         std::mem::swap(&mut self.last, &mut self.current);
         self.has_last = true;
     }
