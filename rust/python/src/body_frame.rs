@@ -10,7 +10,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{error, CoreResultExt, Kind};
 
 /// Body-frame model, pose history and solver of one simulation.
 #[pyclass(module = "licrom._core")]
@@ -88,12 +88,8 @@ impl BodyFrameCore {
         let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
         let rest = read(contact_rest, "contact_rest", &[Dim::Is(c), Dim::Is(3)])?;
         let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(5)])?;
-        let planes = planes
-            .data
-            .chunks_exact(5)
-            .map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4]))
-            .collect::<Result<Vec<_>, _>>()
-            .py_err(py)?;
+        let planes =
+            planes.data.chunks_exact(5).map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4])).collect::<Result<Vec<_>, _>>().py_err(py)?;
         let inputs = BodyFrameInputs {
             total_mass,
             inertia_moments: &j.data,
@@ -210,7 +206,13 @@ impl BodyFrameCore {
     }
 
     /// Gradient (6 + n,) in (c, omega, q) at the pose, omega the left rotation increment.
-    fn gradient<'py>(&mut self, py: Python<'py>, center: &Bound<'py, PyAny>, rotation: &Bound<'py, PyAny>, q: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    fn gradient<'py>(
+        &mut self,
+        py: Python<'py>,
+        center: &Bound<'py, PyAny>,
+        rotation: &Bound<'py, PyAny>,
+        q: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let pose = self.pose(py, center, rotation, q)?;
         let solver = &mut self.inner;
         let grad = py.detach(|| solver.gradient(&pose).to_vec());
@@ -219,7 +221,14 @@ impl BodyFrameCore {
 
     /// Hessian (6 + n, 6 + n) at the pose: exact, or the solver's positive definite one.
     #[pyo3(signature = (center, rotation, q, exact = true))]
-    fn hessian<'py>(&mut self, py: Python<'py>, center: &Bound<'py, PyAny>, rotation: &Bound<'py, PyAny>, q: &Bound<'py, PyAny>, exact: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    fn hessian<'py>(
+        &mut self,
+        py: Python<'py>,
+        center: &Bound<'py, PyAny>,
+        rotation: &Bound<'py, PyAny>,
+        q: &Bound<'py, PyAny>,
+        exact: bool,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let pose = self.pose(py, center, rotation, q)?;
         let big = 6 + self.n();
         let solver = &mut self.inner;
