@@ -468,7 +468,7 @@ def summary_table(rows: list[dict]) -> str:
 
 
 def training_table(rows: list[dict]) -> str:
-    out = ["| family | training run | peak def. | rotation | full | wall s |", "|---|---|---|---|---|---|"]
+    out = ["| family | training run | peak def. | rotation | full | full run s |", "|---|---|---|---|---|---|"]
     for row in rows:
         out.append(f"| {row['family']} | {row['kind']} | {_pct(row['peak_deformation'])} | {row['rotation']:.0f} deg | "
                    f"{'slides' if row['slides'] else 'sticks'} | {row['wall_s']:.1f} |")
@@ -604,7 +604,7 @@ def main() -> None:
         return
     write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/body_frame_experiments.py` on "
                   f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s "
-                  "(full runs cached; models trained with `--train-only` where the table says so).\n\n" + INTRO + "\n\n"
+                  "(full runs and models cached; the models trained on an H100 with `--train-only`, see below).\n\n" + INTRO + "\n\n"
                   + training_table(train_rows) + "\n\n" + BOUNDS_INTRO + "\n\n" + held_out_table(test_rows, pod_sizes) + "\n\n"
                   + REDUCED_INTRO + "\n\n" + summary_table(test_rows) + "\n\n" + reduced_table(test_rows) + "\n\n"
                   + f"Filmstrips: the full run, then each subspace at r = {sizes[0]}.\n\n"
