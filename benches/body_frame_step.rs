@@ -62,7 +62,8 @@ fn body_frame_step(c: &mut Criterion) {
                     *qi = excitation(i);
                 }
                 let system = ReducedSystem::new(&m.inputs()).expect("valid system");
-                let mut s = ReducedSolver::new(system, SolverSettings::new(m.total_mass, TOLERANCE, 500, SolverKind::Newton)).expect("valid settings");
+                let mut s =
+                    ReducedSolver::new(system, SolverSettings::new(m.total_mass, TOLERANCE, 500, SolverKind::Newton)).expect("valid settings");
                 s.set_state(&q, &qdot).expect("state");
                 let report = s.step().expect("the benchmark step converges");
                 eprintln!("{id}: {} iterations, residual {:.1e} m/s", report.iterations, report.residual);
@@ -100,13 +101,7 @@ fn body_frame_step(c: &mut Criterion) {
 }
 
 fn landing_scene(learned_modes: usize) -> BlockScene {
-    BlockScene {
-        incline: 20.0,
-        contact_on_all_faces: true,
-        normal_stiffness: 1e7,
-        friction_stiffness: 1e7,
-        ..scene(learned_modes)
-    }
+    BlockScene { incline: 20.0, contact_on_all_faces: true, normal_stiffness: 1e7, friction_stiffness: 1e7, ..scene(learned_modes) }
 }
 
 /// Mean time per step of `LANDING_STEPS` steps after `reset()`.
@@ -134,7 +129,8 @@ fn body_frame_landing(c: &mut Criterion) {
                 let m = landing_scene(r).build().expect("valid synthetic scene");
                 let (q, qdot) = m.dropped_state(30.0, 0.01);
                 let system = ReducedSystem::new(&m.inputs()).expect("valid system");
-                let mut s = ReducedSolver::new(system, SolverSettings::new(m.total_mass, TOLERANCE, 500, SolverKind::Newton)).expect("valid settings");
+                let mut s =
+                    ReducedSolver::new(system, SolverSettings::new(m.total_mass, TOLERANCE, 500, SolverKind::Newton)).expect("valid settings");
                 s.set_state(&q, &qdot).expect("state");
                 let its: usize = (0..LANDING_STEPS).map(|_| s.step().expect("the landing converges").iterations).sum();
                 eprintln!("{id}: {its} iterations over {LANDING_STEPS} steps");
@@ -142,9 +138,13 @@ fn body_frame_landing(c: &mut Criterion) {
             });
             b.iter_custom(|iters| {
                 let s = std::cell::RefCell::new(&mut *s);
-                time_landing(iters, || s.borrow_mut().set_state(q, qdot).expect("state"), || {
-                    black_box(s.borrow_mut().step().expect("converges"));
-                })
+                time_landing(
+                    iters,
+                    || s.borrow_mut().set_state(q, qdot).expect("state"),
+                    || {
+                        black_box(s.borrow_mut().step().expect("converges"));
+                    },
+                )
             })
         });
         let id = format!("body/r{r}_K{CUBATURE}_C{CONTACTS}");
@@ -158,7 +158,10 @@ fn body_frame_landing(c: &mut Criterion) {
                 let normal = m.planes[0].normal();
                 let half = m.scene.size / 2.0;
                 let lowest = (0..8)
-                    .map(|k| normal.dot(&(rotation * nalgebra::Vector3::new([-half, half][k & 1], [-half, half][(k >> 1) & 1], [-half, half][(k >> 2) & 1]))))
+                    .map(|k| {
+                        normal
+                            .dot(&(rotation * nalgebra::Vector3::new([-half, half][k & 1], [-half, half][(k >> 1) & 1], [-half, half][(k >> 2) & 1])))
+                    })
                     .fold(f64::INFINITY, f64::min);
                 let pose = Pose { center: normal * (0.01 - lowest), rotation, q: vec![0.0; m.n] };
                 let system = BodyFrameSystem::new(&m.inputs()).expect("valid system");
@@ -171,9 +174,13 @@ fn body_frame_landing(c: &mut Criterion) {
             let qdot = vec![0.0; pose.q.len()];
             b.iter_custom(|iters| {
                 let s = std::cell::RefCell::new(&mut *s);
-                time_landing(iters, || s.borrow_mut().set_state(pose, &[0.0; 3], &[0.0; 3], &qdot).expect("state"), || {
-                    black_box(s.borrow_mut().step().expect("converges"));
-                })
+                time_landing(
+                    iters,
+                    || s.borrow_mut().set_state(pose, &[0.0; 3], &[0.0; 3], &qdot).expect("state"),
+                    || {
+                        black_box(s.borrow_mut().step().expect("converges"));
+                    },
+                )
             })
         });
     }

@@ -227,7 +227,17 @@ impl BodyContacts {
         let b = MatRef::from_row_major_slice(&rows.rows[..rows.count * big], rows.count, big);
         let a = MatMut::from_column_major_slice_mut(hess, big, big);
         // Lower triangle only, then mirrored: hess is symmetric before and after.
-        triangular_matmul(a, BlockStructure::TriangularLower, Accum::Add, b.transpose(), BlockStructure::Rectangular, b, BlockStructure::Rectangular, 1.0, Par::Seq);
+        triangular_matmul(
+            a,
+            BlockStructure::TriangularLower,
+            Accum::Add,
+            b.transpose(),
+            BlockStructure::Rectangular,
+            b,
+            BlockStructure::Rectangular,
+            1.0,
+            Par::Seq,
+        );
         for c in 0..big {
             for r in c + 1..big {
                 hess[r * big + c] = hess[c * big + r];

@@ -308,7 +308,16 @@ impl BodyFrameSystem {
     /// earlier pose) or, when None, the block at `pose`; and the convergence
     /// metric (the Gauss-Newton inertia times h^2) into `metric` when given.
     #[allow(clippy::too_many_arguments)]
-    pub fn hessian(&self, start: &BodyStart, pose: &Pose, kind: BodyHessian, elastic: Option<&[f64]>, ws: &mut BodyWorkspace, out: &mut [f64], metric: Option<&mut [f64]>) {
+    pub fn hessian(
+        &self,
+        start: &BodyStart,
+        pose: &Pose,
+        kind: BodyHessian,
+        elastic: Option<&[f64]>,
+        ws: &mut BodyWorkspace,
+        out: &mut [f64],
+        metric: Option<&mut [f64]>,
+    ) {
         let n = self.n;
         let big = 6 + n;
         let h2 = self.h * self.h;

@@ -322,11 +322,21 @@ impl BodyFrameSolver {
             self.elastic_valid = true;
             self.elastic_fresh = true;
         }
-        self.system.hessian(&self.current, &self.iterate, BodyHessian::GaussNewton, Some(&self.elastic), &mut self.ws, &mut self.hess, Some(&mut self.metric));
+        self.system.hessian(
+            &self.current,
+            &self.iterate,
+            BodyHessian::GaussNewton,
+            Some(&self.elastic),
+            &mut self.ws,
+            &mut self.hess,
+            Some(&mut self.metric),
+        );
         if !self.hess.iter().all(|v| v.is_finite()) {
             return Err(LicromError::Diverged { iteration, what: "Hessian" });
         }
-        self.chol.factor_shifted(&self.hess, 0.0, &self.hess).map_err(|_| LicromError::Diverged { iteration, what: "Hessian (not positive definite)" })?;
+        self.chol
+            .factor_shifted(&self.hess, 0.0, &self.hess)
+            .map_err(|_| LicromError::Diverged { iteration, what: "Hessian (not positive definite)" })?;
         for (d, g) in self.dir.iter_mut().zip(&self.grad) {
             *d = -g;
         }

@@ -187,7 +187,8 @@ fn total_derivatives_match_finite_differences_on_a_turned_block() {
     let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
     let mut rng = Rng::new(9);
     let r = random_rotation(&mut rng, 0.4);
-    let mut heights: Vec<f64> = (0..b.contact_rest.len() / 3).map(|j| (r * Vector3::from_column_slice(&b.contact_rest[3 * j..3 * j + 3])).z).collect();
+    let mut heights: Vec<f64> =
+        (0..b.contact_rest.len() / 3).map(|j| (r * Vector3::from_column_slice(&b.contact_rest[3 * j..3 * j + 3])).z).collect();
     heights.sort_by(f64::total_cmp);
     // The third lowest point 5 mm deep.
     let cur = Pose { center: Vector3::new(0.0, 0.0, -heights[2] - 5e-3), rotation: r, q: rng.vec(b.n, 1e-3) };
@@ -246,7 +247,8 @@ fn a_free_rigid_body_is_ballistic_and_spins_about_a_principal_axis() {
 /// bottom face (the slip: the block may rock on the penalty springs), both
 /// between 0.2 s and 0.6 s.
 fn incline_motion(incline: f64, mu: f64, affine: bool) -> (f64, f64) {
-    let scene = BlockScene { learned_modes: 0, cubature_points: 50, contact_points: 200, incline, friction: mu, normal_damping: 3e4, ..Default::default() };
+    let scene =
+        BlockScene { learned_modes: 0, cubature_points: 50, contact_points: 200, incline, friction: mu, normal_damping: 3e4, ..Default::default() };
     let b = body_block(&scene, affine).unwrap();
     let mut s = solver(&b, 1e-8, 50);
     let (c, r) = b.resting_pose();
