@@ -14,9 +14,8 @@ import argparse
 import math
 import time
 
-import numpy as np
-
 import licrom
+import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, meshes
 from licrom.compare import time_steps
 from licrom.cubature import ContactPoints, Cubature

@@ -19,9 +19,8 @@ import math
 import platform
 import time
 
-import numpy as np
-
 import licrom
+import numpy as np
 from licrom import ContactParams, InitialState, Material, Plane, Scene, meshes
 from licrom.full_sim import FullSim
 

@@ -72,18 +72,18 @@ from licrom.compare import penetration_depths
 
 __all__ = [
     "CASES",
-    "NewtonSettings",
     "Case",
-    "make_scene",
-    "newton_contact_parameters",
-    "run_newton",
-    "run_licrom",
+    "NewtonSettings",
     "coulomb_slide",
-    "motion_metrics",
-    "run_case",
     "format_table",
-    "plot_travel",
     "main",
+    "make_scene",
+    "motion_metrics",
+    "newton_contact_parameters",
+    "plot_travel",
+    "run_case",
+    "run_licrom",
+    "run_newton",
 ]
 
 FRAME_DT = 0.01  # s: licrom's time step, and the unit per-step times are reported in
@@ -334,7 +334,7 @@ def motion_metrics(traj: licrom.Trajectory, drop: float = 0.01) -> dict[str, Any
     g = float(np.linalg.norm(scene.gravity))
     sin_t, cos_t = math.sqrt(max(0.0, 1.0 - plane.normal[2] ** 2)), abs(plane.normal[2])
     per_frame = FRAME_DT / scene.dt
-    steps = traj.step_seconds[int(round(WARMUP_FRAMES * per_frame)) :]
+    steps = traj.step_seconds[round(WARMUP_FRAMES * per_frame) :]
     return {
         "times": t,
         "com": com,
@@ -354,7 +354,7 @@ def motion_metrics(traj: licrom.Trajectory, drop: float = 0.01) -> dict[str, Any
 
 def _com_on_frames(m: dict[str, Any]) -> np.ndarray:
     """Centre of mass at the 10 ms frames (a finer trajectory is subsampled)."""
-    stride = int(round(FRAME_DT / m["dt"]))
+    stride = round(FRAME_DT / m["dt"])
     return m["com"][::stride]
 
 
@@ -376,7 +376,7 @@ def run_case(
     10 ms frames, as a fraction of the object's size.
     """
     scene = make_scene(mesh, case, drop)
-    frames = int(round(duration / scene.dt))
+    frames = round(duration / scene.dt)
     runs = {"licrom": motion_metrics(run_licrom(mesh, scene, frames, device), drop)}
     if matched_dt:
         fine = make_scene(mesh, case, drop, dt=scene.dt / settings.substeps)

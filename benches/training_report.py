@@ -61,8 +61,8 @@ def load_named(source: str, seed: int) -> list:
 def split(count: int, val_fraction: float, test_fraction: float, seed: int) -> tuple[list[int], list[int], list[int]]:
     rng = np.random.default_rng(seed)
     perm = [int(i) for i in rng.permutation(count)]
-    n_test = int(round(test_fraction * count)) if test_fraction > 0 else 0
-    n_val = max(1, int(round(val_fraction * count))) if val_fraction > 0 and count - n_test >= 2 else 0
+    n_test = round(test_fraction * count) if test_fraction > 0 else 0
+    n_val = max(1, round(val_fraction * count)) if val_fraction > 0 and count - n_test >= 2 else 0
     if n_test + n_val >= count:
         raise SystemExit(f"not enough trajectories ({count}) for {n_val} validation + {n_test} test")
     # validation first, so adding a test split leaves the validation set unchanged

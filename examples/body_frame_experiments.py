@@ -42,9 +42,8 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
-import numpy as np
-
 import licrom
+import numpy as np
 from licrom import AffineBasis, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
 from licrom.basis import SubspaceProjector

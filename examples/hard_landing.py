@@ -20,9 +20,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 import licrom
+import numpy as np
 from licrom import AffineBasis, MeshBasis, Model, ReducedSim, StackedBasis, Trajectory
 from licrom.basis import SubspaceProjector
 from licrom.compare import compare

@@ -27,9 +27,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 import licrom
+import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, Trajectory, meshes
 from licrom.compare import Comparison, compare, time_steps
 from licrom.cubature import ContactPoints, Cubature

@@ -13,9 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 import licrom
+import numpy as np
 from licrom.model import ModelConfig
 from licrom.training_data import TrainingData, relative_error
 

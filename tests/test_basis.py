@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
 from licrom.basis import SubspaceProjector
 

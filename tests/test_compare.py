@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-
 from licrom import Plane, Scene, Trajectory, meshes
 from licrom.compare import (
     compare,

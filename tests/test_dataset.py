@@ -6,8 +6,7 @@ import zipfile
 
 import numpy as np
 import pytest
-
-from licrom import ConfigError, ContactParams, InitialState, Material, Mesh, Plane, Scene, Trajectory, meshes
+from licrom import ConfigError, ContactParams, Material, Mesh, Plane, Scene, Trajectory, meshes
 from licrom.dataset import (
     MANIFEST_NAME,
     MESH_NAME,
@@ -33,7 +32,7 @@ def _tiny(tmp_path, **kw):
 
 
 def test_generate_writes_trajectories_mesh_and_manifest(tmp_path):
-    mesh, scene, manifest_path = _tiny(tmp_path)
+    mesh, _scene, manifest_path = _tiny(tmp_path)
     out = manifest_path.parent
     assert manifest_path.name == MANIFEST_NAME
     m = load_manifest(out)

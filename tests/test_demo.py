@@ -1,7 +1,6 @@
 import json
 
 import pytest
-
 from licrom.demo import DemoConfig
 from licrom.errors import ConfigError
 

@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pytest
-
 from licrom import (
     ConfigError,
     ContactParams,
@@ -141,7 +140,7 @@ def test_penalty_and_damping_match_finite_differences(rng):
 
 def test_friction_matches_finite_differences_in_stick_and_slip(rng):
     mu, kf, h = 0.5, 1e7, 0.01
-    mesh, scene, sim = _contact_state(rng, mu=mu)
+    mesh, _scene, sim = _contact_state(rng, mu=mu)
     idx = sim.contact_indices
     area = sim.contact_areas
     bottom = np.isclose(mesh.vertices[idx, 2], -L / 2)
@@ -276,7 +275,7 @@ def test_cheese_dropped_on_incline_stays_sound():
     )
     sim = FullSim(mesh, scene)
     depth, min_j, iterations = 0.0, np.inf, []
-    for k in range(1000):
+    for _k in range(1000):
         its, _ = sim.step()
         iterations.append(its)
         x = sim.positions

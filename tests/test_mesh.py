@@ -3,7 +3,6 @@ import warnings
 import meshio
 import numpy as np
 import pytest
-
 from licrom import FileFormatError, Mesh, MeshError, ShapeError, meshes
 
 

@@ -4,12 +4,10 @@ import zipfile
 
 import numpy as np
 import pytest
-
 import torch
-
 from licrom import FileFormatError, Scene, ShapeError, meshes
-from licrom.errors import ConfigError
 from licrom.basis import N_AFFINE, affine_jacobians, affine_values
+from licrom.errors import ConfigError
 from licrom.model import (
     LicromNet,
     Model,

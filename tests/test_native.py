@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from licrom import _core
 from licrom.errors import ConfigError, ShapeError, SolverError
 

@@ -3,7 +3,6 @@ import xml.etree.ElementTree as ET
 import meshio
 import numpy as np
 import pytest
-
 from licrom import meshes
 from licrom.compare import compare
 from licrom.errors import ShapeError

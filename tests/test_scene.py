@@ -3,7 +3,6 @@ import math
 
 import numpy as np
 import pytest
-
 from licrom import ConfigError, ContactParams, FileFormatError, InitialState, Material, Plane, Scene, SolverParams
 
 

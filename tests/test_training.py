@@ -4,9 +4,7 @@ import csv
 
 import numpy as np
 import pytest
-
 import torch
-
 from licrom import ConfigError, FileFormatError, Trajectory, meshes
 from licrom.basis import affine_values
 from licrom.model import Model, ModelConfig
@@ -249,7 +247,7 @@ def test_resume_continues_where_it_stopped(trajs, tmp_path, monkeypatch):
     assert [r["epoch"] for r in hist] == [1, 2, 3]
     # the same losses as the uninterrupted run: weights, optimiser, schedule, order and points restored
     assert [r["train_loss"] for r in hist] == [r["train_loss"] for r in full.metadata["history"]]
-    for (ka, va), (kb, vb) in zip(full.net.state_dict().items(), resumed.net.state_dict().items()):
+    for (ka, va), (_kb, vb) in zip(full.net.state_dict().items(), resumed.net.state_dict().items()):
         assert torch.equal(va, vb), ka
     with open(output_paths(out)["csv"]) as fh:
         assert len(list(csv.DictReader(fh))) == 3
@@ -288,7 +286,6 @@ def test_encoder_against_exact_projection(tmp_path, capsys):
 
 def test_cli_train(data_dir, tmp_path):
     from click.testing import CliRunner
-
     from licrom.cli import cli
 
     out = tmp_path / "cli.lcm"

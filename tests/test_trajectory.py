@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-
 from licrom import FileFormatError, Scene, SolverError, Trajectory, meshes
 
 

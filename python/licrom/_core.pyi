@@ -14,18 +14,23 @@ Material: stable Neo-Hookean (Smith et al. 2018) with the SNH parameters
 state (and every rotation) have zero energy. Valid for inverted F (J <= 0).
 """
 
+from typing import TypeAlias, final
+
 import numpy as np
 import numpy.typing as npt
+from typing_extensions import Self
 
-Float64Array = npt.NDArray[np.float64]
+__all__ = ["BodyFrameCore", "Reconstruction", "ReducedCore", "snh_energy", "snh_hessian", "snh_pk1"]
 
-def snh_energy(F: Float64Array, mu: float, lam: float) -> Float64Array:
+_Float64Array: TypeAlias = npt.NDArray[np.float64]
+
+def snh_energy(F: _Float64Array, mu: float, lam: float) -> _Float64Array:
     """Energy densities Psi(F), shape (p,), in J/m^3, of deformation gradients ``F`` (p, 3, 3)."""
 
-def snh_pk1(F: Float64Array, mu: float, lam: float) -> Float64Array:
+def snh_pk1(F: _Float64Array, mu: float, lam: float) -> _Float64Array:
     """First Piola-Kirchhoff stresses dPsi/dF, shape (p, 3, 3), in Pa."""
 
-def snh_hessian(F: Float64Array, mu: float, lam: float, project: bool = True) -> Float64Array:
+def snh_hessian(F: _Float64Array, mu: float, lam: float, project: bool = True) -> _Float64Array:
     """Hessians d^2 Psi / d vec(F)^2, shape (p, 9, 9), in Pa (row-major vec).
 
     With ``project`` the negative eigenvalues of the analytic eigensystem
@@ -33,6 +38,7 @@ def snh_hessian(F: Float64Array, mu: float, lam: float, project: bool = True) ->
     otherwise the exact, possibly indefinite, Hessian is returned.
     """
 
+@final
 class ReducedCore:
     """Reduced model, state ``(q, qdot)`` and time stepper of one simulation.
 
@@ -77,18 +83,18 @@ class ReducedCore:
     K, C and P may be zero.
     """
 
-    def __init__(
-        self,
-        mass: Float64Array,
-        gravity_force: Float64Array,
-        cubature_jacobians: Float64Array,
-        cubature_weights: Float64Array,
+    def __new__(
+        cls,
+        mass: _Float64Array,
+        gravity_force: _Float64Array,
+        cubature_jacobians: _Float64Array,
+        cubature_weights: _Float64Array,
         mu: float,
         lam: float,
-        contact_basis: Float64Array,
-        contact_rest: Float64Array,
-        contact_areas: Float64Array,
-        planes: Float64Array,
+        contact_basis: _Float64Array,
+        contact_rest: _Float64Array,
+        contact_areas: _Float64Array,
+        planes: _Float64Array,
         normal_stiffness: float,
         normal_damping: float,
         friction_stiffness: float,
@@ -98,17 +104,17 @@ class ReducedCore:
         max_iterations: int,
         solver: str = "newton",
         elastic_hessian: str = "lagged",
-    ) -> None: ...
+    ) -> Self: ...
     @property
     def n_dofs(self) -> int:
         """Number of reduced coordinates n."""
     @property
-    def q(self) -> Float64Array:
+    def q(self) -> _Float64Array:
         """(n,) reduced coordinates (a copy)."""
     @property
-    def qdot(self) -> Float64Array:
+    def qdot(self) -> _Float64Array:
         """(n,) reduced velocities per second (a copy)."""
-    def set_state(self, q: Float64Array, qdot: Float64Array) -> None:
+    def set_state(self, q: _Float64Array, qdot: _Float64Array) -> None:
         """Replace the state with ``q`` (n,) and ``qdot`` (n,); contact forces read zero until the next step."""
     def step(self) -> tuple[int, float]:
         """Advance one time step; return (iterations, residual in m/s).
@@ -135,22 +141,23 @@ class ReducedCore:
         Raises:
             ConfigError: the previous call was not a step that failed to converge.
         """
-    def energy(self, q: Float64Array) -> float:
+    def energy(self, q: _Float64Array) -> float:
         """Incremental potential E(q) in J of a step starting from the current state."""
-    def gradient(self, q: Float64Array) -> Float64Array:
+    def gradient(self, q: _Float64Array) -> _Float64Array:
         """(n,) gradient of E at ``q`` for a step starting from the current state."""
-    def hessian(self, q: Float64Array, project: bool = True) -> Float64Array:
+    def hessian(self, q: _Float64Array, project: bool = True) -> _Float64Array:
         """(n, n) Hessian of E at ``q`` for a step starting from the current state.
 
         With ``project`` the elastic Hessians are PSD-projected (the matrix Newton
         uses); otherwise it is the exact Hessian. Contact terms are always exact
         (they are PSD).
         """
-    def contact_forces(self) -> Float64Array:
+    def contact_forces(self) -> _Float64Array:
         """(C, 3) contact + friction force on each contact point in N (world frame),
         minus the gradient of the contact potentials at the current state relative
         to the start of the last step; zeros before any step."""
 
+@final
 class BodyFrameCore:
     """Body-frame reduced model, pose history and time stepper of one simulation.
 
@@ -186,39 +193,39 @@ class BodyFrameCore:
     n, K, C and P may be zero (n = 0: a rigid body).
     """
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         total_mass: float,
-        inertia_moments: Float64Array,
-        mode_moments: Float64Array,
-        mode_products: Float64Array,
-        gravity: Float64Array,
-        cubature_jacobians: Float64Array,
-        cubature_weights: Float64Array,
+        inertia_moments: _Float64Array,
+        mode_moments: _Float64Array,
+        mode_products: _Float64Array,
+        gravity: _Float64Array,
+        cubature_jacobians: _Float64Array,
+        cubature_weights: _Float64Array,
         mu: float,
         lam: float,
-        contact_basis: Float64Array,
-        contact_rest: Float64Array,
-        contact_areas: Float64Array,
-        planes: Float64Array,
+        contact_basis: _Float64Array,
+        contact_rest: _Float64Array,
+        contact_areas: _Float64Array,
+        planes: _Float64Array,
         normal_stiffness: float,
         normal_damping: float,
         friction_stiffness: float,
         dt: float,
         tolerance: float,
         max_iterations: int,
-    ) -> None: ...
+    ) -> Self: ...
     @property
     def n_dofs(self) -> int:
         """Number of modes n."""
     def set_state(
         self,
-        center: Float64Array,
-        rotation: Float64Array,
-        q: Float64Array,
-        velocity: Float64Array,
-        angular_velocity: Float64Array,
-        qdot: Float64Array,
+        center: _Float64Array,
+        rotation: _Float64Array,
+        q: _Float64Array,
+        velocity: _Float64Array,
+        angular_velocity: _Float64Array,
+        qdot: _Float64Array,
     ) -> None:
         """Replace the state; the previous pose becomes ``(c - h v, exp(-h [w]x) R, q - h qdot)``.
 
@@ -237,32 +244,33 @@ class BodyFrameCore:
     def accept_last_iterate(self) -> None:
         """After a step that did not converge, take its last iterate as the new pose."""
     @property
-    def center(self) -> Float64Array:
+    def center(self) -> _Float64Array:
         """(3,) centre of mass in m."""
     @property
-    def rotation(self) -> Float64Array:
+    def rotation(self) -> _Float64Array:
         """(3, 3) rotation from the body frame to the world."""
     @property
-    def q(self) -> Float64Array:
+    def q(self) -> _Float64Array:
         """(n,) modal coordinates."""
     @property
-    def velocity(self) -> Float64Array:
+    def velocity(self) -> _Float64Array:
         """(3,) ``(c - c_prev) / h`` in m/s."""
     @property
-    def angular_velocity(self) -> Float64Array:
+    def angular_velocity(self) -> _Float64Array:
         """(3,) ``log(R R_prev^T) / h`` in rad/s (world frame)."""
     @property
-    def qdot(self) -> Float64Array:
+    def qdot(self) -> _Float64Array:
         """(n,) ``(q - q_prev) / h`` per second."""
-    def contact_forces(self) -> Float64Array:
+    def contact_forces(self) -> _Float64Array:
         """(C, 3) contact + friction force on each contact point over the last step in N; zeros before any step."""
-    def energy(self, center: Float64Array, rotation: Float64Array, q: Float64Array) -> float:
+    def energy(self, center: _Float64Array, rotation: _Float64Array, q: _Float64Array) -> float:
         """Energy in J at the pose of a step from the current state, up to a constant of the step."""
-    def gradient(self, center: Float64Array, rotation: Float64Array, q: Float64Array) -> Float64Array:
+    def gradient(self, center: _Float64Array, rotation: _Float64Array, q: _Float64Array) -> _Float64Array:
         """(6 + n,) gradient in ``(c, omega, q)`` at the pose (omega: left rotation increment)."""
-    def hessian(self, center: Float64Array, rotation: Float64Array, q: Float64Array, exact: bool = True) -> Float64Array:
+    def hessian(self, center: _Float64Array, rotation: _Float64Array, q: _Float64Array, exact: bool = True) -> _Float64Array:
         """(6 + n, 6 + n) Hessian at the pose: exact, or the solver's positive definite one."""
 
+@final
 class Reconstruction:
     """Positions ``x = X + W q`` of N points.
 
@@ -271,12 +279,12 @@ class Reconstruction:
         rest: (N, 3) rest positions X in m.
     """
 
-    def __init__(self, basis: Float64Array, rest: Float64Array) -> None: ...
+    def __new__(cls, basis: _Float64Array, rest: _Float64Array) -> Self: ...
     @property
     def n_dofs(self) -> int:
         """Number of reduced coordinates n."""
     @property
     def n_points(self) -> int:
         """Number of points N."""
-    def positions(self, q: Float64Array) -> Float64Array:
+    def positions(self, q: _Float64Array) -> _Float64Array:
         """(N, 3) positions in m for reduced coordinates ``q`` (n,)."""

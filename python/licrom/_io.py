@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_path", "save_npz", "load_npz", "check_version"]
+__all__ = ["atomic_path", "check_version", "load_npz", "save_npz"]
 
 
 @contextlib.contextmanager

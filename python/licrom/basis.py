@@ -23,16 +23,16 @@ from .errors import ShapeError
 from .mesh import Mesh
 
 __all__ = [
-    "Basis",
+    "AFFINE_JACOBIAN",
+    "N_AFFINE",
     "AffineBasis",
+    "Basis",
     "MeshBasis",
     "StackedBasis",
-    "N_AFFINE",
-    "AFFINE_JACOBIAN",
-    "affine_values",
-    "affine_jacobians",
-    "check_basis_output",
     "SubspaceProjector",
+    "affine_jacobians",
+    "affine_values",
+    "check_basis_output",
 ]
 
 

@@ -16,7 +16,7 @@ import click
 from .demo import DemoConfig
 from .errors import ConfigError, LicromError
 
-__all__ = ["main", "cli"]
+__all__ = ["cli", "main"]
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

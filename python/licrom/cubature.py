@@ -16,7 +16,7 @@ from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .scene import Material
 
-__all__ = ["Cubature", "ContactPoints"]
+__all__ = ["ContactPoints", "Cubature"]
 
 
 def _count(name: str, value: int, upper: int) -> int:

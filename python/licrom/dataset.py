@@ -33,15 +33,15 @@ from .scene import InitialState, Plane, Scene
 from .trajectory import TRAJECTORY_FORMAT_VERSION
 
 __all__ = [
-    "initial_state_between_planes",
-    "generate_dataset",
-    "report_dataset_spec",
-    "DatasetSpec",
-    "load_manifest",
-    "PRESETS",
+    "DATASET_FORMAT_VERSION",
     "MANIFEST_NAME",
     "MESH_NAME",
-    "DATASET_FORMAT_VERSION",
+    "PRESETS",
+    "DatasetSpec",
+    "generate_dataset",
+    "initial_state_between_planes",
+    "load_manifest",
+    "report_dataset_spec",
 ]
 
 DATASET_FORMAT_VERSION = 1

@@ -8,12 +8,12 @@ keeps working for code that does not know licrom.
 from __future__ import annotations
 
 __all__ = [
+    "ConfigError",
+    "FileFormatError",
     "LicromError",
     "MeshError",
     "ShapeError",
-    "ConfigError",
     "SolverError",
-    "FileFormatError",
 ]
 
 

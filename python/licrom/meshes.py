@@ -19,7 +19,7 @@ from scipy.sparse.csgraph import connected_components
 from .errors import ConfigError
 from .mesh import Mesh
 
-__all__ = ["box", "sphere", "cheese", "CheeseHoles", "PROCEDURAL"]
+__all__ = ["PROCEDURAL", "CheeseHoles", "box", "cheese", "sphere"]
 
 Sdf = Callable[[np.ndarray], np.ndarray]
 

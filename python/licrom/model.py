@@ -47,9 +47,10 @@ import math
 import os
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -62,13 +63,13 @@ from .mesh import Mesh
 from .scene import Scene
 
 __all__ = [
-    "ModelConfig",
-    "Model",
-    "LicromNet",
-    "PointNetEncoder",
-    "NeuralField",
-    "MODEL_FORMAT_VERSION",
     "FRAMES",
+    "MODEL_FORMAT_VERSION",
+    "LicromNet",
+    "Model",
+    "ModelConfig",
+    "NeuralField",
+    "PointNetEncoder",
     "check_frame",
 ]
 
@@ -644,7 +645,7 @@ class Model:
 
     def reconstruct(self, q: Any, mesh: Mesh | None = None) -> np.ndarray:
         """Vertex displacements ``B q`` (n, 3) or (f, n, 3) of the model mesh (or ``mesh``)."""
-        m, basis, _, _ = self._vertex_system(mesh)
+        _m, basis, _, _ = self._vertex_system(mesh)
         qa = np.asarray(q, dtype=np.float64)
         if qa.shape[-1] != self.n_modes or qa.ndim not in (1, 2):
             raise ShapeError(f"q must have shape ({self.n_modes},) or (f, {self.n_modes}), got {qa.shape}")

@@ -27,7 +27,7 @@ from .mesh import Mesh
 from .scene import Scene
 from .trajectory import Trajectory
 
-__all__ = ["ReducedSim", "SOLVERS"]
+__all__ = ["SOLVERS", "ReducedSim"]
 
 SOLVERS = ("newton", "prefactored")
 _DEFAULT_CUBATURE_POINTS = 1000

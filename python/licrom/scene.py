@@ -18,13 +18,13 @@ from ._io import check_version
 from .errors import ConfigError, FileFormatError
 
 __all__ = [
+    "SCENE_FORMAT_VERSION",
+    "ContactParams",
+    "InitialState",
     "Material",
     "Plane",
-    "ContactParams",
-    "SolverParams",
-    "InitialState",
     "Scene",
-    "SCENE_FORMAT_VERSION",
+    "SolverParams",
 ]
 
 SCENE_FORMAT_VERSION = 1

@@ -56,13 +56,13 @@ import numpy as np
 import torch
 
 from ._io import atomic_path
-from .render import pyplot, save_png
-from .errors import ConfigError, ShapeError
 from .basis import N_AFFINE, MeshBasis, SubspaceProjector, affine_values
+from .errors import ConfigError, ShapeError
 from .model import LicromNet, Model, ModelConfig, check_frame, finalize_basis
+from .render import pyplot, save_png
 from .training_data import TrainingData, TrajectorySource
 
-__all__ = ["TrainConfig", "train", "evaluate", "subspace_report", "output_paths", "plot_losses", "OBJECTIVES"]
+__all__ = ["OBJECTIVES", "TrainConfig", "evaluate", "output_paths", "plot_losses", "subspace_report", "train"]
 
 OBJECTIVES = ("pod", "autoencoder")
 
@@ -389,7 +389,7 @@ def _encoder_frames(count: int, limit: int) -> np.ndarray:
 
 
 @torch.no_grad()
-def _encode_frames(net: LicromNet, bank: "_Bank", residuals: torch.Tensor, idx: torch.Tensor, points: int, gen: torch.Generator, chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _encode_frames(net: LicromNet, bank: _Bank, residuals: torch.Tensor, idx: torch.Tensor, points: int, gen: torch.Generator, chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Raw latents (E, r) of frames ``idx`` from ``points`` sampled points (one draw shared by
     the frames), plus those points (P, 3) and displacements (E, P, 3)."""
     x, u = _sample(bank, residuals, idx, points, "tets", gen)

@@ -20,7 +20,7 @@ import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
@@ -32,16 +32,16 @@ from .scene import InitialState, Plane, Scene
 from .trajectory import Trajectory
 
 __all__ = [
-    "TrajectorySource",
-    "load_trajectories",
-    "split_by_trajectory",
     "FrameSet",
     "TrainingData",
+    "TrajectorySource",
+    "load_trajectories",
     "make_synthetic_trajectories",
     "relative_error",
+    "split_by_trajectory",
 ]
 
-TrajectorySource = Union[str, os.PathLike, Trajectory, Iterable[Union[str, os.PathLike, Trajectory]]]
+TrajectorySource = str | os.PathLike | Trajectory | Iterable[str | os.PathLike | Trajectory]
 
 
 def load_trajectories(source: TrajectorySource) -> list[tuple[str, Trajectory]]:
@@ -110,7 +110,7 @@ def split_by_trajectory(
     else:
         if not 0.0 <= val_fraction < 1.0:
             raise ConfigError(f"val_fraction must be in [0, 1), got {val_fraction}")
-        k = int(round(val_fraction * count))
+        k = round(val_fraction * count)
         if val_fraction > 0 and count >= 2:
             k = max(k, 1)
         k = min(k, count - 1)

@@ -15,7 +15,7 @@ from .errors import FileFormatError, ShapeError, SolverError
 from .mesh import Mesh
 from .scene import Scene
 
-__all__ = ["Trajectory", "TRAJECTORY_FORMAT_VERSION"]
+__all__ = ["TRAJECTORY_FORMAT_VERSION", "Trajectory"]
 
 TRAJECTORY_FORMAT_VERSION = 1
 

@@ -176,8 +176,7 @@ class BlockHessian:
         self.inv_diag = wp.zeros(n, dtype=wp.mat33d, device=device)
         self._offsets = wp.array(offsets, dtype=wp.int32, device=device)
         self._columns = wp.array(c, dtype=wp.int32, device=device)
-        vec = lambda: wp.zeros(n, dtype=wp.vec3d, device=device)
-        self._r, self._z, self._p, self._ap = vec(), vec(), vec(), vec()
+        self._r, self._z, self._p, self._ap = (wp.zeros(n, dtype=wp.vec3d, device=device) for _ in range(4))
         self._scal = wp.zeros((3, 3, parts), dtype=f64, device=device)
         self._graphs: dict[int, Any] = {}  # by the solution array: the graph writes into it
 

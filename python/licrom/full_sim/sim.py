@@ -117,7 +117,10 @@ class FullSim:
         self._forces = wp.zeros(max(len(idx), 1), dtype=wp.vec3d, device=dev)
 
         # State and work arrays.
-        vec = lambda: wp.zeros(n, dtype=wp.vec3d, device=dev)
+
+        def vec() -> Any:
+            return wp.zeros(n, dtype=wp.vec3d, device=dev)
+
         self._x = vec()
         self._v = vec()
         self._v_prev = vec()
@@ -347,7 +350,7 @@ class FullSim:
                 wp.launch(inertia.axpy_kernel, dim=n, device=dev, inputs=[self._x, self._y, wp.float64(-1.0), self._x])
                 converged = True
                 break
-            alpha, accepted, evals = None, None, 0
+            _alpha, accepted, evals = None, None, 0
             if self._stick_correction and len(self._contact_idx) and self._n_planes:
                 its, stick_slope = self._stick_direction(forcing, maxiter_cg)
                 linear_iterations += its
@@ -357,11 +360,11 @@ class FullSim:
                     e1, _ = self._trial(1.0, False)
                     evals += 1
                     if math.isfinite(e1) and e1 <= e0 - ARMIJO * stick_slope + 1e-13 * abs(e0):
-                        alpha, accepted = 1.0, e1
+                        _alpha, accepted = 1.0, e1
                     else:
                         self._y, self._y_alt = self._y_alt, self._y
             if accepted is None:
-                alpha, accepted, ls_evals = self._line_search(e0, slope)
+                _alpha, accepted, ls_evals = self._line_search(e0, slope)
                 evals += ls_evals
             evaluations += evals
             if accepted is None:
@@ -518,7 +521,7 @@ class FullSim:
                 "device": self.device,
                 "n_vertices": int(self._n),
                 "n_tets": int(self.mesh.n_tets),
-                "contact_points": int(len(self._contact_idx)),
+                "contact_points": len(self._contact_idx),
                 "record_every": int(record_every),
                 "linear_iterations": int(linear),
                 "unconverged_steps": int(len(converged) - int(np.sum(converged))),
