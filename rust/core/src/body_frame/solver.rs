@@ -26,15 +26,11 @@
 //! quasi-Newton iteration with the same minimiser, whose directions are
 //! descent directions because every matrix is positive definite.
 //!
-//! **Line search** along `alpha -> (c + alpha dc, exp(alpha [omega]x) R, q + alpha dq)`,
-//! whose slope is the gradient at the trial point dotted with the direction
-//! (the rotations of the line share their axis): Armijo sufficient decrease;
-//! where the full step overshoots the line minimum (its slope turned positive
-//! beyond [`CURVATURE`] of the initial one, typical where friction switches
-//! between stick and slip) the minimum is bracketed by safeguarded secant
-//! steps; otherwise the step is halved. Near convergence, where the decrease
-//! hides in the round-off of the energy (whose terms are much larger than its
-//! changes), a step at the line minimum (small slope) is accepted.
+//! **Line search**: the world-frame solver's ([`crate::solver::line_search`],
+//! one copy, one set of constants) along
+//! `alpha -> (c + alpha dc, exp(alpha [omega]x) R, q + alpha dq)`, whose slope
+//! is the gradient at the trial point dotted with the direction (the rotations
+//! of the line share their axis).
 //!
 //! **Convergence** as in the world-frame solver: on the Newton direction
 //! `Delta` at the iterate, `r = sqrt(Delta^T Mg Delta / M) / h` (m/s) with Mg the
@@ -48,18 +44,8 @@ use super::rotation::{exp_map, is_rotation, log_map};
 use super::{BodyFrameSystem, BodyHessian, BodyStart, BodyWorkspace, Pose};
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::solver::CURVATURE;
+use crate::solver::line_search::line_search;
 
-/// Armijo sufficient-decrease constant.
-const ARMIJO: f64 = 1e-4;
-/// Secant steps locating an overshot line minimum.
-const MAX_SECANT: usize = 8;
-/// Backtracking halvings before the line search gives up.
-const MAX_HALVINGS: usize = 40;
-/// Energy differences below this many ulps of the energy scale are round-off.
-const ROUNDOFF_ULPS: f64 = 64.0;
-/// Relative energy increase still taken as round-off at the line minimum.
-const NOISE: f64 = 1e-8;
 /// The elastic block is assembled again when an iteration's residual is above
 /// this share of the previous one.
 pub const ELASTIC_REFRESH: f64 = 0.25;
@@ -375,72 +361,14 @@ impl BodyFrameSolver {
         self.grad.copy_from_slice(&self.ws.grad);
     }
 
-    /// Line search from the iterate (energy `e0`); the accepted point becomes
-    /// the iterate. Returns its energy, or None when no acceptable step is found.
+    /// Line search from the iterate (energy `e0`, [`crate::solver::line_search`]);
+    /// the accepted point becomes the iterate. Returns its energy, or None when
+    /// no acceptable step is found.
     fn line_search(&mut self, e0: f64) -> Option<f64> {
         let d0: f64 = self.grad.iter().zip(&self.dir).map(|(g, d)| g * d).sum();
-        let ok = |a: f64, e: f64, d: f64| {
-            if !e.is_finite() {
-                return false;
-            }
-            let scale = e0.abs().max(e.abs());
-            e <= e0 + ARMIJO * a * d0 + ROUNDOFF_ULPS * f64::EPSILON * scale
-                || (e <= e0 + NOISE * scale && d.is_finite() && d.abs() <= CURVATURE * d0.abs())
-        };
-        let (e1, d1) = self.line_trial(1.0);
-        let good1 = ok(1.0, e1, d1);
-        if good1 && d1 <= CURVATURE * d0.abs() {
-            self.accept_trial();
-            return Some(e1);
-        }
-        let mut hi = 1.0;
-        if d1.is_finite() && d1 > 0.0 {
-            // Overshoot: the line minimum lies in (0, 1); bracket it by secant steps.
-            let mut best = good1.then_some((1.0, e1));
-            let (mut lo, mut dlo, mut dhi) = (0.0, d0, d1);
-            let mut last = 1.0;
-            for _ in 0..MAX_SECANT {
-                let width = hi - lo;
-                let a = (lo - dlo * width / (dhi - dlo)).clamp(lo + 0.05 * width, hi - 0.05 * width);
-                let (e, d) = self.line_trial(a);
-                last = a;
-                let good = ok(a, e, d);
-                if good && best.is_none_or(|(_, eb)| e < eb) {
-                    best = Some((a, e));
-                }
-                if good && d.abs() <= CURVATURE * d0.abs() {
-                    self.accept_trial();
-                    return Some(e);
-                }
-                if good && d < 0.0 {
-                    (lo, dlo) = (a, d);
-                } else if d.is_finite() && d > 0.0 {
-                    (hi, dhi) = (a, d);
-                } else {
-                    break;
-                }
-            }
-            if let Some((a, e)) = best {
-                if a != last {
-                    self.line_trial(a);
-                }
-                self.accept_trial();
-                return Some(e);
-            }
-        } else if good1 {
-            self.accept_trial();
-            return Some(e1);
-        }
-        let mut alpha = 0.5 * hi;
-        for _ in 0..MAX_HALVINGS {
-            let (e, d) = self.line_trial(alpha);
-            if ok(alpha, e, d) {
-                self.accept_trial();
-                return Some(e);
-            }
-            alpha *= 0.5;
-        }
-        None
+        let step = line_search(e0, d0, |alpha| self.line_trial(alpha))?;
+        self.accept_trial();
+        Some(step.energy)
     }
 
     fn finish_step(&mut self) {
