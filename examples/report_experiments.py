@@ -1,6 +1,6 @@
 """The report's friction experiments at full scale, measured; writes ``docs/results.md``.
 
-    python examples/report_experiments.py [--work licrom-out/experiments] [--docs docs]
+    python examples/report_experiments.py [--work licrom-out/experiments] [--docs docs] [--small]
 
 Every expensive product is cached in the work folder (datasets, models, full-space
 reference runs), so the script resumes where it stopped and models trained elsewhere
@@ -14,6 +14,10 @@ Experiments:
    and a finer mesh of the same object and on a different hole layout;
 4. r in {8, 20, 40} and naive vs optimised cubature: error and speed;
 5. per-step speedup on a ~100k-tet cheese.
+
+``--small`` runs the whole pipeline on tiny meshes for a few steps with 2-epoch models (a
+smoke test of under a minute); it caches in ``WORK/small`` and writes ``results.md`` to
+``WORK/small/docs`` unless ``--docs`` is given.
 """
 
 from __future__ import annotations
@@ -72,7 +76,8 @@ def _model(work: Path, name: str, data: Path, r: int, epochs: int) -> licrom.Mod
     path = work / "models" / f"{name}_r{r}.lcm"
     if not path.exists():
         print(f"training {path.name} ({epochs} epochs)", flush=True)
-        licrom.train(data, path, TrainConfig(epochs=epochs, progress=False), ModelConfig(latent_dim=r))
+        # The report measures LiCROM as published: world-frame modes (new models default to the body frame).
+        licrom.train(data, path, TrainConfig(epochs=epochs, progress=False), ModelConfig(latent_dim=r, frame="world"))
     return licrom.Model.load(path)
 
 
@@ -182,13 +187,23 @@ def _sphere_controls(mesh, scene, full: Trajectory, steps: int, record_every: in
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", default="licrom-out/experiments")
-    ap.add_argument("--docs", default="docs")
+    ap.add_argument("--docs", default=None, help="folder of results.md and figures/ (default docs, or WORK/small/docs with --small)")
     ap.add_argument("--epochs", type=int, default=300, help="epochs for models trained here (CPU)")
     ap.add_argument("--cubature", type=int, default=1000)
     ap.add_argument("--speed-resolution", type=int, default=42, help="cheese resolution of the speed test (~110k tets)")
     ap.add_argument("--skip", nargs="*", default=[], help="experiments to skip: cheese sphere mesh sweep speed")
+    ap.add_argument("--small", action="store_true",
+                    help="smoke test: tiny meshes, few steps, 2 epochs, 40 cubature tets, a tiny speed mesh; never writes into docs/")
     args = ap.parse_args()
-    work, docs = Path(args.work), Path(args.docs)
+    work = Path(args.work) / "small" if args.small else Path(args.work)
+    docs = Path(args.docs) if args.docs is not None else (work / "docs" if args.small else Path("docs"))
+    if args.small:
+        args.epochs, args.cubature, args.speed_resolution = 2, 40, 5
+    # Sizes: (resolution, steps[, record_every]) of the data sets (the sphere's one run needs more frames than
+    # the 20 modes), the resolutions of the other cheese meshes, and the steps of the speed test.
+    cheese_size, sphere_size = ((5, 10), (4, 25, 1)) if args.small else ((None, None), (None, None, None))
+    other_resolutions = (4, 6, 5) if args.small else (9, 16, 12)
+    full_timed, reduced_timed, warmup = (2, 5, 2) if args.small else (6, 200, 10)
     figs = docs / "figures"
     for d in (work / "full", work / "models", figs):
         d.mkdir(parents=True, exist_ok=True)
@@ -196,7 +211,7 @@ def main() -> None:
     t_start = time.perf_counter()
 
     # --- data ---------------------------------------------------------------------------
-    cheese = report_dataset_spec("cheese")
+    cheese = report_dataset_spec("cheese", resolution=cheese_size[0], steps=cheese_size[1])
     cheese.generate(work / "cheese-data", progress=False)
     base_plane = Plane.incline(20.0, 0.5)  # the spec's frame for carrying the drop onto other slopes
     base_scene = cheese.base_scene.replace(
@@ -228,7 +243,7 @@ def main() -> None:
 
     # --- 2. sphere ------------------------------------------------------------------------
     if "sphere" not in args.skip:
-        sphere = report_dataset_spec("sphere")
+        sphere = report_dataset_spec("sphere", *sphere_size)
         sphere.generate(work / "sphere-data", progress=False)
         sphere_model = _model(work, "sphere", work / "sphere-data", 20, args.epochs)
         splane = Plane.incline(20.0, 0.5)
@@ -243,7 +258,8 @@ def main() -> None:
             rows.append(row)
             filmstrip([full, reduced], ["full", "reduced"], figs / f"sphere_{slope:g}_{mu:g}.png", frames=8, title=row.case)
             if where == "training scene":
-                controls = _sphere_controls(sphere.mesh, scene, full, sphere.steps, sphere.record_every, row)
+                controls = _sphere_controls(sphere.mesh, scene, full, sphere.steps, sphere.record_every, row,
+                                            modes=2 if args.small else 40)
         sections.append("## 2. Sphere bouncing down a slope\n\n"
                         f"Training: the report's sphere run (20 deg, mu 0.5, {sphere.mesh.n_tets} tets, h = 2 ms). Model r = 20.\n\n"
                         + _table(rows) + "\n\n" + controls + "\n![sphere](figures/sphere_20_0.5.png)\n")
@@ -251,8 +267,10 @@ def main() -> None:
     # --- 3. other meshes of the object ---------------------------------------------------------
     if "mesh" not in args.skip:
         rows = []
-        others = [("coarser (resolution 9)", meshes.cheese(resolution=9)), ("finer (resolution 16)", meshes.cheese(resolution=16)),
-                  ("other hole layout (seed 3)", meshes.cheese(resolution=12, holes=meshes.CheeseHoles(seed=3)))]
+        coarse, fine, same = other_resolutions
+        others = [(f"coarser (resolution {coarse})", meshes.cheese(resolution=coarse)),
+                  (f"finer (resolution {fine})", meshes.cheese(resolution=fine)),
+                  ("other hole layout (seed 3)", meshes.cheese(resolution=same, holes=meshes.CheeseHoles(seed=3)))]
         for name, mesh in others:
             for slope, mu in ((25.0, 0.4), (15.0, 0.6)):
                 scene = _scene_on(base_scene, base_plane, mesh, slope, mu)
@@ -290,9 +308,9 @@ def main() -> None:
         big = meshes.cheese(resolution=args.speed_resolution)
         scene = _scene_on(base_scene, base_plane, big, 25.0, 0.4)
         # Timed over the same steps, after the 2 cm drop has landed (10 steps).
-        fm, f_its = time_steps(FullSim(big, scene), 6, warmup=10)
+        fm, f_its = time_steps(FullSim(big, scene), full_timed, warmup=warmup)
         sim = ReducedSim(model20, big, scene, cubature=Cubature.naive(big, args.cubature), contact_points=ContactPoints.subset(big, 1000))
-        rm, r_its = time_steps(sim, 200, warmup=10)
+        rm, r_its = time_steps(sim, reduced_timed, warmup=warmup)
         sections.append(f"## 5. Speed on a {big.n_tets}-tet cheese\n\n| | ms/step (median) |\n|---|---|\n"
                         f"| full (warp, CPU; {f_its:.1f} Newton iterations) | {fm:.1f} |\n"
                         f"| reduced (r = 20 + 12, {args.cubature} cubature tets, 1000 contact points; {r_its:.1f} Newton iterations) | {rm:.3f} |\n"
