@@ -15,7 +15,6 @@ rows once and steps ``licrom._core.BodyFrameCore``, with the user API of
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -25,9 +24,10 @@ from .basis import SubspaceProjector, check_basis_output
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .reduced_sim import _DEFAULT_CUBATURE_POINTS
+from .reduced_sim import sampling, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
+from .stepping import record_run
 from .trajectory import Trajectory
 
 __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
@@ -148,17 +148,6 @@ class BodyFrameBasis:
         return f"BodyFrameBasis(n_modes={self.n_modes}, learned={self.learned!r})"
 
 
-def _sampling(mesh: Mesh, cubature: Cubature | None, contact_points: ContactPoints | None) -> tuple[Cubature, ContactPoints]:
-    """ReducedSim's defaults (naive cubature, every boundary vertex), checked against the mesh."""
-    cubature = cubature if cubature is not None else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
-    contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
-    if cubature.count and int(cubature.tets.max()) >= mesh.n_tets:
-        raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
-    if contact_points.count and int(contact_points.indices.max()) >= mesh.n_vertices:
-        raise ConfigError("contact points do not belong to this mesh (index out of range)")
-    return cubature, contact_points
-
-
 class BodyFrameSim:
     """Simulate a solid as a rigid frame plus body-frame modes.
 
@@ -198,7 +187,7 @@ class BodyFrameSim:
             if scene is None:
                 raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
         self.basis, self.mesh, self.scene = basis, mesh, scene
-        self.cubature, self.contact_points = _sampling(mesh, cubature, contact_points)
+        self.cubature, self.contact_points = sampling(mesh, cubature, contact_points)
         k = int(basis.n_modes)
         n = mesh.n_vertices
         self._masses = mesh.vertex_masses(scene.material.density)
@@ -347,53 +336,16 @@ class BodyFrameSim:
         With ``scene.solver.on_failure == "record"``, a step that does not converge is
         recorded as unconverged and the run continues from the last iterate.
         """
-        from .errors import SolverError
-
-        if not isinstance(steps, (int, np.integer)) or steps < 0:
-            raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
-        if not isinstance(record_every, (int, np.integer)) or record_every < 1:
-            raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
-        xs, vs, times = [self.positions], [self.velocities], [self.time]
-        iterations, residuals, converged, seconds = [], [], [], []
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=steps, desc="body frame", unit="step")
-        for s in range(1, steps + 1):
-            start = time.perf_counter()
-            try:
-                its, res = self.step()
-                ok = True
-            except SolverError as exc:
-                if self.scene.solver.on_failure == "raise":
-                    raise
-                its, res, ok = self.scene.solver.max_iterations, float(getattr(exc, "residual", np.nan)), False
-                self._core.accept_last_iterate()
-                self.time += self.scene.dt
-            seconds.append(time.perf_counter() - start)
-            iterations.append(its)
-            residuals.append(res)
-            converged.append(ok)
-            if s % record_every == 0:
-                xs.append(self.positions)
-                vs.append(self.velocities)
-                times.append(self.time)
-            if bar is not None:
-                bar.update(1)
-        if bar is not None:
-            bar.close()
+        rec = record_run(
+            lambda: step_or_record(self), lambda: (self.positions, self.velocities), lambda: self.time, steps, record_every, progress, "body frame"
+        )
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
-            displacements=np.array(xs) - self.mesh.vertices,
-            velocities=np.array(vs),
-            times=np.array(times),
+            displacements=np.array([x for x, _ in rec.frames]) - self.mesh.vertices,
+            velocities=np.array([v for _, v in rec.frames]),
             scene=self.scene,
-            iterations=np.array(iterations),
-            residuals=np.array(residuals),
-            converged=np.array(converged),
-            step_seconds=np.array(seconds),
+            **rec.arrays(),
             info={
                 "source": "reduced",
                 "frame": "body",

@@ -14,7 +14,6 @@ call runs either kind of model.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -22,9 +21,10 @@ import numpy as np
 from . import _core
 from .basis import SubspaceProjector, check_basis_output
 from .cubature import ContactPoints, Cubature
-from .errors import ConfigError, ShapeError
+from .errors import ConfigError, ShapeError, SolverError
 from .mesh import Mesh
 from .scene import Scene
+from .stepping import record_run
 from .trajectory import Trajectory
 
 __all__ = ["SOLVERS", "ReducedSim"]
@@ -87,12 +87,7 @@ class ReducedSim:
         self.mesh = mesh
         self.scene = scene
         self.solver = solver
-        self.cubature = cubature if cubature is not None else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
-        self.contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
-        if self.cubature.count and int(self.cubature.tets.max()) >= mesh.n_tets:
-            raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
-        if self.contact_points.count and int(self.contact_points.indices.max()) >= mesh.n_vertices:
-            raise ConfigError("contact points do not belong to this mesh (index out of range)")
+        self.cubature, self.contact_points = sampling(mesh, cubature, contact_points)
 
         k = int(basis.n_modes)
         n = mesh.n_vertices
@@ -201,55 +196,18 @@ class ReducedSim:
         With ``scene.solver.on_failure == "record"``, a step that does not converge is
         recorded as unconverged and the run continues from the last iterate.
         """
-        from .errors import SolverError
-
-        if not isinstance(steps, (int, np.integer)) or steps < 0:
-            raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
-        if not isinstance(record_every, (int, np.integer)) or record_every < 1:
-            raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
-        qs, qdots, times = [self.q], [self.qdot], [self.time]
-        iterations, residuals, converged, seconds = [], [], [], []
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=steps, desc="reduced", unit="step")
-        for s in range(1, steps + 1):
-            start = time.perf_counter()
-            try:
-                its, res = self.step()
-                ok = True
-            except SolverError as exc:
-                if self.scene.solver.on_failure == "raise":
-                    raise
-                its, res, ok = self.scene.solver.max_iterations, float(getattr(exc, "residual", np.nan)), False
-                self._core.accept_last_iterate()
-                self.time += self.scene.dt
-            seconds.append(time.perf_counter() - start)
-            iterations.append(its)
-            residuals.append(res)
-            converged.append(ok)
-            if s % record_every == 0:
-                qs.append(self.q)
-                qdots.append(self.qdot)
-                times.append(self.time)
-            if bar is not None:
-                bar.update(1)
-        if bar is not None:
-            bar.close()
+        rec = record_run(lambda: step_or_record(self), lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced")
+        qs = np.array([q for q, _ in rec.frames])
+        qdots = np.array([qd for _, qd in rec.frames])
         w = self._values.reshape(-1, self._values.shape[2])
         n = self.mesh.n_vertices
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
-            displacements=(np.array(qs) @ w.T).reshape(-1, n, 3),
-            velocities=(np.array(qdots) @ w.T).reshape(-1, n, 3),
-            times=np.array(times),
+            displacements=(qs @ w.T).reshape(-1, n, 3),
+            velocities=(qdots @ w.T).reshape(-1, n, 3),
             scene=self.scene,
-            iterations=np.array(iterations),
-            residuals=np.array(residuals),
-            converged=np.array(converged),
-            step_seconds=np.array(seconds),
+            **rec.arrays(),
             info={
                 "source": "reduced",
                 "solver": self.solver,
@@ -257,7 +215,7 @@ class ReducedSim:
                 "cubature": self.cubature.scheme,
                 "cubature_points": int(self.cubature.count),
                 "contact_points": int(self.contact_points.count),
-                "q": np.array(qs).tolist() if len(qs) * self.n_modes <= 200_000 else None,
+                "q": qs.tolist() if qs.size <= 200_000 else None,
             },
         )
 
@@ -275,6 +233,31 @@ class ReducedSim:
         other._core.set_state(self.q, self.qdot)
         other.time = self.time
         return other
+
+
+def sampling(mesh: Mesh, cubature: Cubature | None, contact_points: ContactPoints | None) -> tuple[Cubature, ContactPoints]:
+    """The reduced simulations' defaults (naive cubature, every boundary vertex), checked against the mesh."""
+    cubature = cubature if cubature is not None else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
+    contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
+    if cubature.count and int(cubature.tets.max()) >= mesh.n_tets:
+        raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
+    if contact_points.count and int(contact_points.indices.max()) >= mesh.n_vertices:
+        raise ConfigError("contact points do not belong to this mesh (index out of range)")
+    return cubature, contact_points
+
+
+def step_or_record(sim: Any) -> tuple[int, float, bool]:
+    """One step of a reduced simulation; a failure raises, or with ``on_failure == "record"``
+    is recorded as unconverged and the simulation goes on from the last iterate."""
+    try:
+        its, res = sim.step()
+        return its, res, True
+    except SolverError as exc:
+        if sim.scene.solver.on_failure == "raise":
+            raise
+        sim._core.accept_last_iterate()
+        sim.time += sim.scene.dt
+        return sim.scene.solver.max_iterations, float(np.nan if exc.residual is None else exc.residual), False
 
 
 def _body_frame_sim(

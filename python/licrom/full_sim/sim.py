@@ -14,6 +14,7 @@ import warp as wp
 from ..errors import ConfigError, ShapeError, SolverError
 from ..mesh import Mesh
 from ..scene import Scene
+from ..stepping import record_run
 from ..trajectory import Trajectory
 from . import contact, elastic, inertia, pcg
 from .device import (
@@ -471,51 +472,24 @@ class FullSim:
             ConfigError: bad ``steps`` or ``record_every``.
             SolverError: a step failed and ``on_failure == "raise"``.
         """
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
-            raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
-        if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
-            raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
         rest = self.mesh.vertices
-        disp = [self.positions - rest]
-        vels = [self.velocities]
-        times = [self.time]
-        iterations, residuals, converged, seconds = [], [], [], []
         linear = 0
-        bar = None
-        if progress:
-            from tqdm import tqdm
 
-            bar = tqdm(total=int(steps), desc="full", unit="step", leave=False)
-        try:
-            for s in range(1, int(steps) + 1):
-                its, res = self.step()
-                st = self.last_stats
-                iterations.append(its)
-                residuals.append(res)
-                converged.append(st.converged)
-                seconds.append(st.seconds)
-                linear += st.linear_iterations
-                if s % record_every == 0:
-                    disp.append(self.positions - rest)
-                    vels.append(self.velocities)
-                    times.append(self.time)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(newton=its, cg=st.linear_iterations, refresh=False)
-        finally:
-            if bar is not None:
-                bar.close()
+        def step() -> tuple[int, float, bool]:
+            nonlocal linear
+            its, res = self.step()
+            linear += self.last_stats.linear_iterations
+            return its, res, self.last_stats.converged
+
+        rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress, "full")
+        converged = rec.converged
         return Trajectory(
             rest_positions=rest,
             tets=self.mesh.tets,
-            displacements=np.array(disp),
-            velocities=np.array(vels),
-            times=np.array(times),
+            displacements=np.array([d for d, _ in rec.frames]),
+            velocities=np.array([v for _, v in rec.frames]),
             scene=self.scene,
-            iterations=np.array(iterations, dtype=np.int32),
-            residuals=np.array(residuals, dtype=np.float64),
-            converged=np.array(converged, dtype=bool),
-            step_seconds=np.array(seconds, dtype=np.float64),
+            **rec.arrays(),
             info={
                 "source": "full",
                 "device": self.device,

@@ -1,0 +1,121 @@
+"""The run loop every simulator shares: step, time, record frames, show progress.
+
+:class:`~licrom.full_sim.FullSim`, :class:`~licrom.reduced_sim.ReducedSim` and
+:class:`~licrom.body_frame.BodyFrameSim` differ in how they take a step and what a
+frame is; the argument checks, the recording cadence, the timing and the progress bar
+(closed also when a step raises) are one piece of code.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import ConfigError
+
+__all__ = ["RunRecord", "check_run_arguments", "record_run"]
+
+StepOutcome = tuple[int, float, bool]
+"""``(iterations, residual in m/s, converged)`` of one step."""
+
+
+def check_run_arguments(steps: Any, record_every: Any) -> tuple[int, int]:
+    """``steps`` (an integer >= 0) and ``record_every`` (an integer >= 1) as ints.
+
+    Raises:
+        ConfigError: anything else, booleans included.
+    """
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ConfigError(f"steps must be an integer >= 0, got {steps!r}")
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
+        raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
+    return int(steps), int(record_every)
+
+
+@dataclass
+class RunRecord:
+    """What :func:`record_run` recorded: frame 0 and every ``record_every``-th step's frame.
+
+    Attributes:
+        frames: the snapshots, in order.
+        times: simulated time of each frame, s.
+        iterations, residuals, converged, seconds: per step (wall time in s).
+    """
+
+    frames: list[Any] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+    iterations: list[int] = field(default_factory=list)
+    residuals: list[float] = field(default_factory=list)
+    converged: list[bool] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The per-step lists as the arrays :class:`~licrom.trajectory.Trajectory` takes."""
+        return {
+            "times": np.array(self.times, dtype=np.float64),
+            "iterations": np.array(self.iterations, dtype=np.int32),
+            "residuals": np.array(self.residuals, dtype=np.float64),
+            "converged": np.array(self.converged, dtype=bool),
+            "step_seconds": np.array(self.seconds, dtype=np.float64),
+        }
+
+
+@contextlib.contextmanager
+def _progress(total: int, desc: str, enabled: bool) -> Iterator[Any]:
+    if not enabled:
+        yield None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="step", leave=False)
+    try:
+        yield bar
+    finally:
+        bar.close()
+
+
+def record_run(
+    step: Callable[[], StepOutcome],
+    snapshot: Callable[[], Any],
+    clock: Callable[[], float],
+    steps: Any,
+    record_every: Any = 1,
+    progress: bool = False,
+    desc: str = "steps",
+) -> RunRecord:
+    """Take ``steps`` steps and record the state before the first and after every ``record_every``-th.
+
+    Args:
+        step: takes one step; returns ``(iterations, residual, converged)``.
+        snapshot: the state to record (any object).
+        clock: the simulated time, s.
+        steps: number of steps, an integer >= 0.
+        record_every: record cadence, an integer >= 1.
+        progress: show a progress bar.
+        desc: the bar's label.
+
+    Raises:
+        ConfigError: bad ``steps`` or ``record_every``. Whatever ``step`` raises passes through.
+    """
+    steps, record_every = check_run_arguments(steps, record_every)
+    rec = RunRecord(frames=[snapshot()], times=[clock()])
+    with _progress(steps, desc, progress) as bar:
+        for s in range(1, steps + 1):
+            start = time.perf_counter()
+            its, res, ok = step()
+            rec.seconds.append(time.perf_counter() - start)
+            rec.iterations.append(its)
+            rec.residuals.append(res)
+            rec.converged.append(ok)
+            if s % record_every == 0:
+                rec.frames.append(snapshot())
+                rec.times.append(clock())
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(iterations=its, refresh=False)
+    return rec
