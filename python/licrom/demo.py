@@ -148,7 +148,7 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
         "mesh": {"vertices": mesh.n_vertices, "tets": mesh.n_tets},
         "config": asdict(config),
         "seconds": {"full_runs": t_data, "training": t_train, "total": time.perf_counter() - t0},
-        "model": {"learned_modes": config.modes, "cubature_points": cubature.count},
+        "model": {"learned_modes": config.modes, "frame": config.frame, "cubature_points": cubature.count},
         "cases": rows,
     }
     for name, text in (("summary.json", json.dumps(summary, indent=2)), ("summary.md", _markdown(summary))):
@@ -174,8 +174,10 @@ def _markdown(summary: dict) -> str:
             f"{r['full_step_ms']:.2f} | {r['reduced_step_ms']:.3f} | {r['speedup']:.0f}x |\n"
         )
     s = summary["seconds"]
+    model = summary["model"]
+    extra = "+12 affine" if model["frame"] == "world" else "+6 symmetric affine, rigid motion exact"
     return (
-        f"# licrom demo\n\ncheese: {summary['mesh']['tets']} tets; r = {summary['model']['learned_modes']} (+12 affine), "
-        f"{summary['model']['cubature_points']} cubature tets\n\n{head}\n"
+        f"# licrom demo\n\ncheese: {summary['mesh']['tets']} tets; {model['frame']}-frame model, r = {model['learned_modes']} ({extra}), "
+        f"{model['cubature_points']} cubature tets\n\n{head}\n"
         f"full runs {s['full_runs']:.0f} s, training {s['training']:.0f} s, total {s['total']:.0f} s\n"
     )
