@@ -46,12 +46,12 @@ import licrom
 import numpy as np
 from licrom import AffineBasis, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
+from licrom.affine import apply_affine, fit_affine
 from licrom.basis import SubspaceProjector
 from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.compare import compare, first_contact_frame, nonrigid_error
 from licrom.cubature import Cubature
 from licrom.dataset import drop_state, initial_state_on_plane
-from licrom.model import apply_affine, fit_affine
 from licrom.render import filmstrip
 from licrom.rigid import body_frame_displacements, rigid_fit
 from licrom.training import TrainConfig

@@ -23,10 +23,10 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import AffineBasis, MeshBasis, Model, ReducedSim, StackedBasis, Trajectory
+from licrom.affine import apply_affine, fit_affine
 from licrom.basis import SubspaceProjector
 from licrom.compare import compare
 from licrom.cubature import Cubature
-from licrom.model import apply_affine, fit_affine
 from licrom.training_data import relative_error
 
 

@@ -19,6 +19,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from .affine import AFFINE_JACOBIAN, N_AFFINE, affine_jacobians, affine_values
 from .errors import ShapeError
 from .mesh import Mesh
 
@@ -52,44 +53,6 @@ def _points(points: np.ndarray) -> np.ndarray:
     if p.ndim != 2 or p.shape[1] != 3:
         raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
     return p
-
-
-N_AFFINE = 12
-
-
-def _affine_jacobian_constant() -> np.ndarray:
-    out = np.zeros((3, 3, N_AFFINE))
-    for c in range(9):
-        i, j = divmod(c, 3)
-        out[i, j, c] = 1.0
-    out.setflags(write=False)
-    return out
-
-
-AFFINE_JACOBIAN = _affine_jacobian_constant()
-"""(3, 3, 12) constant ``dW_ic/dX_j`` of the affine modes."""
-
-
-def affine_values(points):
-    """(p, 3, 12) values of the affine modes at (p, 3) points (numpy or torch in, same out).
-
-    Mode ``c < 9`` is ``X_j e_i`` with ``(i, j) = divmod(c, 3)`` (entry ``A_ij`` of a
-    linear map ``A X``); modes 9, 10, 11 are the translations ``e_0, e_1, e_2``.
-    """
-    if hasattr(points, "new_zeros"):  # a torch tensor: stay on its device and dtype
-        out = points.new_zeros((points.shape[0], 3, N_AFFINE))
-    else:
-        points = _points(points)
-        out = np.zeros((len(points), 3, N_AFFINE))
-    for i in range(3):
-        out[:, i, 3 * i : 3 * i + 3] = points
-        out[:, i, 9 + i] = 1.0
-    return out
-
-
-def affine_jacobians(points: np.ndarray) -> np.ndarray:
-    """(p, 3, 3, 12) spatial derivatives of :func:`affine_values` (constant)."""
-    return np.broadcast_to(AFFINE_JACOBIAN, (len(_points(points)), 3, 3, N_AFFINE)).copy()
 
 
 def check_basis_output(name: str, array: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -20,6 +20,7 @@ import click
 
 from ._io import atomic_path
 from .errors import ConfigError
+from .rigid import check_frame
 
 __all__ = ["DemoConfig", "run_demo"]
 
@@ -64,8 +65,7 @@ class DemoConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < (4 if name == "resolution" else 1):
                 raise ConfigError(f"DemoConfig.{name} must be an integer >= {4 if name == 'resolution' else 1}, got {value!r}")
-        if self.frame not in ("body", "world"):  # the model's FRAMES, checked here without importing torch
-            raise ConfigError(f"DemoConfig.frame must be one of 'body', 'world', got {self.frame!r}")
+        check_frame(self.frame, "DemoConfig.frame")
         if not self.drop_height >= 0.0:
             raise ConfigError(f"DemoConfig.drop_height (m) must be >= 0, got {self.drop_height!r}")
         if not self.train_slopes or not self.train_frictions or not self.test_cases:

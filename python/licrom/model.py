@@ -57,26 +57,24 @@ import torch
 from torch import nn
 
 from ._io import load_npz, save_npz
-from .basis import AFFINE_JACOBIAN, N_AFFINE, affine_values
+from .affine import AFFINE_JACOBIAN, N_AFFINE, affine_values, apply_affine, fit_affine, remove_affine_part
 from .errors import ConfigError, FileFormatError, ShapeError
 from .mesh import Mesh
+from .rigid import check_frame
 from .scene import Scene
 
 __all__ = [
-    "FRAMES",
     "MODEL_FORMAT_VERSION",
     "LicromNet",
     "Model",
     "ModelConfig",
     "NeuralField",
     "PointNetEncoder",
-    "check_frame",
 ]
 
 # Version 2 records the frame; version 1 files are world-frame models.
 MODEL_FORMAT_VERSION = 2
 _READABLE_VERSIONS = (1, 2)
-FRAMES = ("body", "world")
 # Points evaluated per batch by values()/jacobians() (bounds peak memory, not speed).
 _CHUNK = 16384
 
@@ -84,13 +82,6 @@ _CHUNK = 16384
 # ----------------------------------------------------------------------------------------
 # configuration
 # ----------------------------------------------------------------------------------------
-def check_frame(frame: Any, what: str = "frame") -> str:
-    """Return ``frame`` if it is one of :data:`FRAMES`; raise ConfigError naming them otherwise."""
-    if not isinstance(frame, str) or frame not in FRAMES:
-        raise ConfigError(f"{what} must be one of {', '.join(repr(f) for f in FRAMES)}, got {frame!r}")
-    return frame
-
-
 @dataclass(frozen=True)
 class ModelConfig:
     """Sizes of the LiCROM networks.
@@ -175,49 +166,6 @@ class ModelConfig:
             return cls(**d)
         except TypeError as exc:
             raise ConfigError(f"unknown or missing ModelConfig fields: {exc}") from exc
-
-
-def fit_affine(points: np.ndarray, displacements: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Weighted least-squares affine coefficients of displacement fields.
-
-    Solves ``min_a sum_v w_v |u_v - A(X_v) a|^2`` for each frame.
-
-    Args:
-        points: (n, 3) points X.
-        displacements: (n, 3) or (f, n, 3) displacements u at those points.
-        weights: (n,) non-negative weights (lumped masses).
-
-    Returns:
-        (12,) or (f, 12) coefficients in the affine mode order.
-    """
-    x = np.asarray(points, dtype=np.float64)
-    u = np.asarray(displacements, dtype=np.float64)
-    single = u.ndim == 2
-    if single:
-        u = u[None]
-    w = np.asarray(weights, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3 or u.shape[1:] != x.shape or w.shape != (len(x),):
-        raise ShapeError(f"fit_affine needs points (n, 3), displacements (f, n, 3) and weights (n,); got {x.shape}, {u.shape}, {w.shape}")
-    centre = (w @ x) / w.sum()
-    xc = x - centre
-    design = np.concatenate([xc, np.ones((len(x), 1))], axis=1)  # (n, 4)
-    gram = design.T @ (w[:, None] * design)
-    rhs = np.einsum("nk,n,fni->fki", design, w, u)  # (f, 4, 3)
-    coef = np.linalg.solve(gram[None], rhs)  # (f, 4, 3): coef[k, i]
-    lin = np.transpose(coef[:, :3, :], (0, 2, 1))  # (f, 3, 3): F_ij
-    trans = coef[:, 3, :] - np.einsum("fij,j->fi", lin, centre)
-    a = np.concatenate([lin.reshape(len(u), 9), trans], axis=1)
-    return a[0] if single else a
-
-
-def apply_affine(points: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
-    """Displacements (n, 3) or (f, n, 3) of affine coefficients (12,) or (f, 12) at points (n, 3)."""
-    a = np.asarray(coefficients, dtype=np.float64)
-    x = np.asarray(points, dtype=np.float64)
-    single = a.ndim == 1
-    a2 = a[None] if single else a
-    out = np.einsum("fij,nj->fni", a2[:, :9].reshape(-1, 3, 3), x) + a2[:, None, 9:]
-    return out[0] if single else out
 
 
 # ----------------------------------------------------------------------------------------
@@ -804,10 +752,7 @@ def finalize_basis(net: LicromNet, mesh: Mesh, residuals: np.ndarray | None = No
         )  # (n, 3, r)
     mw = np.repeat(masses, 3)
     if config.affine:
-        a = affine_values(x).reshape(-1, N_AFFINE)
-        gram_a = a.T @ (mw[:, None] * a)
-        c = np.linalg.solve(gram_a, a.T @ (mw[:, None] * wraw.reshape(-1, r)))
-        wp = wraw.reshape(-1, r) - a @ c
+        wp, c = remove_affine_part(x, wraw.reshape(-1, r), masses)
     else:
         c = np.zeros((N_AFFINE, r))
         wp = wraw.reshape(-1, r)

@@ -14,16 +14,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ShapeError
+from .errors import ConfigError, ShapeError
 
 __all__ = [
+    "FRAMES",
     "best_rotation",
     "body_frame_displacements",
     "center_of_mass",
+    "check_frame",
     "nonrigid_displacements",
     "rigid_fit",
     "rotation_angle",
 ]
+
+
+FRAMES = ("body", "world")
+"""Frames a reduced model can live in: the body frame (rigid motion exact, modes in the body) or
+the world frame (LiCROM's 12 affine + learned modes)."""
+
+
+def check_frame(frame: object, what: str = "frame") -> str:
+    """Return ``frame`` if it is one of :data:`FRAMES`; raise ConfigError naming them otherwise."""
+    if not isinstance(frame, str) or frame not in FRAMES:
+        raise ConfigError(f"{what} must be one of {', '.join(repr(f) for f in FRAMES)}, got {frame!r}")
+    return frame
 
 
 def _frames(name: str, a: np.ndarray, n: int) -> np.ndarray:

@@ -56,10 +56,12 @@ import numpy as np
 import torch
 
 from ._io import atomic_path
-from .basis import N_AFFINE, MeshBasis, SubspaceProjector, affine_values
+from .affine import remove_affine_part
+from .basis import MeshBasis, SubspaceProjector
 from .errors import ConfigError, ShapeError
-from .model import LicromNet, Model, ModelConfig, check_frame, finalize_basis
+from .model import LicromNet, Model, ModelConfig, finalize_basis
 from .render import pyplot, save_png
+from .rigid import check_frame
 from .training_data import TrainingData, TrajectorySource
 
 __all__ = ["OBJECTIVES", "TrainConfig", "evaluate", "output_paths", "plot_losses", "subspace_report", "train"]
@@ -323,11 +325,7 @@ def _orthogonalized_vertex_field(net: LicromNet, rest64: torch.Tensor, masses: t
     r = w.shape[-1]
     w = w.reshape(-1, r)
     if affine:
-        mw = masses.repeat_interleave(3)
-        a = affine_values(rest64).reshape(-1, N_AFFINE)
-        gram = a.T @ (mw[:, None] * a)
-        c = torch.linalg.solve(gram, a.T @ (mw[:, None] * w))
-        w = w - a @ c
+        w, _ = remove_affine_part(rest64, w, masses)
     return w
 
 

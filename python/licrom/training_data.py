@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from .affine import apply_affine, fit_affine
 from .errors import ConfigError, FileFormatError
 from .mesh import Mesh
-from .model import apply_affine, check_frame, fit_affine
-from .rigid import body_frame_displacements
+from .rigid import body_frame_displacements, check_frame
 from .scene import InitialState, Plane, Scene
 from .trajectory import Trajectory
 
