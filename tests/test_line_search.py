@@ -1,51 +1,93 @@
-"""The line search of the Newton iterations on one-dimensional problems."""
+"""The line search of the Newton iterations: the Python twin against the Rust core on the same problems."""
 
 import math
 
+import pytest
+
+from licrom import _core
 from licrom.full_sim.line_search import ARMIJO, CURVATURE, line_search
 
 
-def _along(f, df):
-    """phi(a) = f(1 - a), a descent direction from x = 1 towards x = 0 (and beyond)."""
+def _smooth_valley(x):
+    return 0.5 * x * x, x
+
+
+def _friction_kink(x):
+    # Friction switching from slip to stick at x = 0.8: the full step lands past the minimum.
+    return (50.0 * (x - 0.8) ** 2, 100.0 * (x - 0.8)) if x < 0.8 else (0.2 * (x - 0.8), 0.2)
+
+
+def _rising(x):
+    return 1.0 + (1.0 - x), -1.0  # a wrong direction: the energy rises along it
+
+
+def _steep(x):
+    return 1000.0 * (x - 0.999) ** 2, 2000.0 * (x - 0.999)
+
+
+def _flat_within_round_off(x):
+    return 1.0 + 1e-12 * (x - 0.5) ** 2, 2e-12 * (x - 0.5)
+
+
+PROBLEMS = [_smooth_valley, _friction_kink, _rising, _steep, _flat_within_round_off]
+
+
+def _along(f):
+    """phi(a) = f(1 - a): from x = 1 towards x = 0 (and beyond), with the calls recorded."""
     calls = []
 
-    def trial(a, with_slope):
+    def phi(a):
         calls.append(a)
-        x = 1.0 - a
-        return f(x), (-df(x) if with_slope else math.nan)
+        e, g = f(1.0 - a)
+        return e, -g
 
-    return trial, calls
+    return phi, calls
+
+
+@pytest.mark.parametrize("f", PROBLEMS, ids=lambda f: f.__name__)
+def test_python_and_rust_take_the_same_step(f):
+    e0, g0 = f(1.0)
+    d0 = -g0 if g0 > 0 else -1.0
+    phi_py, calls_py = _along(f)
+    phi_rs, calls_rs = _along(f)
+    alpha, energy, evals = line_search(e0, d0, phi_py)
+    rust = _core.line_search(e0, d0, phi_rs)
+    assert calls_py == calls_rs and evals == len(calls_py)
+    if rust is None:
+        assert energy is None
+    else:
+        assert (alpha, energy) == rust
+        assert calls_py[-1] == alpha  # the caller's trial point is the accepted one
 
 
 def test_newton_step_on_a_quadratic_is_taken_whole():
-    trial, calls = _along(lambda x: 0.5 * x * x, lambda x: x)
-    alpha, e, evals = line_search(0.5, -1.0, trial)
-    assert alpha == 1.0 and e == 0.0 and evals == 1 and calls == [1.0]
+    phi, calls = _along(_smooth_valley)
+    assert line_search(0.5, -1.0, phi) == (1.0, 0.0, 1) and calls == [1.0]
 
 
-def test_overshoot_is_bracketed_and_the_line_minimum_found():
-    # A kink like friction switching from slip to stick at x = 0.8: the full step lands far
-    # past the minimum, where the slope has turned positive.
-    f = lambda x: 0.5 * (x - 0.8) ** 2 * 100.0 if x < 0.8 else 0.2 * (x - 0.8)  # noqa: E731
-    df = lambda x: 100.0 * (x - 0.8) if x < 0.8 else 0.2  # noqa: E731
-    trial, calls = _along(f, df)
-    e0, d0 = f(1.0), -df(1.0)
-    alpha, e, _ = line_search(e0, d0, trial)
-    assert e is not None and e <= e0 + ARMIJO * alpha * d0
-    assert abs(-df(1.0 - alpha)) <= CURVATURE * abs(d0) or abs(alpha - 0.2) < 0.05
-    assert calls[-1] == alpha  # the caller's trial point is the accepted one
+def test_overshoot_is_bracketed_near_the_line_minimum():
+    phi, _ = _along(_friction_kink)
+    e0, g0 = _friction_kink(1.0)
+    alpha, e, _ = line_search(e0, -g0, phi)
+    assert e is not None and e <= e0 + ARMIJO * alpha * -g0
+    assert abs(-_friction_kink(1.0 - alpha)[1]) <= CURVATURE * g0 or abs(alpha - 0.2) < 0.05
 
 
 def test_a_rising_energy_gets_no_real_step():
-    # A wrong direction (the energy rises along it): at most a step lost in the round-off.
-    trial, _ = _along(lambda x: 1.0 + (1.0 - x), lambda x: -1.0)
-    alpha, e, evals = line_search(1.0, -1.0, trial)
-    assert evals > 10
+    phi, calls = _along(_rising)
+    alpha, e, _ = line_search(1.0, -1.0, phi)
+    assert len(calls) > 10
     assert e is None or (alpha < 1e-9 and e - 1.0 <= 1e-13)
 
 
-def test_halving_finds_a_decrease_on_a_steep_valley():
-    trial, _ = _along(lambda x: 1000.0 * (x - 0.999) ** 2, lambda x: 2000.0 * (x - 0.999))
-    e0 = 1000.0 * 0.001**2
-    alpha, e, _ = line_search(e0, -2.0, trial)
-    assert e is not None and e < e0 and alpha < 0.01
+def test_an_exception_in_phi_reaches_the_caller_of_the_rust_search():
+    def phi(a):
+        raise ValueError("bad trial")
+
+    with pytest.raises(ValueError, match="bad trial"):
+        _core.line_search(1.0, -1.0, phi)
+
+
+def test_constants_come_from_the_core():
+    assert ARMIJO == _core.LINE_SEARCH["armijo"] and CURVATURE == _core.LINE_SEARCH["curvature"]
+    assert math.isfinite(_core.LINE_SEARCH["noise"])

@@ -14,13 +14,14 @@ Material: stable Neo-Hookean (Smith et al. 2018) with the SNH parameters
 state (and every rotation) have zero energy. Valid for inverted F (J <= 0).
 """
 
+from collections.abc import Callable
 from typing import TypeAlias, final
 
 import numpy as np
 import numpy.typing as npt
 from typing_extensions import Self
 
-__all__ = ["BodyFrameCore", "Reconstruction", "ReducedCore", "snh_energy", "snh_hessian", "snh_pk1"]
+__all__ = ["LINE_SEARCH", "BodyFrameCore", "Reconstruction", "ReducedCore", "line_search", "snh_energy", "snh_hessian", "snh_pk1"]
 
 _Float64Array: TypeAlias = npt.NDArray[np.float64]
 
@@ -288,3 +289,15 @@ class Reconstruction:
         """Number of points N."""
     def positions(self, q: _Float64Array) -> _Float64Array:
         """(N, 3) positions in m for reduced coordinates ``q`` (n,)."""
+
+LINE_SEARCH: dict[str, float]
+"""The solvers' line-search constants by name: ``armijo``, ``curvature``, ``max_secant``,
+``max_halvings``, ``roundoff_ulps``, ``noise`` (see ``rust/core/src/solver/line_search.rs``)."""
+
+def line_search(e0: float, d0: float, phi: Callable[[float], tuple[float, float]]) -> tuple[float, float] | None:
+    """The reduced solvers' line search from ``phi(0) = e0`` with slope ``d0 < 0``.
+
+    ``phi(alpha)`` returns ``(energy, slope)``; the result is ``(alpha, energy)`` of the
+    step taken (the last call of ``phi`` was there), or None when no step decreases the
+    energy beyond round-off. An exception raised by ``phi`` propagates.
+    """

@@ -8,6 +8,7 @@ import json
 import os
 import tempfile
 import zipfile
+import zlib
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -69,7 +70,7 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
     try:
         with np.load(p, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, io.UnsupportedOperation) as exc:
+    except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, io.UnsupportedOperation) as exc:
         raise FileFormatError(f"'{p}' is not a readable licrom {kind} file (truncated or corrupt: {exc})") from exc
     if "header_json" not in arrays:
         raise FileFormatError(f"'{p}' is an .npz file but not a licrom {kind} file (it has no licrom header)")

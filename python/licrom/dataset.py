@@ -18,6 +18,7 @@ import json
 import math
 import time
 import zipfile
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
@@ -149,7 +150,7 @@ def _valid_trajectory_file(path: Path, scene: Scene, frames: int) -> bool:
             if Scene.from_dict(header["scene"]) != scene:
                 return False
             return len(data["times"]) == frames
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError, json.JSONDecodeError, LicromError):
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, zlib.error, EOFError, json.JSONDecodeError, LicromError):
         return False
 
 

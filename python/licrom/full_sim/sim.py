@@ -26,7 +26,7 @@ from .device import (
     resolve_device,
     warp_ready,
 )
-from .line_search import ARMIJO, line_search
+from .line_search import line_search, sufficient_decrease
 
 __all__ = ["ENERGY_TERMS", "FullSim", "StepStats"]
 
@@ -360,7 +360,7 @@ class FullSim:
                     self._y, self._y_alt = self._y_alt, self._y
                     e1, _ = self._trial(1.0, False)
                     evals += 1
-                    if math.isfinite(e1) and e1 <= e0 - ARMIJO * stick_slope + 1e-13 * abs(e0):
+                    if sufficient_decrease(e0, -stick_slope, 1.0, e1):
                         _alpha, accepted = 1.0, e1
                     else:
                         self._y, self._y_alt = self._y_alt, self._y
@@ -450,7 +450,7 @@ class FullSim:
 
         The accepted point is left in ``_x_trial``.
         """
-        return line_search(e0, -slope, self._trial)
+        return line_search(e0, -slope, lambda alpha: self._trial(alpha, True))
 
     def contact_forces(self) -> np.ndarray:
         """(C, 3) contact + damping + friction force on each contact point at the end of the last step, N.

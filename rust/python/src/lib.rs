@@ -4,6 +4,7 @@
 mod arrays;
 mod body_frame;
 mod errors;
+mod line_search;
 mod material;
 mod reconstruction;
 mod reduced;
@@ -18,5 +19,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<reduced::ReducedCore>()?;
     m.add_class::<body_frame::BodyFrameCore>()?;
     m.add_class::<reconstruction::Reconstruction>()?;
+    m.add_function(wrap_pyfunction!(line_search::line_search, m)?)?;
+    m.add("LINE_SEARCH", line_search::constants(m.py())?)?;
     Ok(())
 }
