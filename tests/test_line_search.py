@@ -3,7 +3,6 @@
 import math
 
 import pytest
-
 from licrom import _core
 from licrom.full_sim.line_search import ARMIJO, CURVATURE, line_search
 
