@@ -189,3 +189,9 @@ def test_contact_subset_matches_weight_on_flat_ground():
         sim.step()
     weight = mesh.vertex_masses(STIFF.density).sum() * G
     assert sim.contact_forces()[:, 2].sum() == pytest.approx(weight, rel=1e-3)
+
+
+def test_a_non_basis_is_refused_naming_what_it_lacks():
+    mesh = meshes.box(0.1, resolution=2)
+    with pytest.raises(ConfigError, match=r"not a basis: it lacks 'n_modes', 'values', 'jacobians'"):
+        ReducedSim(object(), mesh, Scene())

@@ -20,7 +20,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from .affine import AFFINE_JACOBIAN, N_AFFINE, affine_jacobians, affine_values
-from .errors import ShapeError
+from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 
 __all__ = [
@@ -33,6 +33,7 @@ __all__ = [
     "SubspaceProjector",
     "affine_jacobians",
     "affine_values",
+    "check_basis",
     "check_basis_output",
 ]
 
@@ -53,6 +54,14 @@ def _points(points: np.ndarray) -> np.ndarray:
     if p.ndim != 2 or p.shape[1] != 3:
         raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
     return p
+
+
+def check_basis(basis: object, what: str = "basis") -> Basis:
+    """Return ``basis`` if it satisfies the :class:`Basis` protocol; raise ConfigError naming what it lacks."""
+    if not isinstance(basis, Basis):
+        missing = [name for name in ("n_modes", "values", "jacobians") if not hasattr(basis, name)]
+        raise ConfigError(f"{what} ({type(basis).__name__}) is not a basis: it lacks {', '.join(repr(m) for m in missing)} (see licrom.basis.Basis)")
+    return basis
 
 
 def check_basis_output(name: str, array: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

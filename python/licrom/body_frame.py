@@ -15,12 +15,10 @@ rows once and steps ``licrom._core.BodyFrameCore``, with the user API of
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from . import _core
-from .basis import SubspaceProjector, check_basis_output
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
@@ -93,11 +91,9 @@ class BodyFrameBasis:
         ConfigError: the learned basis is not a basis.
     """
 
-    def __init__(self, mesh: Mesh, learned: Any = None, density: float = 1000.0) -> None:
+    def __init__(self, mesh: Mesh, learned: Basis | None = None, density: float = 1000.0) -> None:
         if learned is not None:
-            for name in ("n_modes", "values", "jacobians"):
-                if not hasattr(learned, name):
-                    raise ConfigError(f"{type(learned).__name__} is not a basis: it lacks '{name}' (see licrom.basis)")
+            check_basis(learned, "learned")
         if not (np.isfinite(density) and density > 0):
             raise ConfigError(f"density must be a finite number > 0, got {density}")
         self.mesh = mesh
@@ -170,15 +166,13 @@ class BodyFrameSim:
 
     def __init__(
         self,
-        basis: Any,
+        basis: Basis,
         mesh: Mesh | None = None,
         scene: Scene | None = None,
         cubature: Cubature | None = None,
         contact_points: ContactPoints | None = None,
     ) -> None:
-        for name in ("n_modes", "values", "jacobians"):
-            if not hasattr(basis, name):
-                raise ConfigError(f"{type(basis).__name__} is not a basis: it lacks '{name}' (see licrom.basis)")
+        check_basis(basis)
         mesh = mesh if mesh is not None else getattr(basis, "mesh", None)
         if mesh is None:
             raise ConfigError("BodyFrameSim needs a mesh: pass mesh=... or a basis that stores one")

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from .basis import SubspaceProjector, check_basis_output
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError, SolverError
 from .mesh import Mesh
@@ -56,14 +56,14 @@ class ReducedSim:
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
 
-    def __new__(cls, basis: Any = None, *args: Any, **kwargs: Any) -> Any:
+    def __new__(cls, basis: Basis | None = None, *args: Any, **kwargs: Any) -> Any:
         if cls is ReducedSim and getattr(basis, "frame", "world") == "body":
             return _body_frame_sim(basis, *args, **kwargs)
         return super().__new__(cls)
 
     def __init__(
         self,
-        basis: Any,
+        basis: Basis,
         mesh: Mesh | None = None,
         scene: Scene | None = None,
         cubature: Cubature | None = None,
@@ -80,9 +80,7 @@ class ReducedSim:
                 raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
         if solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
-        for name in ("n_modes", "values", "jacobians"):
-            if not hasattr(basis, name):
-                raise ConfigError(f"{type(basis).__name__} is not a basis: it lacks '{name}' (see licrom.basis)")
+        check_basis(basis)
         self.basis = basis
         self.mesh = mesh
         self.scene = scene
