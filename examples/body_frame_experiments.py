@@ -51,7 +51,7 @@ from licrom.basis import SubspaceProjector
 from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.compare import compare, first_contact_frame, nonrigid_error
 from licrom.cubature import Cubature
-from licrom.dataset import drop_state, initial_state_on_plane
+from licrom.placement import drop_state, initial_state_on_plane
 from licrom.render import filmstrip
 from licrom.rigid import body_frame_displacements, rigid_fit
 from licrom.training import TrainConfig

@@ -36,8 +36,9 @@ import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, Trajectory, meshes
 from licrom.compare import Comparison, compare, time_steps
 from licrom.cubature import ContactPoints, Cubature
-from licrom.dataset import initial_state_between_planes, report_dataset_spec
+from licrom.dataset import report_dataset_spec
 from licrom.model import ModelConfig, apply_affine, fit_affine
+from licrom.placement import initial_state_between_planes, initial_state_on_plane
 from licrom.render import filmstrip, plot_errors
 from licrom.training import TrainConfig
 
@@ -216,7 +217,7 @@ def main() -> None:
     base_plane = Plane.incline(20.0, 0.5)  # the spec's frame for carrying the drop onto other slopes
     base_scene = cheese.base_scene.replace(
         planes=(base_plane,),
-        initial=licrom.dataset.initial_state_on_plane(cheese.initial_states[0], base_plane, cheese.mesh, cheese.base_scene.material.density),
+        initial=initial_state_on_plane(cheese.initial_states[0], base_plane, cheese.mesh, cheese.base_scene.material.density),
     )
     model20 = _model(work, "cheese", work / "cheese-data", 20, args.epochs)
     naive = Cubature.naive(cheese.mesh, args.cubature)
@@ -247,7 +248,7 @@ def main() -> None:
         sphere.generate(work / "sphere-data", progress=False)
         sphere_model = _model(work, "sphere", work / "sphere-data", 20, args.epochs)
         splane = Plane.incline(20.0, 0.5)
-        sbase = sphere.base_scene.replace(planes=(splane,), initial=licrom.dataset.initial_state_on_plane(
+        sbase = sphere.base_scene.replace(planes=(splane,), initial=initial_state_on_plane(
             sphere.initial_states[0], splane, sphere.mesh, sphere.base_scene.material.density))
         rows = []
         for slope, mu, where in SPHERE_HELD_OUT:

@@ -6,16 +6,15 @@ import zipfile
 
 import numpy as np
 import pytest
-from licrom import ConfigError, ContactParams, Material, Mesh, Plane, Scene, Trajectory, meshes
+from licrom import ConfigError, ContactParams, Material, Mesh, Scene, Trajectory, meshes
 from licrom.dataset import (
     MANIFEST_NAME,
     MESH_NAME,
-    drop_state,
     generate_dataset,
-    initial_state_on_plane,
     load_manifest,
     report_dataset_spec,
 )
+from licrom.placement import drop_state
 
 STIFF = Material(youngs_modulus=1e6, poisson_ratio=0.3)
 CONTACT = ContactParams(normal_stiffness=1e7, friction_stiffness=1e7)
@@ -109,19 +108,6 @@ def test_bad_arguments(tmp_path):
         generate_dataset(tmp_path, mesh, Scene(), device="tpu", progress=False)
     with pytest.raises(ConfigError, match="preset"):
         report_dataset_spec("teapot")
-
-
-def test_initial_state_is_carried_onto_the_plane():
-    mesh = meshes.box((0.2, 0.1, 0.05), resolution=2)
-    state = drop_state(mesh, 1000.0, height=0.03, rotation=(0.0, 0.0, 0.4), velocity=(1.0, 0.0, -0.5))
-    for plane in (Plane.incline(30.0, 0.5), Plane((0.3, -0.2, 1.0), 0.1, 0.5)):
-        placed = initial_state_on_plane(state, plane, mesh, 1000.0)
-        x, v = placed.apply(mesh.vertices, mesh.vertex_masses(1000.0))
-        n = np.array(plane.normal)
-        assert (x @ n + plane.offset).min() == pytest.approx(0.03, abs=1e-12)
-        # Velocity: 0.5 m/s into the plane, 1 m/s along it.
-        assert v[0] @ n == pytest.approx(-0.5)
-        assert np.linalg.norm(v[0] - (v[0] @ n) * n) == pytest.approx(1.0)
 
 
 def test_report_presets():

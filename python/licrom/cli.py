@@ -226,9 +226,9 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
     from . import meshes
     from .compare import run_comparison
     from .cubature import Cubature
-    from .dataset import initial_state_between_planes
     from .mesh import Mesh
     from .model import Model
+    from .placement import initial_state_between_planes
     from .scene import Plane
 
     model = Model.load(model_path)

@@ -90,8 +90,9 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     from . import meshes
     from .compare import run_comparison
     from .cubature import Cubature
-    from .dataset import drop_state, generate_dataset, initial_state_on_plane
+    from .dataset import generate_dataset
     from .model import ModelConfig
+    from .placement import drop_state, initial_state_on_plane
     from .render import filmstrip, plot_errors, write_vtu_series
     from .scene import Plane
     from .training import TrainConfig, train
