@@ -22,6 +22,7 @@ import numpy as np
 from .errors import ConfigError, ShapeError
 from .rigid import body_frame_displacements, rigid_fit, rotation_angle
 from .scene import Scene
+from .training_data import relative_error
 from .trajectory import Trajectory
 
 __all__ = [
@@ -146,7 +147,6 @@ def nonrigid_error(
         ConfigError: ``start`` not a frame index.
     """
     # training_data pulls in the model (torch): imported on use so `import licrom` stays light.
-    from .training_data import relative_error
 
     _check_same_run(reference, other, "nonrigid_error")
     if start is None:
@@ -275,7 +275,6 @@ def compare(full: Trajectory, reduced: Trajectory) -> Comparison:
     Raises:
         ShapeError: different meshes or frame times.
     """
-    from .training_data import relative_error  # on use: see nonrigid_error
 
     _check_same_run(full, reduced, "compare")
     masses = _masses(full)

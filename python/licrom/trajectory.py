@@ -13,6 +13,7 @@ import numpy as np
 from ._io import check_version, load_npz, save_npz
 from .errors import FileFormatError, ShapeError, SolverError
 from .mesh import Mesh
+from .rigid import center_of_mass
 from .scene import Scene
 
 __all__ = ["TRAJECTORY_FORMAT_VERSION", "Trajectory"]
@@ -85,9 +86,7 @@ class Trajectory:
 
     def centers_of_mass(self) -> np.ndarray:
         """(f, 3) mass-weighted centre of each frame, m."""
-        masses = self.mesh.vertex_masses(self.scene.material.density)
-        w = masses / masses.sum()
-        return w @ self.rest_positions + np.einsum("fnk,n->fk", self.displacements, w)
+        return center_of_mass(self.rest_positions + self.displacements, self.mesh.vertex_masses(self.scene.material.density))
 
     def save(self, path: str | os.PathLike, precision: str = "float32") -> Path:
         """Write the trajectory to one ``.npz`` file atomically; return the path.
