@@ -3,6 +3,7 @@
 use licrom_core::LicromError;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 /// Exception families of `licrom.errors`.
 #[derive(Debug, Clone, Copy)]
@@ -28,9 +29,14 @@ impl Kind {
 /// An instance of `licrom.errors.<kind>` with `message`; falls back to the
 /// built-in base class if the Python package cannot be imported.
 pub fn error(py: Python<'_>, kind: Kind, message: impl Into<String>) -> PyErr {
-    let message = message.into();
+    error_with(py, kind, message.into(), None)
+}
+
+/// [`error`] with keyword arguments of the exception's constructor (e.g.
+/// `SolverError(message, iterations=..., residual=...)`).
+fn error_with(py: Python<'_>, kind: Kind, message: String, kwargs: Option<&Bound<'_, PyDict>>) -> PyErr {
     let class = py.import("licrom.errors").and_then(|m| m.getattr(kind.class_name()));
-    match class.and_then(|c| c.call1((message.clone(),))) {
+    match class.and_then(|c| c.call((message.clone(),), kwargs)) {
         Ok(instance) => PyErr::from_value(instance),
         Err(_) => match kind {
             Kind::Solver => PyRuntimeError::new_err(message),
@@ -47,14 +53,13 @@ pub fn from_core(py: Python<'_>, e: LicromError) -> PyErr {
         LicromError::InvalidParameter { .. } | LicromError::SingularMass { .. } => Kind::Config,
         LicromError::NotConverged { .. } | LicromError::Diverged { .. } => Kind::Solver,
     };
-    let err = error(py, kind, e.to_string());
     if let LicromError::NotConverged { iterations, residual } = e {
-        let value = err.value(py);
-        // Attribute setting only fails on the built-in fallback, which then lacks them.
-        let _ = value.setattr("iterations", iterations);
-        let _ = value.setattr("residual", residual);
+        let kwargs = PyDict::new(py);
+        if kwargs.set_item("iterations", iterations).and_then(|_| kwargs.set_item("residual", residual)).is_ok() {
+            return error_with(py, kind, e.to_string(), Some(&kwargs));
+        }
     }
-    err
+    error(py, kind, e.to_string())
 }
 
 /// `Result` of the core mapped to a Python result.
