@@ -15,9 +15,12 @@
 //! minimises it: the outer iteration in `solver/mod.rs`, the Newton matrix in
 //! `solver/direction.rs`, the contact model and friction's stick correction in
 //! `solver/contact_model.rs`, the line search in [`solver::line_search`].
-//! The full-space simulation of the same physics (per tet and per vertex, on
-//! the GPU with warp) is `python/licrom/full_sim.py`: its elastic, contact and
-//! friction kernels, stick switch and line search follow the same formulas.
+//! [`body_frame`] is the reduced model in the body frame (`x = c + R (Xbar + W q)`):
+//! the same elastic kernel, contact and friction pulled back through the rotation,
+//! the same line search. The full-space simulation of the same physics (per tet
+//! and per vertex, on the GPU with warp) is `python/licrom/full_sim/`: `elastic.py`,
+//! `contact.py` (friction and the stick switch) and `line_search.py` (this line
+//! search's rule and constants) follow the same formulas.
 
 // Indexed loops over fixed lane counts and small matrices are the form the
 // vectoriser handles best in the hot kernels; iterator chains would hide it.
