@@ -14,7 +14,7 @@
 //! `reduced/contact.rs`, the lane packing in `reduced/layout.rs`. [`solver`]
 //! minimises it: the outer iteration in `solver/mod.rs`, the Newton matrix in
 //! `solver/direction.rs`, the contact model and friction's stick correction in
-//! `solver/contact_model.rs`, the line search in [`solver::line_search`].
+//! `solver/contact_model.rs`, the line search in [`solver::line_search`](mod@solver::line_search).
 //! [`body_frame`] is the reduced model in the body frame (`x = c + R (Xbar + W q)`):
 //! the same elastic kernel, contact and friction pulled back through the rotation,
 //! the same line search. The full-space simulation of the same physics (per tet

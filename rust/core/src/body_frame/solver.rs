@@ -26,7 +26,7 @@
 //! quasi-Newton iteration with the same minimiser, whose directions are
 //! descent directions because every matrix is positive definite.
 //!
-//! **Line search**: the world-frame solver's ([`crate::solver::line_search`],
+//! **Line search**: the world-frame solver's ([`crate::solver::line_search`](mod@crate::solver::line_search),
 //! one copy, one set of constants) along
 //! `alpha -> (c + alpha dc, exp(alpha [omega]x) R, q + alpha dq)`, whose slope
 //! is the gradient at the trial point dotted with the direction (the rotations
@@ -361,7 +361,7 @@ impl BodyFrameSolver {
         self.grad.copy_from_slice(&self.ws.grad);
     }
 
-    /// Line search from the iterate (energy `e0`, [`crate::solver::line_search`]);
+    /// Line search from the iterate (energy `e0`, [`crate::solver::line_search`](mod@crate::solver::line_search));
     /// the accepted point becomes the iterate. Returns its energy, or None when
     /// no acceptable step is found.
     fn line_search(&mut self, e0: f64) -> Option<f64> {
