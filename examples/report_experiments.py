@@ -34,10 +34,11 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, Trajectory, meshes
+from licrom.affine import apply_affine, fit_affine
 from licrom.compare import Comparison, compare, time_steps
 from licrom.cubature import ContactPoints, Cubature
 from licrom.dataset import report_dataset_spec
-from licrom.model import ModelConfig, apply_affine, fit_affine
+from licrom.model import ModelConfig
 from licrom.placement import initial_state_between_planes, initial_state_on_plane
 from licrom.render import filmstrip, plot_errors
 from licrom.training import TrainConfig

@@ -6,16 +6,11 @@ import numpy as np
 import pytest
 import torch
 from licrom import FileFormatError, Scene, ShapeError, meshes
+from licrom.affine import apply_affine, fit_affine
 from licrom.basis import N_AFFINE, affine_jacobians, affine_values
 from licrom.errors import ConfigError
-from licrom.model import (
-    LicromNet,
-    Model,
-    ModelConfig,
-    apply_affine,
-    finalize_basis,
-    fit_affine,
-)
+from licrom.model import LicromNet, Model, ModelConfig
+from licrom.model.finalize import finalize_basis
 from licrom.scene import Plane
 
 
@@ -128,7 +123,7 @@ def test_jacobians_match_finite_differences(mesh, rng, fourier):
 
 
 def test_values_are_batched_across_chunks(mesh, rng):
-    from licrom import model as model_module
+    from licrom.model import config as model_module
 
     model = _random_model(mesh, r=2)
     x = rng.uniform(-0.05, 0.05, size=(model_module._CHUNK + 7, 3))

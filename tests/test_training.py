@@ -215,7 +215,7 @@ def test_same_seed_same_result_on_cpu(trajs, tmp_path):
 
 
 def test_resume_continues_where_it_stopped(trajs, tmp_path, monkeypatch):
-    import licrom.training as tr
+    import licrom.training.run as tr
 
     cfg = TrainConfig(**{**TINY, "epochs": 3}, seed=2)
     full = train(trajs, None, cfg, ModelConfig(latent_dim=2))

@@ -1,0 +1,102 @@
+"""Sizes of the LiCROM networks and the frame of the model (:class:`ModelConfig`)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..rigid import check_frame
+
+__all__ = ["ModelConfig"]
+
+# Points evaluated per batch of the field (bounds peak memory, not speed).
+_CHUNK = 16384
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Sizes of the LiCROM networks.
+
+    Attributes:
+        latent_dim: r, the number of learned modes (the latent size), >= 1.
+        field_layers: number of linear layers of the neural field W(X) (input 3, then
+            ``field_layers - 1`` hidden ELU layers, then the 3 r output), >= 2.
+            5 layers of width 60 is LiCROM's network.
+        field_width: width of the hidden layers of W(X). The default 256: every learned
+            mode is a combination of the last hidden layer's functions, and with the
+            POD objective (whose output layer is solved exactly) width 60 left 1.6x and
+            width 128 1.2x the held-out projection error of POD(8) on the demo data,
+            width 256 1.01x (body frame, 60 epochs).
+        fourier_features: F, random Fourier features of X fed to W(X) beside X itself
+            (0: LiCROM's plain input). The default 32 learned the cheese set's subspace
+            2-3x more accurately per epoch than 0 (benches/training_report.py sweep).
+        fourier_scale: standard deviation of the Fourier frequencies, in cycles per unit
+            of normalised coordinate (the object spans about [-1, 1]).
+        encoder_point_widths: widths of the shared per-point MLP of the PointNet
+            encoder (applied to each sampled (X, u) point, ELU after each layer),
+            before max pooling over the points.
+        encoder_fc_widths: widths of the fully connected ELU layers after pooling;
+            a last linear layer maps to r.
+        affine: remove the affine part of every training frame and keep the learned
+            modes mass-orthogonal to the 12 affine modes (True), or learn the whole
+            displacement (False). In the world frame the 12 affine modes are stacked in
+            front of the learned ones.
+        frame: ``"body"``: the modes learn the non-rigid deformation in the body frame
+            (rigid motion exact, see :mod:`licrom.body_frame`); ``"world"``: LiCROM's
+            world-frame displacement modes.
+    """
+
+    latent_dim: int = 20
+    field_layers: int = 5
+    field_width: int = 256
+    fourier_features: int = 32
+    fourier_scale: float = 1.0
+    encoder_point_widths: tuple[int, ...] = (64, 128, 256)
+    encoder_fc_widths: tuple[int, ...] = (128,)
+    affine: bool = True
+    frame: str = "body"
+
+    def __post_init__(self) -> None:
+        def positive_int(name: str, v: Any, minimum: int = 1) -> int:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
+                raise ConfigError(f"ModelConfig.{name} must be an integer >= {minimum}, got {v!r}")
+            return int(v)
+
+        object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
+        object.__setattr__(self, "field_layers", positive_int("field_layers", self.field_layers, 2))
+        object.__setattr__(self, "field_width", positive_int("field_width", self.field_width))
+        object.__setattr__(self, "fourier_features", positive_int("fourier_features", self.fourier_features, 0))
+        fs = self.fourier_scale
+        if isinstance(fs, bool) or not isinstance(fs, (int, float, np.floating)) or not np.isfinite(fs) or fs <= 0:
+            raise ConfigError(f"ModelConfig.fourier_scale must be a positive number, got {fs!r}")
+        object.__setattr__(self, "fourier_scale", float(fs))
+        for name in ("encoder_point_widths", "encoder_fc_widths"):
+            v = getattr(self, name)
+            try:
+                widths = tuple(v)
+            except TypeError:
+                raise ConfigError(f"ModelConfig.{name} must be a sequence of integers, got {v!r}") from None
+            widths = tuple(positive_int(name, w) for w in widths)
+            if name == "encoder_point_widths" and not widths:
+                raise ConfigError("ModelConfig.encoder_point_widths needs at least one layer")
+            object.__setattr__(self, name, widths)
+        if not isinstance(self.affine, (bool, np.bool_)):
+            raise ConfigError(f"ModelConfig.affine must be True or False, got {self.affine!r}")
+        object.__setattr__(self, "affine", bool(self.affine))
+        check_frame(self.frame, "ModelConfig.frame")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["encoder_point_widths"] = list(self.encoder_point_widths)
+        d["encoder_fc_widths"] = list(self.encoder_fc_widths)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise ConfigError(f"unknown or missing ModelConfig fields: {exc}") from exc

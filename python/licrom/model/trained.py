@@ -1,0 +1,412 @@
+"""The trained model: a basis (W and dW/dX at any rest point), an encoder, and its file."""
+
+from __future__ import annotations
+
+import copy
+import os
+import time
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .._io import load_npz, save_npz
+from ..affine import AFFINE_JACOBIAN, N_AFFINE, affine_values, apply_affine, fit_affine
+from ..errors import ConfigError, FileFormatError, ShapeError
+from ..mesh import Mesh
+from ..scene import Scene
+from .config import _CHUNK, ModelConfig
+from .finalize import _Finalization
+from .networks import LicromNet
+
+__all__ = ["MODEL_FORMAT_VERSION", "Model"]
+
+# Version 2 records the frame; version 1 files are world-frame models.
+MODEL_FORMAT_VERSION = 2
+_READABLE_VERSIONS = (1, 2)
+
+
+def _as_points(points: Any, name: str = "points") -> np.ndarray:
+    x = np.asarray(points, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ShapeError(f"{name} must have shape (p, 3), got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ShapeError(f"{name} holds NaN or inf")
+    return x
+
+
+class Model:
+    """A trained LiCROM subspace; also a basis for the reduced simulation.
+
+    Build one with :func:`licrom.train` or :meth:`Model.load`. Evaluation runs in
+    float64 on the CPU by default (:meth:`to` moves it to a GPU).
+
+    Attributes:
+        config: the network sizes.
+        mesh: the rest mesh trained on.
+        scenes: the scenes of the training trajectories.
+        default_scene: the scene a reduced simulation of this model uses by default.
+        metadata: JSON-ready training information (data, split, losses, timings, ...).
+    """
+
+    def __init__(
+        self,
+        net: LicromNet,
+        mesh: Mesh,
+        scenes: Sequence[Scene] = (),
+        *,
+        finalization: _Finalization | None = None,
+        default_scene_index: int = 0,
+        metadata: dict[str, Any] | None = None,
+    ) -> None:
+        if not isinstance(net, LicromNet):
+            raise ConfigError(f"Model needs a LicromNet, got {type(net).__name__}")
+        if not isinstance(mesh, Mesh):
+            raise ConfigError(f"Model needs a Mesh, got {type(mesh).__name__}")
+        self.config: ModelConfig = net.config
+        r = self.config.latent_dim
+        self.mesh = mesh
+        self.scenes: list[Scene] = list(scenes)
+        if self.scenes and not 0 <= default_scene_index < len(self.scenes):
+            raise ConfigError(f"default_scene_index {default_scene_index} out of range for {len(self.scenes)} scenes")
+        self._default_index = int(default_scene_index)
+        self.metadata: dict[str, Any] = dict(metadata or {})
+        if finalization is None:
+            finalization = _Finalization(np.zeros((N_AFFINE, r)), np.eye(r), np.eye(r), np.zeros(r))
+        if finalization.affine_correction.shape != (N_AFFINE, r) or finalization.transform.shape != (r, r):
+            raise ShapeError("model finalization arrays do not match the latent size")
+        self._fin = finalization
+        self._device = torch.device("cpu")
+        self._net32 = net  # as trained (float32), kept for saving
+        self._build_eval_net()
+        self._vertex_cache: dict[str, Any] = {}
+
+    # --- construction helpers -------------------------------------------------------
+    def _build_eval_net(self) -> None:
+        net = copy.deepcopy(self._net32).to(device=self._device, dtype=torch.float64)
+        net.eval()
+        for p in net.parameters():
+            p.requires_grad_(False)
+        self._net = net
+        dev = self._device
+        self._C = torch.as_tensor(self._fin.affine_correction, dtype=torch.float64, device=dev)
+        self._T = torch.as_tensor(self._fin.transform, dtype=torch.float64, device=dev)
+        self._Tinv = torch.as_tensor(self._fin.transform_inv, dtype=torch.float64, device=dev)
+        self._dA = torch.tensor(AFFINE_JACOBIAN, dtype=torch.float64, device=dev)
+
+    def to(self, device: str | torch.device) -> Model:
+        """Evaluate on ``device`` ("cpu", "cuda", ...) from now on; returns self."""
+        self._device = torch.device(device)
+        self._build_eval_net()
+        return self
+
+    # --- basic properties -----------------------------------------------------------
+    @property
+    def affine(self) -> bool:
+        """Whether the learned modes are mass-orthogonal to the 12 affine modes (affine part removed in training)."""
+        return self.config.affine
+
+    @property
+    def frame(self) -> str:
+        """``"world"`` or ``"body"``: the frame the modes live in (see the module docstring)."""
+        return self.config.frame
+
+    @property
+    def n_learned(self) -> int:
+        """r, the number of learned modes."""
+        return self.config.latent_dim
+
+    @property
+    def n_affine(self) -> int:
+        """Affine modes stacked in front of the learned ones: 12 for an affine world-frame model, else 0."""
+        return N_AFFINE if self.affine and self.frame == "world" else 0
+
+    @property
+    def n_modes(self) -> int:
+        """Total number of modes: 12 + r (affine world-frame model) or r."""
+        return self.n_affine + self.n_learned
+
+    @property
+    def default_scene(self) -> Scene:
+        """The scene a reduced simulation uses unless told otherwise (the first training scene)."""
+        if not self.scenes:
+            return Scene()
+        return self.scenes[self._default_index]
+
+    @property
+    def normalization(self) -> dict[str, Any]:
+        """Input centre (m), input scale (m) and output scale (m) used by the networks."""
+        return {
+            "x_center": self._net32.x_center.detach().cpu().numpy().astype(np.float64).tolist(),
+            "x_scale": float(self._net32.x_scale),
+            "u_scale": float(self._net32.u_scale),
+        }
+
+    @property
+    def mode_variance(self) -> np.ndarray:
+        """(r,) mean squared latent coordinate of each learned mode over the training frames, m^2."""
+        return self._fin.mode_variance.copy()
+
+    @property
+    def net(self) -> LicromNet:
+        """The trained float32 networks (encoder and field)."""
+        return self._net32
+
+    def __repr__(self) -> str:
+        return f"Model(frame={self.frame!r}, n_learned={self.n_learned}, affine={self.affine}, n_modes={self.n_modes}, mesh={self.mesh!r})"
+
+    # --- the learned field ------------------------------------------------------------
+    def _learned_values_t(self, x: torch.Tensor) -> torch.Tensor:
+        w = self._net.raw_field(x)
+        if self.affine:
+            w = w - torch.einsum("pic,cr->pir", affine_values(x), self._C)
+        return w @ self._T
+
+    def _learned_jacobians_t(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Values (p, 3, r) and Jacobians (p, 3, 3, r) of the learned modes at raw points x."""
+        from torch.func import jacfwd, vmap
+
+        net = self._net
+
+        def f(xh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            out = net.field(xh)  # (3, r)
+            return out, out
+
+        xh = net.normalize(x)
+        with warnings.catch_warnings():
+            # torch builds its forward-mode decompositions with the deprecated torch.jit.script
+            # on first use; that warning is about torch's internals, not about this call.
+            warnings.filterwarnings("ignore", message=".*torch.jit.script.*", category=FutureWarning)
+            jac, val = vmap(jacfwd(f, has_aux=True))(xh)  # jac (p, 3, r, 3): d out_ic / d xh_j
+        val = net.u_scale * val
+        jac = (net.u_scale / net.x_scale) * jac.permute(0, 1, 3, 2)  # (p, 3, 3, r): [i, j, c]
+        if self.affine:
+            val = val - torch.einsum("pic,cr->pir", affine_values(x), self._C)
+            jac = jac - torch.einsum("ijc,cr->ijr", self._dA, self._C)[None]
+        return val @ self._T, jac @ self._T
+
+    def values(self, points: Any) -> np.ndarray:
+        """(p, 3, n_modes) float64 basis values ``B(X)`` at points (p, 3); affine modes first (world frame).
+
+        For a body-frame model these are the r learned body-frame displacement fields.
+        """
+        x = _as_points(points)
+        out = np.empty((len(x), 3, self.n_modes))
+        if self.n_affine:
+            out[:, :, :N_AFFINE] = affine_values(x)
+        with torch.no_grad():
+            for s in range(0, len(x), _CHUNK):
+                xt = torch.tensor(x[s : s + _CHUNK], device=self._device)
+                out[s : s + _CHUNK, :, self.n_affine :] = self._learned_values_t(xt).cpu().numpy()
+        return out
+
+    def jacobians(self, points: Any) -> np.ndarray:
+        """(p, 3, 3, n_modes) float64 ``J[p, i, j, c] = d B_ic / d X_j`` at points (p, 3).
+
+        ``F = I + sum_c J[:, :, :, c] q_c`` is the deformation gradient of ``u = B q``.
+        """
+        return self.values_and_jacobians(points)[1]
+
+    def values_and_jacobians(self, points: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Both :meth:`values` and :meth:`jacobians` in one pass."""
+        x = _as_points(points)
+        vals = np.empty((len(x), 3, self.n_modes))
+        jacs = np.empty((len(x), 3, 3, self.n_modes))
+        if self.n_affine:
+            vals[:, :, :N_AFFINE] = affine_values(x)
+            jacs[:, :, :, :N_AFFINE] = AFFINE_JACOBIAN
+        with torch.no_grad():
+            for s in range(0, len(x), _CHUNK):
+                xt = torch.tensor(x[s : s + _CHUNK], device=self._device)
+                v, j = self._learned_jacobians_t(xt)
+                vals[s : s + _CHUNK, :, self.n_affine :] = v.cpu().numpy()
+                jacs[s : s + _CHUNK, :, :, self.n_affine :] = j.cpu().numpy()
+        return vals, jacs
+
+    # --- projection onto the subspace ---------------------------------------------------
+    def _vertex_system(self, mesh: Mesh | None) -> tuple[Mesh, np.ndarray, np.ndarray, Any]:
+        """Basis at the vertices of ``mesh`` (default: the model mesh), its masses and M_r's factor."""
+        import scipy.linalg
+
+        m = self.mesh if mesh is None else mesh
+        key = "model" if mesh is None else str(id(mesh))
+        hit = self._vertex_cache.get(key)
+        if hit is not None and hit[0] is m:
+            return hit
+        masses = m.vertex_masses(1.0)  # relative weights; a homogeneous density cancels
+        basis = self.values(m.vertices)  # (n, 3, k)
+        flat = basis.reshape(-1, self.n_modes)
+        mr = flat.T @ (np.repeat(masses, 3)[:, None] * flat)
+        try:
+            factor = scipy.linalg.cho_factor(mr)
+        except np.linalg.LinAlgError as exc:
+            raise ShapeError(f"the reduced mass matrix of this basis is singular on this mesh ({exc})") from exc
+        entry = (m, basis, masses, factor)
+        if mesh is None or len(self._vertex_cache) < 4:
+            self._vertex_cache[key] = entry
+        return entry
+
+    def project(self, displacements: Any, mesh: Mesh | None = None) -> np.ndarray:
+        """Exact mass-weighted projection ``q = M_r^-1 B^T M u`` onto the subspace.
+
+        Args:
+            displacements: (n, 3) or (f, n, 3) vertex displacements of ``mesh`` in m
+                (body-frame displacements for a body-frame model).
+            mesh: the mesh they live on; default the model's rest mesh. Any mesh of the
+                same object works (the basis is continuous).
+
+        Returns:
+            (n_modes,) or (f, n_modes) reduced coordinates.
+        """
+        import scipy.linalg
+
+        m, basis, masses, factor = self._vertex_system(mesh)
+        u = np.asarray(displacements, dtype=np.float64)
+        single = u.ndim == 2
+        if single:
+            u = u[None]
+        if u.ndim != 3 or u.shape[1:] != (m.n_vertices, 3):
+            raise ShapeError(f"displacements must have shape (n, 3) or (f, n, 3) with n = {m.n_vertices}, got {np.shape(displacements)}")
+        rhs = np.einsum("nic,n,fni->cf", basis, masses, u)
+        q = scipy.linalg.cho_solve(factor, rhs).T
+        return q[0] if single else q
+
+    def reconstruct(self, q: Any, mesh: Mesh | None = None) -> np.ndarray:
+        """Vertex displacements ``B q`` (n, 3) or (f, n, 3) of the model mesh (or ``mesh``)."""
+        _m, basis, _, _ = self._vertex_system(mesh)
+        qa = np.asarray(q, dtype=np.float64)
+        if qa.shape[-1] != self.n_modes or qa.ndim not in (1, 2):
+            raise ShapeError(f"q must have shape ({self.n_modes},) or (f, {self.n_modes}), got {qa.shape}")
+        return np.einsum("nic,...c->...ni", basis, qa)
+
+    # --- encoder ------------------------------------------------------------------------
+    def _split_affine(self, x: np.ndarray, u: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(affine coefficients in q, residual)`` of a world-frame field, as in training."""
+        if not self.affine and self.frame == "world":
+            return np.zeros(0), u
+        w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(x),) or np.any(w < 0) or not np.isfinite(w).all() or w.sum() <= 0:
+            raise ShapeError(f"weights must be ({len(x)},) non-negative and not all zero")
+        if self.frame == "body":
+            from ..rigid import body_frame_displacements
+
+            u = body_frame_displacements(x + u, x, w)
+        if not self.affine:
+            return np.zeros(0), u
+        a = fit_affine(x, u, w)
+        return a[: self.n_affine], u - apply_affine(x, a)
+
+    def encode(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
+        """Latent z (r,) of the learned modes from a displacement field sampled at points.
+
+        The affine part is first removed by a weighted least-squares fit (``weights``:
+        (p,) lumped masses of the points, default uniform; for the model mesh's own
+        vertices the masses are used automatically), then the PointNet encoder maps
+        the cloud of (X, residual) to z. A body-frame model first removes the best
+        rigid fit (the same weights), as in training. Use :meth:`encode_q` for the full ``q``.
+
+        Args:
+            points: (p, 3) rest positions X in m (any sampling of the object).
+            displacements: (p, 3) world-frame displacements u at those points in m.
+            weights: optional (p,) weights of the affine fit.
+        """
+        return self.encode_q(points, displacements, weights)[self.n_affine :]
+
+    def encode_q(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
+        """Reduced coordinates (n_modes,): ``[a; z]`` (world frame: the affine fit, then :meth:`encode`) or ``z`` (body frame)."""
+        x = _as_points(points)
+        u = _as_points(displacements, "displacements")
+        if u.shape != x.shape:
+            raise ShapeError(f"points and displacements must have the same shape, got {x.shape} and {u.shape}")
+        if weights is None and x.shape == self.mesh.vertices.shape and np.array_equal(x, self.mesh.vertices):
+            weights = self.mesh.vertex_masses(1.0)
+        a, res = self._split_affine(x, u, weights)
+        with torch.no_grad():
+            xt = torch.tensor(x, device=self._device)[None]
+            ut = torch.tensor(res, device=self._device)[None]
+            z_raw = self._net.encode_normalized(xt, ut)[0]
+            z = (self._Tinv @ z_raw).cpu().numpy()
+        return np.concatenate([a, z])
+
+    # --- file ---------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the model to one file atomically (``.npz`` container, JSON header, no pickle).
+
+        Any file name works; ``.lcm`` is the conventional extension.
+        """
+        p = Path(path)
+        state = self._net32.state_dict()
+        arrays: dict[str, np.ndarray] = {f"net/{k}": v.detach().cpu().numpy() for k, v in state.items()}
+        arrays.update(
+            rest_vertices=np.asarray(self.mesh.vertices),
+            tets=np.asarray(self.mesh.tets),
+            affine_correction=self._fin.affine_correction,
+            mode_transform=self._fin.transform,
+            mode_transform_inv=self._fin.transform_inv,
+            mode_variance=self._fin.mode_variance,
+        )
+        header = {
+            "kind": "model",
+            "version": MODEL_FORMAT_VERSION,
+            "model_config": self.config.to_dict(),
+            "n_learned": self.n_learned,
+            "affine": self.affine,
+            "frame": self.frame,
+            "normalization": self.normalization,
+            "scenes": [s.to_dict() for s in self.scenes],
+            "default_scene": self._default_index,
+            "state_keys": sorted(state.keys()),
+            "metadata": self.metadata,
+            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "torch_version": torch.__version__,
+        }
+        save_npz(p, arrays, header)
+        return p
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Model:
+        """Read a model written by :meth:`save` (no training data needed).
+
+        Version 1 files (before the frame was recorded) load as world-frame models.
+
+        Raises:
+            FileFormatError: missing, truncated or foreign file, unknown format version,
+                or incomplete/inconsistent contents.
+        """
+        header, arrays = load_npz(path, "model")
+        version = header.get("version")
+        if version not in _READABLE_VERSIONS:
+            raise FileFormatError(
+                f"model '{path}' has format version {version!r}; this licrom reads versions {', '.join(map(str, _READABLE_VERSIONS))}"
+            )
+        try:
+            config_dict = dict(header["model_config"])
+            if version == 1:
+                config_dict["frame"] = "world"
+            config = ModelConfig.from_dict(config_dict)
+            if (int(header["n_learned"]) != config.latent_dim or bool(header["affine"]) != config.affine
+                    or header.get("frame", "world") != config.frame):
+                raise FileFormatError(f"model '{path}' header is inconsistent (n_learned/affine/frame vs model_config)")
+            net = LicromNet(config)
+            keys = header["state_keys"]
+            state = {}
+            for k in keys:
+                state[k] = torch.from_numpy(np.ascontiguousarray(arrays[f"net/{k}"]))
+            net.load_state_dict(state, strict=True)
+            mesh = Mesh(arrays["rest_vertices"], arrays["tets"], fix_orientation=False)
+            scenes = [Scene.from_dict(s) for s in header["scenes"]]
+            fin = _Finalization(
+                np.asarray(arrays["affine_correction"], dtype=np.float64),
+                np.asarray(arrays["mode_transform"], dtype=np.float64),
+                np.asarray(arrays["mode_transform_inv"], dtype=np.float64),
+                np.asarray(arrays.get("mode_variance", np.zeros(config.latent_dim)), dtype=np.float64),
+            )
+            net.eval()
+            return cls(net, mesh, scenes, finalization=fin, default_scene_index=int(header.get("default_scene", 0)), metadata=header.get("metadata", {}))
+        except FileFormatError:
+            raise
+        except (KeyError, TypeError, ValueError, RuntimeError, ConfigError) as exc:
+            raise FileFormatError(f"model '{path}' is incomplete or inconsistent: {type(exc).__name__}: {exc}") from exc

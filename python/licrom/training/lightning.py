@@ -1,0 +1,176 @@
+"""The Lightning module, data loading and callbacks (built on first use: Lightning is heavy to import)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..model import LicromNet, ModelConfig
+from ..training_data import TrainingData
+from .config import TrainConfig, write_csv
+from .evaluation import _encode_frames, _encoder_frames, _evaluate_tensors
+from .objectives import _pod_loss, pod_targets
+from .sampling import _Bank, _interpolate, _sample_points
+
+
+def _lightning_classes() -> dict[str, Any]:
+    import lightning.pytorch as pl
+    from torch.utils.data import Dataset, Sampler
+
+    class Indices(Dataset):
+        def __init__(self, n: int) -> None:
+            self.n = n
+
+        def __len__(self) -> int:
+            return self.n
+
+        def __getitem__(self, i: int) -> int:
+            return i
+
+    class EpochShuffle(Sampler):
+        """A permutation drawn from (seed, epoch): the same order after a resume."""
+
+        def __init__(self, n: int, seed: int) -> None:
+            self.n, self.seed, self.epoch = n, seed, 0
+
+        def set_epoch(self, epoch: int) -> None:
+            self.epoch = epoch
+
+        def __len__(self) -> int:
+            return self.n
+
+        def __iter__(self):
+            g = torch.Generator()
+            g.manual_seed(self.seed * 1_000_003 + self.epoch)
+            return iter(torch.randperm(self.n, generator=g).tolist())
+
+    class LicromModule(pl.LightningModule):
+        def __init__(self, model_config: dict, train_config: dict) -> None:
+            super().__init__()
+            self.save_hyperparameters()
+            self.mcfg = ModelConfig.from_dict(model_config)
+            self.tcfg = TrainConfig(**{**train_config, "val_indices": train_config.get("val_indices")})
+            self.net = LicromNet(self.mcfg)
+            self._data: TrainingData | None = None
+            self._pod: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+            self._bank: _Bank | None = None
+            self._val_points: tuple[torch.Tensor, torch.Tensor] | None = None
+
+        def attach(self, data: TrainingData) -> None:
+            self._data = data
+            if self.tcfg.objective == "pod":
+                self._pod = pod_targets(data, self.mcfg.latent_dim)
+
+        def setup(self, stage: str) -> None:
+            self._bank = None  # built on the device at fit start
+
+        def _ensure_bank(self) -> _Bank:
+            if self._bank is None or self._bank.device != self.device:
+                assert self._data is not None
+                self._bank = _Bank(self._data, self.device, self._pod)
+                self._val_points = None
+            return self._bank
+
+        def on_fit_start(self) -> None:
+            self._ensure_bank()
+
+        def training_step(self, batch: torch.Tensor, batch_idx: int) -> torch.Tensor:
+            bank = self._ensure_bank()
+            gen = torch.Generator(device=self.device)
+            gen.manual_seed((self.tcfg.seed * 1_000_003 + self.global_step) * 64 + self.global_rank)
+            x, verts, w = _sample_points(bank, self.tcfg.points_per_frame, self.tcfg.sample, gen)
+            u = _interpolate(bank.train, batch, verts, w)
+            if self.tcfg.objective == "pod":
+                loss = _pod_loss(self.net, x, u, _interpolate(bank.pod_modes, None, verts, w), bank.pod_latents[batch],
+                                 bank.pod_weights, self.tcfg.encoder_points)
+            else:
+                loss = self.net(x, u, self.tcfg.encoder_points, self.tcfg.projection_weight)
+            self.log("train_loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(batch), sync_dist=True)
+            return loss
+
+        def validation_step(self, batch: Any, batch_idx: int) -> None:
+            bank = self._ensure_bank()
+            if bank.val is None:
+                return
+            if self.current_epoch % self.tcfg.val_every and self.current_epoch + 1 != self.tcfg.epochs:
+                return
+            if self._val_points is None:
+                idx = torch.as_tensor(_encoder_frames(len(bank.val), self.tcfg.val_encoder_frames), device=self.device)
+                self._val_points = (idx, self.tcfg.seed * 7 + 12345)
+            idx, seed = self._val_points
+            gen = torch.Generator(device=self.device)
+            gen.manual_seed(seed)
+            z, xs, us = _encode_frames(self.net, bank, bank.val, idx, self.tcfg.val_points, gen)
+            phi = self.net.nonaffine_field(xs)
+            val_loss = torch.mean((torch.einsum("pir,br->bpi", phi, z) - us / self.net.u_scale) ** 2)
+            m = _evaluate_tensors(self.net, bank.rest64, bank.masses, bank.val, bank.val_norm2_res, bank.val_norm2_full, self.mcfg.affine, (idx, z))
+            # Every rank evaluates the whole (small) validation set: identical values; the
+            # sync (a mean of equal numbers) only keeps Lightning's bookkeeping consistent.
+            sync = self.trainer.world_size > 1
+            self.log("val_loss", val_loss, prog_bar=False, batch_size=1, sync_dist=sync)
+            self.log("val_proj", m["proj_residual"], prog_bar=True, batch_size=1, sync_dist=sync)
+            self.log("val_proj_full", m["proj_full"], batch_size=1, sync_dist=sync)
+            self.log("val_enc", m["enc_residual"], prog_bar=True, batch_size=1, sync_dist=sync)
+            self.log("val_enc_full", m["enc_full"], batch_size=1, sync_dist=sync)
+
+        def configure_optimizers(self) -> Any:
+            cfg = self.tcfg
+            opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+            gamma = cfg.lr_final_ratio ** (1.0 / max(1, cfg.epochs - 1))
+            sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=gamma)
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+
+    class History(pl.Callback):
+        """Loss curves (one row per epoch), kept in checkpoints, written as CSV each epoch."""
+
+        def __init__(self, csv_path: Path | None) -> None:
+            self.csv_path = csv_path
+            self.rows: list[dict[str, Any]] = []
+            self._t0 = 0.0
+            self._t_train = None
+            self._lr = float("nan")
+
+        @property
+        def state_key(self) -> str:
+            return "licrom.History"
+
+        def state_dict(self) -> dict[str, Any]:
+            return {"rows": self.rows}
+
+        def load_state_dict(self, state: dict[str, Any]) -> None:
+            self.rows = list(state.get("rows", []))
+
+        def on_train_epoch_start(self, trainer, pl_module) -> None:
+            self._t0 = time.perf_counter()
+            self._t_train = None
+            self._lr = float(trainer.optimizers[0].param_groups[0]["lr"])
+
+        def on_validation_epoch_start(self, trainer, pl_module) -> None:
+            if not trainer.sanity_checking and self._t_train is None:
+                self._t_train = time.perf_counter() - self._t0
+
+        def on_train_epoch_end(self, trainer, pl_module) -> None:
+            now = time.perf_counter()
+            m = trainer.callback_metrics
+            get = lambda k: float(m[k]) if k in m else float("nan")  # noqa: E731
+            row = {
+                "epoch": trainer.current_epoch + 1,
+                "train_loss": get("train_loss"),
+                "val_loss": get("val_loss"),
+                "val_proj_residual": get("val_proj"),
+                "val_proj_full": get("val_proj_full"),
+                "val_enc_residual": get("val_enc"),
+                "val_enc_full": get("val_enc_full"),
+                "lr": self._lr,
+                "train_seconds": self._t_train if self._t_train is not None else now - self._t0,
+                "epoch_seconds": now - self._t0,
+            }
+            self.rows = [r for r in self.rows if r["epoch"] < row["epoch"]] + [row]
+            if trainer.is_global_zero and self.csv_path is not None:
+                write_csv(self.csv_path, self.rows)
+
+    return {"Indices": Indices, "EpochShuffle": EpochShuffle, "LicromModule": LicromModule, "History": History, "pl": pl}

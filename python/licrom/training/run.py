@@ -1,0 +1,228 @@
+"""The entry point :func:`train` and its outputs (loss CSV and plot)."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+import time
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError
+from ..model import Model, ModelConfig
+from ..model.finalize import finalize_basis
+from ..render import pyplot, save_png
+from ..rigid import check_frame
+from ..training_data import TrainingData, TrajectorySource
+from .config import CSV_COLUMNS, TrainConfig, output_paths, write_csv
+from .evaluation import _evaluate_tensors
+from .lightning import _lightning_classes
+from .objectives import _refit_output_layer
+
+
+def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: str = "") -> Path:
+    """PNG of the loss curves (train/val MSE and held-out relative errors) per epoch."""
+    plt = pyplot()
+    ep = [r["epoch"] for r in rows]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    ax.semilogy(ep, [r["train_loss"] for r in rows], label="train")
+    if any(np.isfinite(r["val_loss"]) for r in rows):
+        ax.semilogy(ep, [r["val_loss"] for r in rows], label="validation")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("MSE of normalised residual displacement")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    ax = axes[1]
+    for key, label in (("val_proj_residual", "projection, residual"), ("val_enc_residual", "encoder, residual"),
+                       ("val_proj_full", "projection, full"), ("val_enc_full", "encoder, full")):
+        ys = [r[key] for r in rows]
+        if any(np.isfinite(ys)):
+            ax.semilogy(ep, ys, label=label)
+    ax.axhline(0.01, color="k", lw=0.8, ls="--", label="1%")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("held-out relative L2 error")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return save_png(fig, path)
+
+
+# ----------------------------------------------------------------------------------------
+# the entry point
+# ----------------------------------------------------------------------------------------
+def _accelerator(cfg: TrainConfig) -> tuple[str, Any]:
+    if cfg.device == "cpu":
+        return "cpu", 1
+    if cfg.device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("TrainConfig.device is 'cuda' but no CUDA device is available (torch.cuda.is_available() is False)")
+    if torch.cuda.is_available():
+        return "gpu", cfg.devices
+    return "cpu", 1
+
+
+def train(
+    data: TrajectorySource | TrainingData,
+    out_path: str | os.PathLike | None,
+    config: TrainConfig | None = None,
+    model_config: ModelConfig | None = None,
+    *,
+    frame: str | None = None,
+) -> Model:
+    """Train a LiCROM subspace on full-simulation trajectories and save it.
+
+    Args:
+        data: a directory of trajectory files, a file, a list of files or
+            :class:`~licrom.Trajectory` objects (one rest mesh), or a prepared
+            :class:`~licrom.training_data.TrainingData` (its split is used as is).
+        out_path: model file to write (``.lcm`` by convention), with the loss CSV, the
+            loss plot and the checkpoint directory beside it (see :func:`output_paths`).
+            ``None`` writes nothing (checkpoints off, no resume).
+        config: training options.
+        model_config: network sizes (r is ``model_config.latent_dim``) and the frame.
+        frame: ``"body"`` or ``"world"``; when given it replaces ``model_config.frame``
+            (default ``"body"``: the non-rigid deformation in the body frame).
+
+    Returns:
+        The trained :class:`~licrom.Model` (the same as ``Model.load(out_path)``).
+    """
+    cfg = config or TrainConfig()
+    mcfg = model_config or ModelConfig()
+    if not isinstance(cfg, TrainConfig):
+        raise ConfigError(f"config must be a TrainConfig, got {type(cfg).__name__}")
+    if not isinstance(mcfg, ModelConfig):
+        raise ConfigError(f"model_config must be a ModelConfig, got {type(mcfg).__name__}")
+    if frame is not None:
+        mcfg = dataclasses.replace(mcfg, frame=check_frame(frame))
+    if cfg.num_threads is not None:
+        torch.set_num_threads(cfg.num_threads)
+    t_start = time.perf_counter()
+    if isinstance(data, TrainingData):
+        if data.affine != mcfg.affine:
+            raise ConfigError(f"TrainingData was prepared with affine={data.affine} but ModelConfig.affine is {mcfg.affine}")
+        if data.frame != mcfg.frame:
+            raise ConfigError(f"TrainingData is in the {data.frame!r} frame but the model is to be trained in the {mcfg.frame!r} frame")
+        tdata = data
+    else:
+        tdata = TrainingData(data, val_fraction=cfg.val_fraction, seed=cfg.seed, val_indices=cfg.val_indices,
+                             affine=mcfg.affine, frame_stride=cfg.frame_stride, frame=mcfg.frame)
+    t_data = time.perf_counter() - t_start
+
+    L = _lightning_classes()
+    pl = L["pl"]
+    paths = output_paths(out_path) if out_path is not None else None
+    ckpt_dir = Path(cfg.checkpoint_dir) if cfg.checkpoint_dir else (paths["checkpoints"] if paths else None)
+
+    pl.seed_everything(cfg.seed, workers=True, verbose=False)
+    module = L["LicromModule"](mcfg.to_dict(), cfg.to_dict())
+    module.net.set_normalization(tdata.x_center, tdata.x_scale, tdata.u_scale)
+    module.attach(tdata)
+
+    accelerator, devices = _accelerator(cfg)
+    history = L["History"](paths["csv"] if paths else None)
+    callbacks: list[Any] = [history]
+    if ckpt_dir is not None:
+        from lightning.pytorch.callbacks import ModelCheckpoint
+
+        callbacks.append(ModelCheckpoint(dirpath=ckpt_dir, filename="epoch{epoch:04d}", auto_insert_metric_name=False,
+                                         save_last=True, save_top_k=0, every_n_epochs=cfg.checkpoint_every))
+    import logging
+
+    quiet_loggers = [logging.getLogger(n) for n in ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.accelerators.cuda")]
+    old_levels = [lg.level for lg in quiet_loggers]
+    for lg in quiet_loggers:  # Lightning's notes on accelerators and add-ons say nothing about this run
+        lg.setLevel(logging.WARNING)
+    old_matmul = torch.get_float32_matmul_precision()
+    if accelerator == "gpu":
+        torch.set_float32_matmul_precision("high")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+        warnings.filterwarnings("ignore", message=".*number of training batches.*")
+        warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+        warnings.filterwarnings("ignore", message=".*no `val_dataloader`.*")
+        trainer = pl.Trainer(
+            accelerator=accelerator,
+            devices=devices,
+            strategy="auto",
+            precision=cfg.precision,
+            max_epochs=cfg.epochs,
+            callbacks=callbacks,
+            logger=False,
+            enable_checkpointing=ckpt_dir is not None,
+            enable_progress_bar=cfg.progress,
+            enable_model_summary=False,
+            num_sanity_val_steps=0,
+            default_root_dir=str(ckpt_dir) if ckpt_dir else None,
+            log_every_n_steps=1,
+            max_time=None if cfg.max_time_s is None else {"seconds": float(cfg.max_time_s)},
+        )
+        n_train = len(tdata.train)
+        from torch.utils.data import DataLoader
+
+        batch = min(cfg.batch_frames, n_train)
+        if trainer.world_size > 1:
+            train_loader = DataLoader(L["Indices"](n_train), batch_size=batch, shuffle=True)
+        else:
+            train_loader = DataLoader(L["Indices"](n_train), batch_size=batch, sampler=L["EpochShuffle"](n_train, cfg.seed))
+        val_loader = DataLoader(L["Indices"](1), batch_size=1) if len(tdata.val) else None
+        ckpt_path = None
+        if cfg.resume and ckpt_dir is not None and (ckpt_dir / "last.ckpt").is_file():
+            ckpt_path = str(ckpt_dir / "last.ckpt")
+        elif cfg.resume:
+            warnings.warn(f"resume requested but no checkpoint found in '{ckpt_dir}'; training from scratch", stacklevel=2)
+        t_fit = time.perf_counter()
+        try:
+            trainer.fit(module, train_dataloaders=train_loader, val_dataloaders=val_loader, ckpt_path=ckpt_path, weights_only=False)
+        finally:
+            torch.set_float32_matmul_precision(old_matmul)
+            for lg, level in zip(quiet_loggers, old_levels):
+                lg.setLevel(level)
+        t_fit = time.perf_counter() - t_fit
+
+    net = copy.deepcopy(module.net).to("cpu").float().eval()
+    if cfg.objective == "pod":
+        _refit_output_layer(net, tdata, module._pod[0])
+    fin = finalize_basis(net, tdata.mesh, tdata.train.residuals)
+    rows = history.rows
+    last = rows[-1] if rows else {}
+    train_secs = [r["train_seconds"] for r in rows if np.isfinite(r.get("train_seconds", np.nan))]
+    reached = next((r["epoch"] for r in rows if r.get("val_proj_residual", np.inf) <= 0.01), None)
+    metadata = {
+        "data": tdata.summary(),
+        "train_config": cfg.to_dict(),
+        "epochs_trained": int(last.get("epoch", 0)),
+        "final": {k: last.get(k) for k in CSV_COLUMNS if k != "epoch"},
+        "epoch_to_1pct_val_projection": reached,
+        "mean_train_seconds_per_epoch": float(np.mean(train_secs)) if train_secs else None,
+        "fit_seconds": t_fit,
+        "data_seconds": t_data,
+        "accelerator": accelerator,
+        "world_size": trainer.world_size,
+        "torch_version": torch.__version__,
+        "lightning_version": pl.__version__,
+        "history": rows,
+    }
+    if cfg.objective == "pod" and len(tdata.val):
+        # the output-layer fit changed the span after the last validation: report the final model's
+        val = tdata.val
+        metadata["final"].update({f"val_{k}": v for k, v in _evaluate_tensors(
+            net, torch.tensor(tdata.rest), torch.tensor(tdata.masses), torch.as_tensor(val.residuals),
+            torch.as_tensor(val.norm2_residual), torch.as_tensor(val.norm2_full), mcfg.affine).items()})
+    model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
+    if paths is not None and trainer.is_global_zero:
+        model.save(paths["model"])
+        if rows:
+            write_csv(paths["csv"], rows)
+            try:
+                plot_losses(rows, paths["png"], title=f"LiCROM r={mcfg.latent_dim}, {len(tdata.train_indices)} train / {len(tdata.val_indices)} held-out trajectories")
+            except Exception as exc:  # a plot must never lose a trained model
+                warnings.warn(f"could not write the loss plot: {exc}", stacklevel=2)
+    return model
