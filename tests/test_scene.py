@@ -24,6 +24,31 @@ def test_plane_is_normalised_with_offset():
     assert np.linalg.norm(inc.normal) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize(
+    "normal, offset, expected_normal, expected_offset",
+    [
+        ((0, 0, 1e200), 0.0, (0, 0, 1), 0.0),
+        ((0, 0, 1e200), 3e200, (0, 0, 1), 3.0),
+        ((1e-320, 0, 0), -1e-320, (1, 0, 0), -1.0),
+        ((3e-300, 4e-300, 0), 1e-300, (0.6, 0.8, 0), 0.2),
+        ((1e308, 1e308, 1e308), 0.0, (3**-0.5,) * 3, 0.0),
+    ],
+)
+def test_plane_normalises_huge_and_tiny_normals(normal, offset, expected_normal, expected_offset):
+    p = Plane(normal=normal, offset=offset)
+    np.testing.assert_allclose(p.normal, expected_normal, rtol=1e-15, atol=1e-15)
+    assert p.offset == pytest.approx(expected_offset, rel=1e-15, abs=1e-300)
+    back = Scene.from_json(Scene(planes=(p,)).to_json()).planes[0]
+    np.testing.assert_allclose(back.normal, p.normal, rtol=1e-15, atol=1e-15)
+    assert back.offset == pytest.approx(p.offset, rel=1e-15, abs=1e-300)
+
+
+@pytest.mark.parametrize("normal, offset", [((0, 0, 1), 1e300), ((0, 0, 1), -2e6), ((0, 0, 1e-300), 1.0), ((0, 0, 1e-320), 1e-300)])
+def test_plane_refuses_offsets_beyond_its_range(normal, offset):
+    with pytest.raises(ConfigError, match=r"Plane\.offset / \|Plane\.normal\|.*\[-1e\+06, 1e\+06\] m"):
+        Plane(normal=normal, offset=offset)
+
+
 def test_scene_json_round_trip():
     s = Scene(
         material=Material(3e5, 0.25, 1100.0),

@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from licrom import FileFormatError, Scene, SolverError, Trajectory, meshes
+from licrom import FileFormatError, Plane, Scene, ShapeError, SolverError, Trajectory, meshes
 
 
 def _traj(frames=3):
@@ -47,3 +47,17 @@ def test_bad_files(tmp_path):
     np.savez(other, a=np.zeros(3))
     with pytest.raises(FileFormatError, match="not a licrom trajectory"):
         Trajectory.load(other)
+
+
+def test_save_writes_only_what_load_reads(tmp_path):
+    # A plane given with a huge normal and offset is stored normalised and loads back.
+    t = _traj()
+    t.scene = Scene(planes=(Plane(normal=(0, 0, 1e200), offset=-2e199),))
+    back = Trajectory.load(t.save(tmp_path / "plane.npz"))
+    assert back.scene.planes[0].normal == (0.0, 0.0, 1.0) and back.scene.planes[0].offset == pytest.approx(-0.2)
+    # Frames beyond float32 would become inf in the file: refused, and kept in float64 on request.
+    t.displacements[1, 0, 0] = 1e39
+    with pytest.raises(ShapeError, match="precision='float64'"):
+        t.save(tmp_path / "big.npz")
+    assert not (tmp_path / "big.npz").exists()
+    assert Trajectory.load(t.save(tmp_path / "big.npz", precision="float64")).displacements[1, 0, 0] == 1e39

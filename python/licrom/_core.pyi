@@ -3,15 +3,18 @@
 Conventions: SI units; arrays are float64 (C-contiguous inputs are used as
 they are, other layouts are copied); ``vec(F)`` is row-major, index ``3*i + j``
 holds ``F[i, j]``. Bad inputs raise :class:`licrom.errors.ShapeError` (shape,
-dtype, NaN/inf), :class:`licrom.errors.ConfigError` (parameters out of range,
+dtype, NaN/inf, or finite values so large that a result would overflow to
+inf/NaN), :class:`licrom.errors.ConfigError` (parameters out of range,
 mass matrix not symmetric positive definite); solver failures raise
-:class:`licrom.errors.SolverError`. Heavy calls release the GIL.
+:class:`licrom.errors.SolverError`. No function returns NaN or inf. Heavy calls
+release the GIL.
 
 Material: stable Neo-Hookean (Smith et al. 2018) with the SNH parameters
 ``mu, lam`` (Pa, both > 0):
 ``Psi(F) = mu/2 (I_C - 3) + lam/2 (J - alpha)^2 - mu/2 log(I_C + 1) - Psi_0``,
 ``alpha = 1 + 3 mu / (4 lam)``, where the constant ``Psi_0`` makes the rest
 state (and every rotation) have zero energy. Valid for inverted F (J <= 0).
+``mu / lam`` so large that ``alpha`` or ``Psi_0`` overflow is a ConfigError.
 """
 
 from collections.abc import Callable
@@ -300,4 +303,7 @@ def line_search(e0: float, d0: float, phi: Callable[[float], tuple[float, float]
     ``phi(alpha)`` returns ``(energy, slope)``; the result is ``(alpha, energy)`` of the
     step taken (the last call of ``phi`` was there), or None when no step decreases the
     energy beyond round-off. An exception raised by ``phi`` propagates.
+
+    Raises:
+        ConfigError: ``e0`` not finite, or ``d0`` not a finite negative slope.
     """

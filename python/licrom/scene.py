@@ -18,6 +18,7 @@ from ._io import check_version
 from .errors import ConfigError, FileFormatError
 
 __all__ = [
+    "MAX_PLANE_OFFSET",
     "SCENE_FORMAT_VERSION",
     "ContactParams",
     "InitialState",
@@ -94,16 +95,24 @@ class Material:
         return 4.0 / 3.0 * mu, lam + 5.0 / 6.0 * mu
 
 
+MAX_PLANE_OFFSET = 1.0e6
+"""Largest distance of a plane from the origin, m: the gap and the penalty energy
+``k_n/2 gap^2`` of a point stay far inside double precision."""
+
+
 @dataclass(frozen=True)
 class Plane:
     """A frictional half-space ``normal . x + offset >= 0`` (the solid stays on the positive side).
 
     The normal is normalised on construction, and the offset scaled with it, so the
-    half-space is the one given.
+    half-space is the one given. Any finite non-zero normal is accepted (it is scaled
+    by its largest component before its length is taken, so neither a huge nor a tiny
+    one over- or underflows); the scaled offset, the plane's distance from the origin,
+    must be within ``MAX_PLANE_OFFSET``.
 
     Attributes:
-        normal: outward normal of the ground (3 numbers, not all zero).
-        offset: signed offset in m.
+        normal: outward normal of the ground (3 finite numbers, not all zero).
+        offset: signed offset in m; ``|offset| / |normal| <= MAX_PLANE_OFFSET`` (1e6 m).
         friction: Coulomb friction coefficient mu (dimensionless, >= 0).
     """
 
@@ -113,12 +122,20 @@ class Plane:
 
     def __post_init__(self) -> None:
         n = np.asarray(_vec3("Plane.normal", self.normal))
-        length = float(np.linalg.norm(n))
-        if length < 1e-12:
+        largest = float(np.abs(n).max())
+        if largest == 0.0:
             raise ConfigError(f"Plane.normal must be a non-zero vector, got {n.tolist()}")
+        scaled = n / largest  # largest component +-1: the norm neither over- nor underflows
+        length = float(np.linalg.norm(scaled))
         offset = _finite("Plane.offset (m)", self.offset)
-        object.__setattr__(self, "normal", tuple(float(c) for c in n / length))
-        object.__setattr__(self, "offset", offset / length)
+        distance = offset / largest / length  # Python floats: inf on overflow, no exception
+        if not abs(distance) <= MAX_PLANE_OFFSET:
+            raise ConfigError(
+                f"Plane.offset / |Plane.normal| (the plane's distance from the origin) must be within "
+                f"[-{MAX_PLANE_OFFSET:g}, {MAX_PLANE_OFFSET:g}] m, got offset {offset!r} with normal {n.tolist()}"
+            )
+        object.__setattr__(self, "normal", tuple(float(c) for c in scaled / length))
+        object.__setattr__(self, "offset", float(distance))
         object.__setattr__(self, "friction", _finite("Plane.friction", self.friction, nonnegative=True))
 
     @classmethod

@@ -95,9 +95,18 @@ class Trajectory:
             path: destination, ``.npz`` is appended if missing.
             precision: ``"float32"`` (default, half the size) or ``"float64"`` for the frames;
                 rest positions are always float64.
+
+        Raises:
+            ShapeError: unknown precision, or frames beyond its range (they would be
+                stored as inf, which :meth:`load` refuses).
         """
         if precision not in ("float32", "float64"):
             raise ShapeError(f"precision must be 'float32' or 'float64', got {precision!r}")
+        limit = float(np.finfo(precision).max)
+        for name in ("displacements", "velocities"):
+            # Values beyond float32 would be stored as inf, which load refuses.
+            if np.abs(getattr(self, name)).max(initial=0.0) > limit:
+                raise ShapeError(f"Trajectory.{name} exceed the {precision} range (|value| <= {limit:.3g}); save with precision='float64'")
         p = Path(path)
         if p.suffix != ".npz":
             p = p.with_name(p.name + ".npz")

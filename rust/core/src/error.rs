@@ -2,8 +2,9 @@
 //!
 //! Every fallible entry point returns [`Result`]; nothing in this crate panics on
 //! bad input. The variants fall in three families that bindings map to their own
-//! exception types: shape/finiteness problems of arrays, out-of-range parameters
-//! (including a mass matrix that is not SPD), and solver failures.
+//! exception types: shape/finiteness problems of arrays (including finite values
+//! so large that a result overflows), out-of-range parameters (including a mass
+//! matrix that is not SPD), and solver failures.
 
 use thiserror::Error;
 
@@ -48,6 +49,15 @@ pub enum LicromError {
         /// Last convergence measure, m/s.
         residual: f64,
     },
+    /// A result is NaN or inf although every input is finite: the inputs are
+    /// beyond the range that double precision can evaluate.
+    #[error("{what} overflowed to NaN or inf: {input} is too large (or too small) to evaluate in double precision")]
+    Overflow {
+        /// The quantity computed (e.g. "the energy density").
+        what: &'static str,
+        /// The input to blame (e.g. "F").
+        input: &'static str,
+    },
     /// NaN or inf appeared during the solve (energy, gradient, Hessian or iterate).
     #[error("the reduced step diverged: non-finite {what} at iteration {iteration}")]
     Diverged {
@@ -79,6 +89,16 @@ pub fn check_finite(name: &str, values: &[f64]) -> Result<()> {
         Ok(())
     } else {
         Err(LicromError::NonFinite { name: name.to_owned() })
+    }
+}
+
+/// Checks that every value of `values`, computed from finite inputs, is finite:
+/// one pass after the computation, not a test inside its loops.
+pub fn check_output(what: &'static str, input: &'static str, values: &[f64]) -> Result<()> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(LicromError::Overflow { what, input })
     }
 }
 

@@ -8,7 +8,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 
-use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, Madd, WithMadd};
 use crate::svd3::{svd3_of, sym_eigen3_of, M3};
@@ -78,12 +78,19 @@ pub struct StableNeoHookean {
 }
 
 impl StableNeoHookean {
-    /// Material with SNH parameters `mu > 0`, `lam > 0` (Pa).
+    /// Material with SNH parameters `mu > 0`, `lam > 0` (Pa) whose derived
+    /// constants `alpha` and `Psi_0` are finite (`mu / lam` not astronomically large).
     pub fn new(mu: f64, lam: f64) -> Result<Self> {
         check_positive("mu", mu)?;
         check_positive("lam", lam)?;
         let alpha = 1.0 + 0.75 * mu / lam;
         let rest_energy = 0.5 * lam * (1.0 - alpha) * (1.0 - alpha) - 0.5 * mu * 4.0_f64.ln();
+        if !(alpha.is_finite() && rest_energy.is_finite()) {
+            return Err(LicromError::invalid(
+                "mu/lam",
+                format!("must keep alpha = 1 + 3 mu / (4 lam) and mu^2 / lam finite in double precision, got mu = {mu:e}, lam = {lam:e}"),
+            ));
+        }
         Ok(Self { mu, lam, alpha, rest_energy })
     }
 
@@ -253,12 +260,15 @@ impl StableNeoHookean {
     }
 
     /// Energy densities of a batch: `fs` holds `p` row-major 3x3 matrices.
+    ///
+    /// The batch functions fail with [`LicromError::Overflow`] where an F is so
+    /// large that a result is not finite.
     pub fn energy_batch(&self, fs: &[f64], out: &mut [f64]) -> Result<()> {
         check_batch(fs, out.len(), 1)?;
         for (f, o) in fs.chunks_exact(9).zip(out.iter_mut()) {
             *o = self.energy(&mat3_row_major(f));
         }
-        Ok(())
+        check_output("the energy density", "F", out)
     }
 
     /// First Piola-Kirchhoff stresses of a batch, row-major 3x3 each.
@@ -267,7 +277,7 @@ impl StableNeoHookean {
         for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(9)) {
             o.copy_from_slice(vec9(&self.pk1(&mat3_row_major(f))).as_slice());
         }
-        Ok(())
+        check_output("the stress", "F", out)
     }
 
     /// Hessians of a batch, row-major 9x9 each; PSD-projected when `project`.
@@ -276,14 +286,21 @@ impl StableNeoHookean {
     pub fn hessian_batch(&self, fs: &[f64], project: bool, out: &mut [f64]) -> Result<()> {
         check_batch(fs, out.len(), 81)?;
         if project {
+            // The projection clamps NaN eigenvalues to zero, so an overflow inside the
+            // eigensystem can come out finite: the exact energy tells whether F is in range.
+            for f in fs.chunks_exact(9) {
+                if !self.energy(&mat3_row_major(f)).is_finite() {
+                    return Err(LicromError::Overflow { what: "the Hessian", input: "F" });
+                }
+            }
             dispatch(ProjectedBatch { material: self, fs, out });
-            return Ok(());
+        } else {
+            for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(81)) {
+                // The Hessian is symmetric, so nalgebra's column-major storage is row-major too.
+                o.copy_from_slice(self.hessian(&mat3_row_major(f)).as_slice());
+            }
         }
-        for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(81)) {
-            // The Hessian is symmetric, so nalgebra's column-major storage is row-major too.
-            o.copy_from_slice(self.hessian(&mat3_row_major(f)).as_slice());
-        }
-        Ok(())
+        check_output("the Hessian", "F", out)
     }
 }
 
@@ -475,5 +492,26 @@ mod tests {
         }
         assert!(StableNeoHookean::new(-1.0, 1.0).is_err());
         assert!(StableNeoHookean::new(1.0, 0.0).is_err());
+    }
+
+    #[test]
+    fn results_out_of_double_range_are_errors_not_inf_or_nan() {
+        let mat = material();
+        // A subnormal lam makes alpha = 1 + 3 mu / (4 lam) infinite.
+        assert!(matches!(StableNeoHookean::new(5e4, 1e-320), Err(LicromError::InvalidParameter { .. })));
+        assert!(matches!(StableNeoHookean::new(1e300, 1e-10), Err(LicromError::InvalidParameter { .. })));
+        for scale in [1e80, 1e100, 1e200] {
+            let huge = vec9(&(Matrix3::identity() * scale)).as_slice().to_vec();
+            let overflow = |r: Result<()>| matches!(r, Err(LicromError::Overflow { input: "F", .. }));
+            assert!(overflow(mat.energy_batch(&huge, &mut [0.0])), "energy at {scale}");
+            assert!(overflow(mat.pk1_batch(&huge, &mut [0.0; 9])), "stress at {scale}");
+            assert!(overflow(mat.hessian_batch(&huge, true, &mut [0.0; 81])), "projected Hessian at {scale}");
+            assert!(overflow(mat.hessian_batch(&huge, false, &mut [0.0; 81])), "Hessian at {scale}");
+        }
+        // Large but representable: finite results.
+        let big = vec9(&(Matrix3::identity() * 1e40)).as_slice().to_vec();
+        let mut e = [0.0];
+        mat.energy_batch(&big, &mut e).unwrap();
+        assert!(e[0].is_finite() && e[0] > 0.0);
     }
 }

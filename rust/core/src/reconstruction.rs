@@ -2,7 +2,7 @@
 
 use faer::{Accum, MatMut, MatRef, Par};
 
-use crate::error::{check_finite, LicromError, Result};
+use crate::error::{check_finite, check_output, LicromError, Result};
 
 /// Basis rows `W_v` (3 x n each) and rest positions `X_v` of N points.
 #[derive(Debug, Clone)]
@@ -34,7 +34,8 @@ impl Reconstruction {
         self.rest.len() / 3
     }
 
-    /// Positions `X + W q` (N x 3, m) into `out`.
+    /// Positions `X + W q` (N x 3, m) into `out`; [`LicromError::Overflow`] where
+    /// `q` is so large that a position is not finite.
     pub fn positions(&self, q: &[f64], out: &mut [f64]) -> Result<()> {
         if q.len() != self.n {
             return Err(LicromError::shape("q", format!("({},)", self.n), format!("{} values", q.len())));
@@ -55,7 +56,7 @@ impl Reconstruction {
                 Par::Seq,
             );
         }
-        Ok(())
+        check_output("the positions", "q", out)
     }
 }
 
@@ -82,5 +83,7 @@ mod tests {
         assert!(Reconstruction::new(basis, rest, 4).is_err());
         let empty = Reconstruction::new(vec![], vec![], n).unwrap();
         empty.positions(&q, &mut []).unwrap();
+        let r = Reconstruction::new(vec![1.0; 3 * n], vec![0.0; 3], n).unwrap();
+        assert!(matches!(r.positions(&[1e308; 5], &mut [0.0; 3]), Err(LicromError::Overflow { .. })));
     }
 }

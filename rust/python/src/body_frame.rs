@@ -202,7 +202,7 @@ impl BodyFrameCore {
     fn energy(&mut self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
         let pose = self.pose(py, center, rotation, q)?;
         let solver = &mut self.inner;
-        Ok(py.detach(|| solver.energy(&pose)))
+        py.detach(|| solver.energy(&pose)).py_err(py)
     }
 
     /// Gradient (6 + n,) in (c, omega, q) at the pose, omega the left rotation increment.
@@ -215,7 +215,7 @@ impl BodyFrameCore {
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let pose = self.pose(py, center, rotation, q)?;
         let solver = &mut self.inner;
-        let grad = py.detach(|| solver.gradient(&pose).to_vec());
+        let grad = py.detach(|| solver.gradient(&pose).map(<[f64]>::to_vec)).py_err(py)?;
         write(py, grad, &[6 + self.n()])
     }
 
@@ -232,7 +232,7 @@ impl BodyFrameCore {
         let pose = self.pose(py, center, rotation, q)?;
         let big = 6 + self.n();
         let solver = &mut self.inner;
-        let hess = py.detach(|| solver.hessian(&pose, exact).to_vec());
+        let hess = py.detach(|| solver.hessian(&pose, exact).map(<[f64]>::to_vec)).py_err(py)?;
         write(py, hess, &[big, big])
     }
 }

@@ -49,7 +49,7 @@ fn error_with(py: Python<'_>, kind: Kind, message: String, kwargs: Option<&Bound
 /// `iterations` and `residual` (m/s) attributes.
 pub fn from_core(py: Python<'_>, e: LicromError) -> PyErr {
     let kind = match e {
-        LicromError::ShapeMismatch { .. } | LicromError::NonFinite { .. } => Kind::Shape,
+        LicromError::ShapeMismatch { .. } | LicromError::NonFinite { .. } | LicromError::Overflow { .. } => Kind::Shape,
         LicromError::InvalidParameter { .. } | LicromError::SingularMass { .. } => Kind::Config,
         LicromError::NotConverged { .. } | LicromError::Diverged { .. } => Kind::Solver,
     };

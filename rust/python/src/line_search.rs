@@ -5,11 +5,21 @@ use licrom_core::solver::line_search as ls;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use crate::errors::{error, Kind};
+
 /// Line search from `phi(0) = e0` with slope `d0 < 0`; `phi(alpha)` returns
 /// `(energy, slope)`. Returns `(alpha, energy)`, or None when no step
 /// decreases the energy beyond round-off; an exception of `phi` propagates.
+/// `e0` must be finite and `d0` finite and negative (a descent direction).
 #[pyfunction]
 pub fn line_search(e0: f64, d0: f64, phi: &Bound<'_, PyAny>) -> PyResult<Option<(f64, f64)>> {
+    let py = phi.py();
+    if !e0.is_finite() {
+        return Err(error(py, Kind::Config, format!("e0 must be a finite energy, got {e0}")));
+    }
+    if !(d0.is_finite() && d0 < 0.0) {
+        return Err(error(py, Kind::Config, format!("d0 must be a finite slope < 0 (a descent direction), got {d0}")));
+    }
     let mut failure: Option<PyErr> = None;
     let step = ls::line_search(e0, d0, |alpha| {
         if failure.is_some() {

@@ -43,7 +43,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::rotation::{exp_map, is_rotation, log_map};
 use super::{BodyFrameSystem, BodyHessian, BodyStart, BodyWorkspace, Pose};
 use crate::cholesky::Cholesky;
-use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::solver::line_search::line_search;
 
 /// The elastic block is assembled again when an iteration's residual is above
@@ -393,28 +393,38 @@ impl BodyFrameSolver {
         } else {
             out.fill(0.0);
         }
-        Ok(())
+        check_output("the contact forces", "the state", out)
     }
 
     /// Energy (J, without the step's constant) at `pose` of a step from the current state.
-    pub fn energy(&mut self, pose: &Pose) -> f64 {
+    ///
+    /// The probes fail with [`LicromError::Overflow`] where the pose (or the
+    /// state) is so large that the result is not finite.
+    pub fn energy(&mut self, pose: &Pose) -> Result<f64> {
         self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
-        self.system.evaluate(&self.probe, pose, false, &mut self.ws)
+        let e = self.system.evaluate(&self.probe, pose, false, &mut self.ws);
+        check_output("the energy", "the pose", &[e])?;
+        Ok(e)
     }
 
     /// Gradient (6 + n) at `pose` of a step from the current state.
-    pub fn gradient(&mut self, pose: &Pose) -> &[f64] {
+    pub fn gradient(&mut self, pose: &Pose) -> Result<&[f64]> {
         self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
         self.system.evaluate(&self.probe, pose, true, &mut self.ws);
-        &self.ws.grad
+        check_output("the gradient", "the pose", &self.ws.grad)?;
+        Ok(&self.ws.grad)
     }
 
     /// Hessian ((6 + n)^2, full symmetric) at `pose` of a step from the current
     /// state: exact, or the solver's positive definite one.
-    pub fn hessian(&mut self, pose: &Pose, exact: bool) -> &[f64] {
+    pub fn hessian(&mut self, pose: &Pose, exact: bool) -> Result<&[f64]> {
         self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        // An energy out of range is where the projection's eigensystem breaks down.
+        let e = self.system.evaluate(&self.probe, pose, false, &mut self.ws);
+        check_output("the Hessian", "the pose", &[e])?;
         let kind = if exact { BodyHessian::Exact } else { BodyHessian::GaussNewton };
         self.system.hessian(&self.probe, pose, kind, None, &mut self.ws, &mut self.hess, None);
-        &self.hess
+        check_output("the Hessian", "the pose", &self.hess)?;
+        Ok(&self.hess)
     }
 }

@@ -318,6 +318,11 @@ fn failed_steps_leave_the_state_and_bad_inputs_are_rejected() {
     let mut inp = b.inputs();
     inp.dt = -1.0;
     assert!(BodyFrameSystem::new(&inp).is_err());
+    // Probes at a pose whose energy overflows fail instead of returning inf or NaN.
+    let far = Pose { center: Vector3::new(0.0, 0.0, 1e200), rotation: r, q: vec![1e200; b.n] };
+    assert!(matches!(s.energy(&far), Err(LicromError::Overflow { .. })));
+    assert!(matches!(s.gradient(&far), Err(LicromError::Overflow { .. })));
+    assert!(matches!(s.hessian(&far, true), Err(LicromError::Overflow { .. })));
     // Velocities come back as given.
     s.set_state(&pose, &[0.5, 0.0, -0.2], &[0.0, 1.0, 0.3], &vec![0.1; b.n]).unwrap();
     assert!((s.velocity() - Vector3::new(0.5, 0.0, -0.2)).norm() < 1e-12);

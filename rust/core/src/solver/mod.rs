@@ -42,7 +42,7 @@ pub use line_search::CURVATURE;
 pub use settings::{ElasticHessian, SolverKind, SolverSettings, SolverStats, StepReport};
 
 use crate::cholesky::Cholesky;
-use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepStart, Workspace};
 use contact_model::ContactModelState;
 use direction::ElasticPart;
@@ -439,7 +439,7 @@ impl ReducedSolver {
             Some(last) => self.system.contact_forces(last, &self.q, out),
             None => out.fill(0.0),
         }
-        Ok(())
+        check_output("the contact forces", "the state", out)
     }
 
     fn prepare_probe(&mut self, q: &[f64]) -> Result<()> {
@@ -449,15 +449,21 @@ impl ReducedSolver {
     }
 
     /// Incremental potential E(q) (J) of a step starting from the current state.
+    ///
+    /// The probes fail with [`LicromError::Overflow`] where `q` (or the state) is
+    /// so large that the result is not finite.
     pub fn energy(&mut self, q: &[f64]) -> Result<f64> {
         self.prepare_probe(q)?;
-        Ok(self.system.energy(&self.probe, q))
+        let e = self.system.energy(&self.probe, q);
+        check_output("the energy", "q", &[e])?;
+        Ok(e)
     }
 
     /// Gradient of E at `q` for a step starting from the current state.
     pub fn gradient(&mut self, q: &[f64]) -> Result<&[f64]> {
         self.prepare_probe(q)?;
         self.system.assemble(&self.probe, q, Hessian::None, &mut self.ws);
+        check_output("the gradient", "q", &self.ws.grad)?;
         Ok(&self.ws.grad)
     }
 
@@ -465,11 +471,16 @@ impl ReducedSolver {
     /// current state; elastic parts PSD-projected when `project`.
     pub fn hessian(&mut self, q: &[f64], project: bool) -> Result<&[f64]> {
         self.prepare_probe(q)?;
+        // An elastic energy out of range is where the projection's eigensystem breaks down.
+        let e = self.system.energy(&self.probe, q);
+        check_output("the Hessian", "q", &[e])?;
         self.system.assemble(&self.probe, q, if project { Hessian::Projected } else { Hessian::Split }, &mut self.ws);
         if project {
+            check_output("the Hessian", "q", &self.ws.hess)?;
             return Ok(&self.ws.hess);
         }
         self.ws.exact_hessian(&mut self.probe_hessian);
+        check_output("the Hessian", "q", &self.probe_hessian)?;
         Ok(&self.probe_hessian)
     }
 }

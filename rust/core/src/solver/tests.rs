@@ -196,3 +196,18 @@ fn probes_and_state_are_validated() {
     let settings = SolverSettings::new(1.0, 1e-6, 0, SolverKind::Newton);
     assert!(ReducedSolver::new(system, settings).is_err());
 }
+
+#[test]
+fn probes_out_of_double_range_are_errors() {
+    let model = block(1, 5, 4);
+    let mut s = solver(&model, SolverKind::Newton, 1e-8, 10);
+    let huge = [1e200; 13];
+    let overflow = |r: &Result<()>| matches!(r, Err(LicromError::Overflow { input: "q", .. }));
+    assert!(overflow(&s.energy(&huge).map(|_| ())));
+    assert!(overflow(&s.gradient(&huge).map(|_| ())));
+    assert!(overflow(&s.hessian(&huge, true).map(|_| ())));
+    assert!(overflow(&s.hessian(&huge, false).map(|_| ())));
+    // A state so far out that the step's energy overflows is a divergence.
+    s.set_state(&huge, &[0.0; 13]).unwrap();
+    assert!(matches!(s.step(), Err(LicromError::Diverged { .. })));
+}
