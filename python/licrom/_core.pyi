@@ -78,7 +78,10 @@ class ReducedCore:
         solver: ``"newton"`` (Newton-type iteration on ``M/h^2 + K_elastic + K_contact``,
             faer Cholesky, the contact model solved inside each iteration, stick
             correction, Armijo + secant line search) or ``"prefactored"``
-            (``M/h^2 + K(rest)`` factored once, same line search and stopping rule).
+            (the elastic stiffness kept at rest: ``M/h^2 + K(rest) + K_contact``, factored
+            once and again only when the contact terms change; same contact model, line
+            search and stopping rule; a step that needs more than 25 directions, or
+            whose line search stalls, finishes with Newton directions).
         elastic_hessian: ``"lagged"`` (default: the elastic Hessian is kept across
             iterations and steps, corrected by BFGS along each step, and assembled
             again when it drifts or after ``set_state``; a quasi-Newton method with
@@ -134,8 +137,10 @@ class ReducedCore:
         ``evaluations`` (energy and gradient over all cubature points),
         ``model_iterations`` and ``model_evaluations`` (on the contact model, no
         pass over the cubature points), ``elastic_hessians`` (assemblies of the
-        elastic Hessian), ``stick_solves`` and ``stick_steps`` (stick-corrected
-        directions solved and taken)."""
+        elastic Hessian), ``factorizations`` (of the direction's matrix),
+        ``fallbacks`` (prefactored steps finished with Newton directions),
+        ``stick_solves`` and ``stick_steps`` (stick-corrected directions solved
+        and taken)."""
     def reset_stats(self) -> None:
         """Zero the work counters."""
     def accept_last_iterate(self) -> None:

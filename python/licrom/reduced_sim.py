@@ -49,7 +49,10 @@ class ReducedSim:
             or every tet on smaller meshes).
         contact_points: where contact acts (default: every boundary vertex).
         solver: ``"newton"`` (dense Newton, Cholesky, line search) or ``"prefactored"``
-            (the report's scheme: factor ``M_r/h^2 + K_r(rest)`` once, iterate gradients).
+            (the report's scheme: the elastic stiffness kept at rest, ``M_r/h^2 + K_r(rest)``
+            factored once and again only when contact terms change; a step that needs more
+            than ``licrom_core``'s ``PREFACTORED_BUDGET`` (25) directions finishes with Newton,
+            counted as ``fallbacks`` in the solver stats).
 
     Raises:
         ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
@@ -193,8 +196,12 @@ class ReducedSim:
 
         With ``scene.solver.on_failure == "record"``, a step that does not converge is
         recorded as unconverged and the run continues from the last iterate.
+        ``info["solver_stats"]`` holds the solver's work counters over the run
+        (``ReducedCore.stats``: iterations, factorizations, prefactored ``fallbacks``, ...).
         """
+        before = self._core.stats()
         rec = record_run(lambda: step_or_record(self), lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced")
+        work = {k: v - before[k] for k, v in sorted(self._core.stats().items())}
         qs = np.array([q for q, _ in rec.frames])
         qdots = np.array([qd for _, qd in rec.frames])
         w = self._values.reshape(-1, self._values.shape[2])
@@ -213,6 +220,7 @@ class ReducedSim:
                 "cubature": self.cubature.scheme,
                 "cubature_points": int(self.cubature.count),
                 "contact_points": int(self.contact_points.count),
+                "solver_stats": work,
                 "q": qs.tolist() if qs.size <= 200_000 else None,
             },
         )

@@ -125,7 +125,7 @@ impl ReducedCore {
 
     /// Work counters since construction (or the last `reset_stats`): steps,
     /// iterations, evaluations, model_iterations, model_evaluations,
-    /// elastic_hessians, stick_solves, stick_steps.
+    /// elastic_hessians, factorizations, fallbacks, stick_solves, stick_steps.
     fn stats(&self) -> std::collections::HashMap<&'static str, usize> {
         let s = self.inner.stats();
         [
@@ -135,6 +135,8 @@ impl ReducedCore {
             ("model_iterations", s.model_iterations),
             ("model_evaluations", s.model_evaluations),
             ("elastic_hessians", s.elastic_hessians),
+            ("factorizations", s.factorizations),
+            ("fallbacks", s.fallbacks),
             ("stick_solves", s.stick_solves),
             ("stick_steps", s.stick_steps),
         ]

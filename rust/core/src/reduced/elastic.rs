@@ -248,15 +248,6 @@ impl ReducedSystem {
         }
         (positive, negative)
     }
-
-    /// Elastic stiffness at the rest configuration `K = sum_k w_k G_k^T H(I) G_k`
-    /// (into `ws.hess`, full symmetric), Pa m^3 per unit of q squared.
-    pub fn rest_stiffness(&self, ws: &mut Workspace) {
-        let rest = vec![0.0; self.n];
-        let mut hess = std::mem::take(&mut ws.hess);
-        self.elastic_hessian(&rest, ws, &mut hess, None);
-        ws.hess = hess;
-    }
 }
 
 struct ElasticRowsKernel<'a> {

@@ -77,6 +77,9 @@ impl ReducedSolver {
         for ((m, e), c) in self.model.hessian.iter_mut().zip(&elastic.projected).zip(&elastic.clamped) {
             *m = e - if exact { *c } else { 0.0 };
         }
+        if exact {
+            self.factor_valid = false;
+        }
         if exact && self.chol.factor_shifted(&self.mass_over_h2, 1.0, &self.model.hessian).is_err() {
             exact = false;
             self.model.hessian.copy_from_slice(&elastic.projected);
@@ -132,6 +135,8 @@ impl ReducedSolver {
             return None;
         }
         self.stats.stick_solves += 1;
+        // `matrix` and `chol` now hold the corrected system; the next direction factors anew.
+        self.factor_valid = false;
         self.system.add_switch_rows(&self.ws, rows, &mut self.matrix);
         if self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_err() {
             return None;

@@ -24,7 +24,7 @@
 use crate::error::{LicromError, Result};
 use crate::reduced::{ReducedSystem, Workspace};
 
-use super::{ElasticHessian, ReducedSolver};
+use super::{ElasticHessian, ReducedSolver, SolverKind};
 
 /// The lagged elastic Hessian is assembled again when its error along the last
 /// step makes up more than this share of the next direction (see the module
@@ -47,9 +47,15 @@ impl ElasticPart {
         Self { projected: vec![0.0; n * n], clamped: vec![0.0; n * n], any_clamped: false }
     }
 
+    /// A fixed projected Hessian (n x n) that clamps nothing.
+    pub(super) fn set(&mut self, projected: &[f64]) {
+        self.projected.copy_from_slice(projected);
+        self.any_clamped = false;
+    }
+
     /// Assembles the projected Hessian at `q`, and its clamped part when
     /// `with_clamped`.
-    fn assemble(&mut self, system: &ReducedSystem, q: &[f64], ws: &mut Workspace, with_clamped: bool) {
+    pub(super) fn assemble(&mut self, system: &ReducedSystem, q: &[f64], ws: &mut Workspace, with_clamped: bool) {
         let clamped = with_clamped.then_some(&mut self.clamped[..]);
         self.any_clamped = system.elastic_hessian(q, ws, &mut self.projected, clamped);
     }
@@ -76,65 +82,77 @@ impl ReducedSolver {
     /// Computes the search direction at `self.iterate` into `self.dir` from its
     /// gradient and returns its convergence measure r. `try_exact`: the
     /// previous step was taken in full (see the module documentation).
+    ///
+    /// Newton factors its matrix at every call. The prefactored scheme keeps the
+    /// factor while the contact terms stay as they were when it was formed, and
+    /// factors again (counted in [`super::SolverStats::factorizations`]) when
+    /// they change: where points touch, lift off, stick or slip.
     pub(super) fn direction(&mut self, iteration: usize, try_exact: bool) -> Result<f64> {
         for (d, g) in self.dir.iter_mut().zip(&self.iterate.grad) {
             *d = -g;
         }
-        match &mut self.prefactor {
-            Some(a) => a.solve_in_place(&mut self.dir),
-            None => {
-                // Lagged, the clamped part is not worth its cost (the BFGS correction
-                // does better); plain Newton uses it for its quadratic convergence
-                // near rest.
-                let with_clamped = self.settings.elastic_hessian == ElasticHessian::EveryIteration;
-                let (system, ws, q, stats) = (&self.system, &mut self.ws, &self.iterate.q, &mut self.stats);
-                let elastic = self.elastic.get_or_fill(|part| {
-                    stats.elastic_hessians += 1;
-                    part.assemble(system, q, ws, with_clamped);
-                });
-                // The contact terms are those of the evaluation at `self.iterate`.
-                system.update_contact_hessian(ws, &mut self.contact);
-                let exact = try_exact && elastic.any_clamped;
-                self.factored_exact = exact;
-                let contact = self.contact.matrix();
-                for i in 0..self.matrix.len() {
-                    let clamped = if exact { elastic.clamped[i] } else { 0.0 };
-                    self.matrix[i] = self.mass_over_h2[i] + (elastic.projected[i] - clamped) + contact[i];
-                }
-                if !self.matrix.iter().all(|v| v.is_finite()) {
-                    return Err(LicromError::Diverged { iteration, what: "Hessian" });
-                }
-                let mut factored = self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok();
-                if !factored && exact {
-                    self.factored_exact = false;
-                    for (h, c) in self.matrix.iter_mut().zip(&elastic.clamped) {
-                        *h += c;
-                    }
-                    factored = self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok();
-                }
-                // The projected Hessian is M/h^2 plus PSD terms, so this only fails
-                // through round-off; a growing share of M/h^2 restores definiteness.
-                let mut shift = 1e-8;
-                while !factored {
-                    factored = self.chol.factor_shifted(&self.matrix, shift, &self.mass_over_h2).is_ok();
-                    if factored {
-                        for (h, m) in self.matrix.iter_mut().zip(&self.mass_over_h2) {
-                            *h += shift * m;
-                        }
-                    }
-                    shift *= 10.0;
-                    if shift > 1e9 {
-                        return Err(LicromError::Diverged { iteration, what: "Hessian factorisation" });
-                    }
-                }
-                self.chol.solve_in_place(&mut self.dir);
-            }
+        // The contact terms are those of the evaluation at `self.iterate`.
+        let changed = self.system.update_contact_hessian(&mut self.ws, &mut self.contact);
+        let reuse = self.mode == SolverKind::Prefactored && self.factor_valid && changed == 0;
+        if !reuse {
+            self.factor(iteration, try_exact)?;
         }
+        self.chol.solve_in_place(&mut self.dir);
         let r = self.velocity_norm(&self.dir);
         if !r.is_finite() {
             return Err(LicromError::Diverged { iteration, what: "search direction" });
         }
         Ok(r)
+    }
+
+    /// Forms `M/h^2 + K_el + K_c` in `self.matrix` and factors it into `self.chol`.
+    fn factor(&mut self, iteration: usize, try_exact: bool) -> Result<()> {
+        self.stats.factorizations += 1;
+        self.factor_valid = false;
+        // Lagged, the clamped part is not worth its cost (the BFGS correction
+        // does better); plain Newton uses it for its quadratic convergence
+        // near rest. The prefactored scheme keeps K(rest), which clamps nothing.
+        let with_clamped = self.settings.elastic_hessian == ElasticHessian::EveryIteration;
+        let (system, ws, q, stats) = (&self.system, &mut self.ws, &self.iterate.q, &mut self.stats);
+        let elastic = self.elastic.get_or_fill(|part| {
+            stats.elastic_hessians += 1;
+            part.assemble(system, q, ws, with_clamped);
+        });
+        let exact = try_exact && elastic.any_clamped;
+        self.factored_exact = exact;
+        let contact = self.contact.matrix();
+        for i in 0..self.matrix.len() {
+            let clamped = if exact { elastic.clamped[i] } else { 0.0 };
+            self.matrix[i] = self.mass_over_h2[i] + (elastic.projected[i] - clamped) + contact[i];
+        }
+        if !self.matrix.iter().all(|v| v.is_finite()) {
+            return Err(LicromError::Diverged { iteration, what: "Hessian" });
+        }
+        let mut factored = self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok();
+        if !factored && exact {
+            self.factored_exact = false;
+            for (h, c) in self.matrix.iter_mut().zip(&elastic.clamped) {
+                *h += c;
+            }
+            factored = self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok();
+        }
+        // The projected Hessian is M/h^2 plus PSD terms, so this only fails
+        // through round-off; a growing share of M/h^2 restores definiteness.
+        let mut shift = 1e-8;
+        while !factored {
+            factored = self.chol.factor_shifted(&self.matrix, shift, &self.mass_over_h2).is_ok();
+            if factored {
+                for (h, m) in self.matrix.iter_mut().zip(&self.mass_over_h2) {
+                    *h += shift * m;
+                }
+            }
+            shift *= 10.0;
+            if shift > 1e9 {
+                return Err(LicromError::Diverged { iteration, what: "Hessian factorisation" });
+            }
+        }
+        self.factor_valid = true;
+        Ok(())
     }
 
     /// `sqrt(d^T M d / m_total) / h`, m/s.

@@ -1,8 +1,10 @@
 //! Time stepping of the reduced model: minimisation of the incremental
 //! potential E by a Newton-type iteration with positive definite Hessians, a
 //! contact model solved inside each iteration, a stick correction for friction
-//! and a line search; or the prefactored scheme that reuses one factorisation
-//! of `M/h^2 + K(rest)` for every iteration.
+//! and a line search; or the prefactored scheme that keeps the elastic
+//! stiffness at rest, `M/h^2 + K(rest) + K_contact`, and factors it again only
+//! when the contact terms change (finishing a slow step with Newton, see
+//! [`PREFACTORED_BUDGET`]).
 //!
 //! Where the parts live: the outer iteration, the initial guess and the state
 //! here; the Newton matrix (lagged elastic Hessian with its BFGS correction,
@@ -47,6 +49,14 @@ use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepS
 use contact_model::ContactModelState;
 use direction::ElasticPart;
 use line_search::{line_search, LineStep};
+
+/// Directions a prefactored step may take before it continues with Newton's.
+/// Its matrix keeps the elastic stiffness at rest, so it converges only
+/// linearly, and slowly where the body is far from its rest shape or
+/// orientation (a world-frame model turned by tens of degrees); a step whose
+/// line search finds no decrease falls back at once. Counted in
+/// [`SolverStats::fallbacks`].
+pub const PREFACTORED_BUDGET: usize = 25;
 
 /// A value that is there or not, like an `Option`, that keeps its buffers
 /// while absent: steps fill and clear these without allocating.
@@ -146,10 +156,14 @@ pub struct ReducedSolver {
     /// Last iterate of the step that just failed to converge.
     failed: Kept<Vec<f64>>,
     ws: Workspace,
-    /// Factor of the matrix last factored (Newton).
+    /// Factor of the matrix last factored, and whether it is that of `matrix`
+    /// (a stick correction factors another one).
     chol: Cholesky,
-    /// Factor of `M/h^2 + K(rest)` for the prefactored scheme.
-    prefactor: Option<Cholesky>,
+    factor_valid: bool,
+    /// The scheme of the step in progress: a prefactored step may fall back to Newton.
+    mode: SolverKind,
+    /// `K(rest)` (n x n) of the prefactored scheme; empty for Newton.
+    rest_stiffness: Vec<f64>,
     /// The current iterate and the line search's trial point.
     iterate: Point,
     trial: Point,
@@ -162,6 +176,7 @@ pub struct ReducedSolver {
     /// The contact model of the current outer iteration.
     model: ContactModelState,
     /// Elastic part of the Newton matrix; absent when it must be assembled.
+    /// `K(rest)` while the prefactored scheme is in use.
     elastic: Kept<ElasticPart>,
     /// Contact part of the Newton matrix.
     contact: ContactHessian,
@@ -179,8 +194,8 @@ pub struct ReducedSolver {
 }
 
 impl ReducedSolver {
-    /// Solver at rest (`q = qdot = 0`). Factors `M/h^2 + K(rest)` when the
-    /// prefactored scheme is chosen.
+    /// Solver at rest (`q = qdot = 0`). Assembles `K(rest)` and factors
+    /// `M/h^2 + K(rest)` when the prefactored scheme is chosen.
     pub fn new(system: ReducedSystem, settings: SolverSettings) -> Result<Self> {
         check_positive("total_mass", settings.total_mass)?;
         check_positive("tolerance", settings.tolerance)?;
@@ -196,19 +211,27 @@ impl ReducedSolver {
         let mut free_fall: Vec<f64> = system.gravity().iter().map(|f| f * h * h).collect();
         chol.solve_in_place(&mut free_fall);
         let mut ws = system.workspace();
-        let prefactor = match settings.kind {
-            SolverKind::Newton => None,
-            SolverKind::Prefactored => {
-                system.rest_stiffness(&mut ws);
-                let mut a = Cholesky::new(n);
-                a.factor_shifted(&mass_over_h2, 1.0, &ws.hess).map_err(|index| {
-                    LicromError::invalid("prefactored system", format!("M/h^2 + K(rest) is not positive definite (pivot {index})"))
-                })?;
-                Some(a)
-            }
-        };
         let zeros = vec![0.0; n];
         let square = vec![0.0; n * n];
+        let mut elastic = Kept::absent(ElasticPart::zeros(n));
+        let mut matrix = square.clone();
+        let mut factor_valid = false;
+        let mut stats = SolverStats::default();
+        let mut rest_stiffness = Vec::new();
+        if settings.kind == SolverKind::Prefactored {
+            let rest = elastic.fill();
+            rest.assemble(&system, &zeros, &mut ws, false);
+            rest_stiffness = rest.projected.clone();
+            for ((a, m), k) in matrix.iter_mut().zip(&mass_over_h2).zip(&rest.projected) {
+                *a = m + k;
+            }
+            chol.factor_shifted(&matrix, 0.0, &mass_over_h2)
+                .map_err(|index| LicromError::invalid("prefactored system", format!("M/h^2 + K(rest) is not positive definite (pivot {index})")))?;
+            // Contact terms enter (and the matrix is factored again) when they appear.
+            factor_valid = true;
+            stats.elastic_hessians = 1;
+            stats.factorizations = 1;
+        }
         Ok(Self {
             current: system.step_start(),
             probe: system.step_start(),
@@ -222,22 +245,24 @@ impl ReducedSolver {
             free_fall,
             ws,
             chol,
-            prefactor,
+            factor_valid,
+            mode: settings.kind,
+            rest_stiffness,
             iterate: Point::zeros(n),
             trial: Point::zeros(n),
             step_taken: zeros.clone(),
             dir: zeros.clone(),
             stick_dir: zeros.clone(),
             model: ContactModelState::new(n),
-            elastic: Kept::absent(ElasticPart::zeros(n)),
+            elastic,
             contact: system.contact_hessian_state(settings.elastic_hessian == ElasticHessian::Lagged),
-            matrix: square,
+            matrix,
             factored_exact: false,
             mass_over_h2,
             secant_error: zeros.clone(),
             bfgs_as: zeros.clone(),
             bfgs_y: zeros,
-            stats: SolverStats::default(),
+            stats,
             system,
         })
     }
@@ -281,7 +306,7 @@ impl ReducedSolver {
     }
 
     /// Replaces the state. Contact forces read zero until the next step; the
-    /// next step starts from the free-fall guess and a fresh elastic Hessian.
+    /// next step starts from the free-fall guess and (Newton) a fresh elastic Hessian.
     pub fn set_state(&mut self, q: &[f64], qdot: &[f64]) -> Result<()> {
         self.check_state("q", q)?;
         self.check_state("qdot", qdot)?;
@@ -290,7 +315,9 @@ impl ReducedSolver {
         self.last.clear();
         self.failed.clear();
         self.qdot_prev.clear();
-        self.elastic.clear();
+        if self.settings.kind == SolverKind::Newton {
+            self.elastic.clear();
+        }
         Ok(())
     }
 
@@ -319,6 +346,12 @@ impl ReducedSolver {
         if !energy.is_finite() {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
         }
+        if self.settings.kind == SolverKind::Prefactored && self.mode == SolverKind::Newton {
+            // The last step fell back to Newton: back to K(rest).
+            self.elastic.fill().set(&self.rest_stiffness);
+            self.factor_valid = false;
+            self.mode = SolverKind::Prefactored;
+        }
         let mut residual = f64::INFINITY;
         let mut full_step = false;
         for iteration in 1..=self.settings.max_iterations {
@@ -326,7 +359,7 @@ impl ReducedSolver {
             if !self.iterate.grad.iter().all(|g| g.is_finite()) {
                 return Err(LicromError::Diverged { iteration, what: "gradient" });
             }
-            if self.prefactor.is_none() {
+            if self.mode == SolverKind::Newton {
                 self.update_elastic(iteration);
             }
             residual = self.direction(iteration, full_step)?;
@@ -337,7 +370,7 @@ impl ReducedSolver {
                 self.finish_step();
                 return Ok(StepReport { iterations: iteration, residual });
             }
-            if self.prefactor.is_none() && self.system.has_contact() {
+            if self.system.has_contact() {
                 self.solve_contact_model(energy, residual);
             }
             match self.search_line(energy, Objective::Energy) {
@@ -345,10 +378,27 @@ impl ReducedSolver {
                     energy = step.energy;
                     full_step = step.alpha == 1.0;
                 }
+                None if self.mode == SolverKind::Prefactored => {
+                    self.fall_back();
+                    full_step = false;
+                    continue;
+                }
                 None => return Err(self.fail(iteration, residual)),
+            }
+            if self.mode == SolverKind::Prefactored && iteration >= PREFACTORED_BUDGET {
+                self.fall_back();
             }
         }
         Err(self.fail(self.settings.max_iterations, residual))
+    }
+
+    /// Continues the prefactored step with Newton directions from the current
+    /// iterate (see [`PREFACTORED_BUDGET`]).
+    fn fall_back(&mut self) {
+        self.stats.fallbacks += 1;
+        self.mode = SolverKind::Newton;
+        self.elastic.clear();
+        self.factor_valid = false;
     }
 
     /// Energy and gradient at `self.trial.q` (gradient into `self.trial`), of

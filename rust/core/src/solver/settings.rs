@@ -8,7 +8,12 @@ pub enum SolverKind {
     /// Newton: factor `M/h^2 + K_elastic + K_contact` every iteration (the
     /// elastic part refreshed as [`SolverSettings::elastic_hessian`] says).
     Newton,
-    /// Factor `M/h^2 + K(rest)` once and iterate `Delta = -A^-1 grad`.
+    /// Iterate `Delta = -A^-1 grad` with `A = M/h^2 + K(rest) + K_contact`: the
+    /// elastic part fixed at rest, factored once, and factored again only when
+    /// the contact terms change (points touch, lift off, stick or slip), so that
+    /// landings converge like the contact-free motion. A step that needs more
+    /// than [`super::PREFACTORED_BUDGET`] directions, or stalls, is finished
+    /// with Newton directions.
     Prefactored,
 }
 
@@ -91,6 +96,13 @@ pub struct SolverStats {
     pub model_evaluations: usize,
     /// Assemblies of the elastic Hessian.
     pub elastic_hessians: usize,
+    /// Factorizations of the direction's matrix (every direction for Newton;
+    /// for the prefactored scheme, one at the start and one per change of the
+    /// contact terms).
+    pub factorizations: usize,
+    /// Prefactored steps finished with Newton directions (see
+    /// [`super::PREFACTORED_BUDGET`]).
+    pub fallbacks: usize,
     /// Stick-corrected directions solved.
     pub stick_solves: usize,
     /// Stick-corrected steps taken.
