@@ -27,6 +27,7 @@ from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import record_run
 from .trajectory import Trajectory
+from .validity import check_start, cubature_min_det, penetration, warn_frames
 
 __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
 
@@ -197,6 +198,7 @@ class BodyFrameSim:
             )
         self._projector = SubspaceProjector(self._values, self._masses) if k else None
         jac = check_basis_output("jacobians", basis.jacobians(self.cubature.points), (self.cubature.count, 3, 3, k))
+        self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
         a = self._values.reshape(n, 3 * k)
         products = (a.T @ (self._masses[:, None] * a)).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
         mu, lam = scene.material.snh_parameters
@@ -207,7 +209,7 @@ class BodyFrameSim:
             mode_moments=np.ascontiguousarray(np.einsum("v,vik,vj->kij", self._masses, self._values, self._xbar)),
             mode_products=np.ascontiguousarray(products),
             gravity=np.asarray(scene.gravity, dtype=np.float64),
-            cubature_jacobians=np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k)),
+            cubature_jacobians=self._jacobians,
             cubature_weights=np.ascontiguousarray(self.cubature.weights, dtype=np.float64),
             mu=mu,
             lam=lam,
@@ -295,7 +297,9 @@ class BodyFrameSim:
         ``c`` is the centre of mass, ``R`` the rotation of the best rigid fit, ``q`` the
         mass-weighted least squares of the body-frame displacement; ``v`` the mean
         velocity, ``w`` from the angular momentum and the inertia tensor, ``q_dot`` the
-        least squares of the body-frame deformation velocity.
+        least squares of the body-frame deformation velocity. Warns
+        (:class:`~licrom.errors.PhysicsWarning`) when the state puts a vertex deeper inside
+        a plane than ``licrom.validity.PENETRATION_LIMIT`` of the object's size.
         """
         x = self.positions if positions is None else self._check_field("positions", positions)
         vel = self.velocities if velocities is None else self._check_field("velocities", velocities)
@@ -307,6 +311,8 @@ class BodyFrameSim:
         w = np.linalg.solve(_inertia_tensor(arms, m), np.einsum("v,vi->i", m, np.cross(arms, vel - v)))
         qdot = self._project((vel - v - np.cross(w, arms)) @ r)
         self._core.set_state(c, r, q, v, w, qdot)
+        if positions is not None:
+            check_start(self.positions, self.scene.plane_array(), self.mesh.size, "the body-frame simulation")
 
     # --- stepping ----------------------------------------------------------------------
     def step(self) -> tuple[int, float]:
@@ -328,18 +334,30 @@ class BodyFrameSim:
         """Step ``steps`` times and record every ``record_every``-th state (frame 0 is now).
 
         With ``scene.solver.on_failure == "record"``, a step that does not converge is
-        recorded as unconverged and the run continues from the last iterate.
+        recorded as unconverged and the run continues from the last iterate. Each frame's
+        smallest ``det F`` at the cubature points and deepest penetration of a vertex into
+        a plane are recorded, with a :class:`~licrom.errors.PhysicsWarning` where they leave
+        the valid range (:mod:`licrom.validity`).
         """
         rec = record_run(
-            lambda: step_or_record(self), lambda: (self.positions, self.velocities), lambda: self.time, steps, record_every, progress, "body frame"
+            lambda: step_or_record(self), lambda: (self.positions, self.velocities, self.q), lambda: self.time, steps, record_every, progress,
+            "body frame",
         )
+        positions = np.array([x for x, _, _ in rec.frames])
+        min_det_f = cubature_min_det(self._jacobians, np.array([q for _, _, q in rec.frames]))
+        planes = self.scene.plane_array()
+        depth = np.array([penetration(x, planes) for x in positions])
+        arrays = rec.arrays()
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation")
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
-            displacements=np.array([x for x, _ in rec.frames]) - self.mesh.vertices,
-            velocities=np.array([v for _, v in rec.frames]),
+            displacements=positions - self.mesh.vertices,
+            velocities=np.array([v for _, v, _ in rec.frames]),
             scene=self.scene,
-            **rec.arrays(),
+            min_det_f=min_det_f,
+            penetration=depth,
+            **arrays,
             info={
                 "source": "reduced",
                 "frame": "body",

@@ -2,7 +2,8 @@
 
 Every error licrom raises on purpose is a :class:`LicromError`. The subclasses
 also derive from the matching built-in exception, so ``except ValueError``
-keeps working for code that does not know licrom.
+keeps working for code that does not know licrom. Every warning it issues is a
+:class:`LicromWarning`.
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ __all__ = [
     "ConfigError",
     "FileFormatError",
     "LicromError",
+    "LicromWarning",
     "MeshError",
+    "PhysicsWarning",
     "ShapeError",
     "SolverError",
 ]
@@ -53,3 +56,13 @@ class SolverError(LicromError, RuntimeError):
 
 class FileFormatError(LicromError, OSError):
     """A file is missing, truncated, corrupt, foreign, or of an unknown format version."""
+
+
+class LicromWarning(UserWarning):
+    """Base class of every warning licrom issues."""
+
+
+class PhysicsWarning(LicromWarning):
+    """A simulation left the range where its physics holds: inverted elements, contact
+    penetration deeper than ``licrom.validity.PENETRATION_LIMIT`` of the object's size,
+    or a start inside a plane (see :mod:`licrom.validity`)."""

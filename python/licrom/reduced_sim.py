@@ -26,6 +26,7 @@ from .mesh import Mesh
 from .scene import Scene
 from .stepping import record_run
 from .trajectory import Trajectory
+from .validity import check_start, cubature_min_det, penetration, warn_frames
 
 __all__ = ["SOLVERS", "ReducedSim"]
 
@@ -99,10 +100,11 @@ class ReducedSim:
         gravity_force = self._projector.reduce(self._masses[:, None] * np.asarray(scene.gravity))
         mu, lam = scene.material.snh_parameters
         idx = self.contact_points.indices
+        self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
         self._core = _core.ReducedCore(
             mass=self._projector.reduced_mass,
             gravity_force=gravity_force,
-            cubature_jacobians=np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k)),
+            cubature_jacobians=self._jacobians,
             cubature_weights=np.ascontiguousarray(self.cubature.weights, dtype=np.float64),
             mu=mu,
             lam=lam,
@@ -161,11 +163,15 @@ class ReducedSim:
     def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
         """Set the state from full-space positions/velocities, projected onto the subspace.
 
-        Either may be omitted to keep its current value.
+        Either may be omitted to keep its current value. Warns
+        (:class:`~licrom.errors.PhysicsWarning`) when the state puts a vertex deeper inside
+        a plane than ``licrom.validity.PENETRATION_LIMIT`` of the object's size.
         """
         q = self.q if positions is None else self.project(self._check_field("positions", positions) - self.mesh.vertices)
         qdot = self.qdot if velocities is None else self.project(self._check_field("velocities", velocities))
         self._core.set_state(q, qdot)
+        if positions is not None:
+            check_start(self.positions, self.scene.plane_array(), self.mesh.size, "the reduced simulation")
 
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
         arr = np.asarray(a, dtype=np.float64)
@@ -198,6 +204,9 @@ class ReducedSim:
         recorded as unconverged and the run continues from the last iterate.
         ``info["solver_stats"]`` holds the solver's work counters over the run
         (``ReducedCore.stats``: iterations, factorizations, prefactored ``fallbacks``, ...).
+        Each frame's smallest ``det F`` at the cubature points and deepest penetration of a
+        vertex into a plane are recorded, with a :class:`~licrom.errors.PhysicsWarning`
+        where they leave the valid range (:mod:`licrom.validity`).
         """
         before = self._core.stats()
         rec = record_run(lambda: step_or_record(self), lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced")
@@ -206,13 +215,21 @@ class ReducedSim:
         qdots = np.array([qd for _, qd in rec.frames])
         w = self._values.reshape(-1, self._values.shape[2])
         n = self.mesh.n_vertices
+        displacements = (qs @ w.T).reshape(-1, n, 3)
+        min_det_f = cubature_min_det(self._jacobians, qs)
+        planes = self.scene.plane_array()
+        depth = np.array([penetration(self.mesh.vertices + d, planes) for d in displacements])
+        arrays = rec.arrays()
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation")
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
-            displacements=(qs @ w.T).reshape(-1, n, 3),
+            displacements=displacements,
             velocities=(qdots @ w.T).reshape(-1, n, 3),
             scene=self.scene,
-            **rec.arrays(),
+            min_det_f=min_det_f,
+            penetration=depth,
+            **arrays,
             info={
                 "source": "reduced",
                 "solver": self.solver,
@@ -254,14 +271,18 @@ def sampling(mesh: Mesh, cubature: Cubature | None, contact_points: ContactPoint
 
 def step_or_record(sim: Any) -> tuple[int, float, bool]:
     """One step of a reduced simulation; a failure raises, or with ``on_failure == "record"``
-    is recorded as unconverged and the simulation goes on from the last iterate."""
+    is recorded as unconverged and the simulation goes on from the last iterate. A step
+    that met NaN or inf raises either way: it left no finite iterate to go on from."""
     try:
         its, res = sim.step()
         return its, res, True
     except SolverError as exc:
         if sim.scene.solver.on_failure == "raise":
             raise
-        sim._core.accept_last_iterate()
+        try:
+            sim._core.accept_last_iterate()
+        except ConfigError:
+            raise exc from None
         sim.time += sim.scene.dt
         return sim.scene.solver.max_iterations, float(np.nan if exc.residual is None else exc.residual), False
 

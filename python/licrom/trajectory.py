@@ -15,6 +15,7 @@ from .errors import FileFormatError, ShapeError, SolverError
 from .mesh import Mesh
 from .rigid import center_of_mass
 from .scene import Scene
+from .validity import PENETRATION_LIMIT
 
 __all__ = ["TRAJECTORY_FORMAT_VERSION", "Trajectory"]
 
@@ -36,6 +37,11 @@ class Trajectory:
         residuals: (s,) final convergence measure of each step (m/s).
         converged: (s,) whether each step met the tolerance.
         step_seconds: (s,) wall time of each step, s.
+        min_det_f: (f,) smallest ``det F`` over the elements at each frame (the tets, or the
+            cubature points of a reduced model), or empty when not measured; <= 0 means
+            inverted elements (see :mod:`licrom.validity`).
+        penetration: (f,) deepest penetration of a vertex into a plane at each frame, m, or
+            empty when not measured.
         info: free-form JSON-ready metadata (source, mesh name, sweep parameters, ...).
     """
 
@@ -49,6 +55,8 @@ class Trajectory:
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     converged: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    min_det_f: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    penetration: np.ndarray = field(default_factory=lambda: np.zeros(0))
     info: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -70,6 +78,11 @@ class Trajectory:
         self.residuals = np.asarray(self.residuals, dtype=np.float64)
         self.converged = np.asarray(self.converged, dtype=bool)
         self.step_seconds = np.asarray(self.step_seconds, dtype=np.float64)
+        for name in ("min_det_f", "penetration"):
+            a = np.asarray(getattr(self, name), dtype=np.float64)
+            if a.shape not in ((0,), (f,)):
+                raise ShapeError(f"Trajectory.{name} must have shape (frames,) = ({f},) or be empty, got {a.shape}")
+            setattr(self, name, a)
 
     @property
     def n_frames(self) -> int:
@@ -79,6 +92,18 @@ class Trajectory:
     def mesh(self) -> Mesh:
         """The rest mesh (built once from the stored arrays)."""
         return Mesh(self.rest_positions, self.tets, fix_orientation=False)
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(f,) whether each frame is inside the valid range of the physics: no inverted
+        elements and no penetration deeper than ``PENETRATION_LIMIT`` of the object's size
+        (all True where not measured; see :mod:`licrom.validity`)."""
+        ok = np.ones(self.n_frames, dtype=bool)
+        if len(self.min_det_f):
+            ok &= self.min_det_f > 0.0
+        if len(self.penetration):
+            ok &= self.penetration <= PENETRATION_LIMIT * self.mesh.size
+        return ok
 
     def positions(self, frame: int) -> np.ndarray:
         """(n, 3) positions at ``frame``, m."""
@@ -126,6 +151,8 @@ class Trajectory:
             "residuals": self.residuals,
             "converged": self.converged,
             "step_seconds": self.step_seconds,
+            "min_det_f": self.min_det_f,
+            "penetration": self.penetration,
         }
         save_npz(p, arrays, header)
         return p

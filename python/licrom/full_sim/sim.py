@@ -16,6 +16,7 @@ from ..mesh import Mesh
 from ..scene import Scene
 from ..stepping import record_run
 from ..trajectory import Trajectory
+from ..validity import check_start, penetration, tet_determinants, warn_frames
 from . import contact, elastic, inertia, pcg
 from .device import (
     MODE_ENERGY,
@@ -213,12 +214,17 @@ class FullSim:
     def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
         """Set positions and/or velocities ((n, 3), m and m/s); an omitted one keeps its value.
 
+        Warns (:class:`~licrom.errors.PhysicsWarning`) when the positions put a
+        vertex deeper inside a plane than ``licrom.validity.PENETRATION_LIMIT`` of the object's size.
+
         Raises:
             ShapeError: wrong shape, or NaN/inf values.
         """
         wp = warp_ready()
         if positions is not None:
-            self._x.assign(wp.array(self._check_field("positions", positions), dtype=wp.vec3d, device=self.device))
+            checked = self._check_field("positions", positions)
+            check_start(checked, self.scene.plane_array(), self.mesh.size, "the full simulation")
+            self._x.assign(wp.array(checked, dtype=wp.vec3d, device=self.device))
         if velocities is not None:
             self._v.assign(wp.array(self._check_field("velocities", velocities), dtype=wp.vec3d, device=self.device))
         self._has_forces = False
@@ -305,10 +311,10 @@ class FullSim:
             measure in m/s. :attr:`last_stats` holds more (linear iterations, timing).
 
         Raises:
-            SolverError: no convergence within ``scene.solver.max_iterations``, or a NaN/inf,
-                with ``scene.solver.on_failure == "raise"``; the state is then left unchanged.
-                With ``"record"`` the last finite iterate is kept and ``last_stats.converged``
-                is False.
+            SolverError: no convergence within ``scene.solver.max_iterations`` with
+                ``scene.solver.on_failure == "raise"``, or a NaN/inf either way; the state is
+                then left unchanged. Without convergence and with ``"record"`` the last
+                iterate is kept and ``last_stats.converged`` is False.
         """
         dev = self.device
         n = self._n
@@ -321,7 +327,7 @@ class FullSim:
         evaluations = 0
         residual = math.inf
         converged = False
-        failure = ""
+        failure = nonfinite = ""
         gnorm0 = None
         energy = None
         maxiter_cg = max(3 * n, 50)
@@ -332,7 +338,7 @@ class FullSim:
             e0 = self._energy_value() if energy is None else energy
             gnorm = math.sqrt(float(self._gnorm.numpy().sum()))
             if not (math.isfinite(e0) and math.isfinite(gnorm)):
-                failure = "the energy or its gradient is NaN or inf"
+                failure = nonfinite = "the energy or its gradient is NaN or inf"
                 break
             if gnorm0 is None:
                 gnorm0 = gnorm
@@ -344,7 +350,7 @@ class FullSim:
             st = self._stats.numpy().sum(axis=1)
             slope, ymy = float(st[0]), float(st[1])  # the direction is -y: slope of E along it is -g.y
             if not (math.isfinite(slope) and math.isfinite(ymy)):
-                failure = "the Newton direction is NaN or inf"
+                failure = nonfinite = "the Newton direction is NaN or inf"
                 break
             residual = math.sqrt(max(ymy, 0.0) / self._total_mass) / h
             if residual < solver.tolerance:
@@ -376,7 +382,8 @@ class FullSim:
         seconds = time.perf_counter() - start
         if not converged and not failure:
             failure = f"no convergence in {iterations} Newton iterations"
-        if not converged and solver.on_failure == "raise":
+        # NaN or inf leaves no finite iterate to record, so it raises either way.
+        if not converged and (solver.on_failure == "raise" or nonfinite):
             wp.copy(self._x, self._x_start)
             self._has_forces = False
             self.last_stats = StepStats(iterations, residual, False, linear_iterations, evaluations, seconds)
@@ -466,11 +473,15 @@ class FullSim:
         """Step ``steps`` times; record frame 0 (the current state) and every ``record_every``-th step.
 
         With ``scene.solver.on_failure == "record"``, unconverged steps are flagged in
-        ``Trajectory.converged`` and the run goes on from the last iterate.
+        ``Trajectory.converged`` and the run goes on from the last iterate. Each frame's
+        smallest tet ``det F`` and deepest penetration of a vertex into a plane are recorded
+        (``Trajectory.min_det_f``, ``Trajectory.penetration``), with a
+        :class:`~licrom.errors.PhysicsWarning` where they leave the valid range
+        (:mod:`licrom.validity`).
 
         Raises:
             ConfigError: bad ``steps`` or ``record_every``.
-            SolverError: a step failed and ``on_failure == "raise"``.
+            SolverError: a step failed and ``on_failure == "raise"``, or met NaN/inf.
         """
         rest = self.mesh.vertices
         linear = 0
@@ -483,13 +494,22 @@ class FullSim:
 
         rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress, "full")
         converged = rec.converged
+        displacements = np.array([d for d, _ in rec.frames])
+        dm_inv, tets = self.mesh.shape_matrix_inverses, self.mesh.tets
+        planes = self.scene.plane_array()
+        min_det_f = np.array([tet_determinants(dm_inv, tets, rest + d).min() for d in displacements])
+        depth = np.array([penetration(rest + d, planes) for d in displacements])
+        arrays = rec.arrays()
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the full simulation")
         return Trajectory(
             rest_positions=rest,
-            tets=self.mesh.tets,
-            displacements=np.array([d for d, _ in rec.frames]),
+            tets=tets,
+            displacements=displacements,
             velocities=np.array([v for _, v in rec.frames]),
             scene=self.scene,
-            **rec.arrays(),
+            min_det_f=min_det_f,
+            penetration=depth,
+            **arrays,
             info={
                 "source": "full",
                 "device": self.device,

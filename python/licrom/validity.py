@@ -1,0 +1,126 @@
+"""When a simulation leaves the range where its physics holds, and what it says then.
+
+The model (stable Neo-Hookean elements, penalty contact) keeps running outside its
+valid range: inverted elements have finite energy, and a penalty contact that is too
+soft for its load lets the body sink into the ground. Every simulator
+(:class:`~licrom.full_sim.FullSim`, :class:`~licrom.reduced_sim.ReducedSim`,
+:class:`~licrom.body_frame.BodyFrameSim`) reports these cases the same way:
+
+=====================  =================================================  ==============================
+case                   signal                                             recorded in the trajectory
+=====================  =================================================  ==============================
+non-finite energy      :class:`~licrom.errors.SolverError` from the step,  nothing (the step is not taken)
+                       also with ``on_failure="record"``: no finite
+                       iterate is left to keep
+inverted elements      :class:`PhysicsWarning` after ``run``              ``Trajectory.min_det_f``
+(``det F <= 0``)
+penetration deeper     :class:`PhysicsWarning` after ``run``              ``Trajectory.penetration``
+than ``PENETRATION_
+LIMIT`` of the size
+start inside a plane   :class:`PhysicsWarning` from the constructor or    ``Trajectory.penetration[0]``
+(same depth)           ``set_state``
+=====================  =================================================  ==============================
+
+Why: a non-finite energy leaves nothing to continue from, so it stops the run.
+Inversion and deep penetration leave a finite, continuable state (SNH recovers from
+inversion; the body is pushed back out), so the run goes on, the frames say where it
+happened, and the warning says that it did; ``Trajectory.valid`` marks the frames
+inside the valid range, e.g. to keep invalid runs out of a training set. A start
+inside a plane is usually a placement mistake, but the scene can still be simulated
+(the body is thrown out), so it warns at once instead of refusing.
+
+Elements are the tets for the full simulation and the cubature points for the
+reduced ones (where the reduced model evaluates its material); penetration is
+measured at every vertex (an inverted body can sink with its inside), against
+every plane.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .errors import PhysicsWarning
+
+__all__ = [
+    "PENETRATION_LIMIT",
+    "PhysicsWarning",
+    "check_start",
+    "cubature_min_det",
+    "determinants",
+    "penetration",
+    "tet_determinants",
+    "warn_frames",
+]
+
+PENETRATION_LIMIT = 0.1
+"""Deepest penetration of a contact point into a plane still in the valid range, as a
+fraction of the object's size (its bounding-box diagonal, ``Mesh.size``). Penalty
+contact at rest sinks by ``weight / (k_n area)``, typically far less than 1 %."""
+
+
+def determinants(f: np.ndarray) -> np.ndarray:
+    """``det F`` of (..., 9) row-major deformation gradients."""
+    a, b, c, d, e, g, h, i, j = np.moveaxis(f, -1, 0)
+    return a * (e * j - g * i) - b * (d * j - g * h) + c * (d * i - e * h)
+
+
+def cubature_min_det(jacobians: np.ndarray, qs: np.ndarray) -> np.ndarray:
+    """(f,) smallest ``det(I + G_k q)`` over the (K, 9, k) cubature Jacobians ``G`` for
+    each of the (f, k) coordinates ``qs``; empty without cubature points."""
+    if not len(jacobians):
+        return np.zeros(0)
+    f = np.einsum("fk,pck->fpc", qs, jacobians) + np.eye(3).reshape(9)
+    return determinants(f).min(axis=1)
+
+
+def tet_determinants(rest_shape_inverses: np.ndarray, tets: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """(m,) ``det F`` of each tet at (n, 3) ``positions`` (``F = Ds Dm^-1``)."""
+    x = positions[tets]
+    ds = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)
+    return determinants((ds @ rest_shape_inverses).reshape(-1, 9))
+
+
+def penetration(points: np.ndarray, planes: np.ndarray) -> float:
+    """Deepest penetration (m, >= 0) of (c, 3) ``points`` into the (P, 5) ``planes``
+    ``[nx, ny, nz, offset, friction]``; zero without planes or points."""
+    if not len(planes) or not len(points):
+        return 0.0
+    gaps = points @ planes[:, :3].T + planes[:, 3]
+    return max(-float(gaps.min()), 0.0)
+
+
+def check_start(points: np.ndarray, planes: np.ndarray, size: float, what: str) -> None:
+    """Warn (:class:`PhysicsWarning`) when (n, 3) vertex ``points`` start deeper than
+    ``PENETRATION_LIMIT * size`` inside a plane."""
+    depth = penetration(points, planes)
+    if depth > PENETRATION_LIMIT * size:
+        warnings.warn(
+            f"{what} starts {depth:.4g} m inside a plane ({100 * depth / size:.3g} % of the object's size "
+            f"{size:.4g} m, more than {100 * PENETRATION_LIMIT:.0f} %): the penalty contact will throw it out; "
+            "place it on or above the planes (licrom.placement)",
+            PhysicsWarning,
+            stacklevel=3,
+        )
+
+
+def warn_frames(times: np.ndarray, min_det_f: np.ndarray, depth: np.ndarray, size: float, what: str) -> None:
+    """Warn (:class:`PhysicsWarning`) about the frames after the first with inverted
+    elements or penetration deeper than ``PENETRATION_LIMIT * size`` (an empty
+    ``min_det_f`` is not checked)."""
+    for bad, message in (
+        (min_det_f[1:] <= 0.0, f"inverted elements (min det F = {min_det_f.min(initial=np.inf):.3g})"),
+        (depth[1:] > PENETRATION_LIMIT * size,
+         f"penetration up to {depth.max():.4g} m ({100 * depth.max() / size:.3g} % of the object's size, limit "
+         f"{100 * PENETRATION_LIMIT:.0f} %)"),
+    ):
+        if bad.any():
+            first = float(times[1:][bad][0])
+            warnings.warn(
+                f"{what} left the valid range of its physics: {message} in {int(bad.sum())} of {len(bad)} frames, "
+                f"first at t = {first:.4g} s; a smaller dt, a stiffer material or stiffer contact keeps it in range "
+                "(see Trajectory.min_det_f, Trajectory.penetration)",
+                PhysicsWarning,
+                stacklevel=3,
+            )

@@ -1,0 +1,104 @@
+"""The physics says when it leaves its valid range (licrom.validity): inverted elements,
+deep penetration, a start inside a plane, non-finite energy."""
+
+import warnings
+
+import numpy as np
+import pytest
+from licrom import AffineBasis, ContactParams, FullSim, InitialState, Material, Plane, ReducedSim, Scene, SolverParams, Trajectory, meshes
+from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+from licrom.errors import LicromWarning, PhysicsWarning, SolverError
+from licrom.validity import PENETRATION_LIMIT, cubature_min_det, determinants, penetration, tet_determinants
+
+# A 10 cm box centred at the origin (48 tets): its bottom face is at z = -0.05.
+MESH = meshes.box(0.1, 2)
+SIMULATORS = {
+    "full": lambda scene: FullSim(MESH, scene),
+    "reduced": lambda scene: ReducedSim(AffineBasis(), MESH, scene),
+    "body_frame": lambda scene: BodyFrameSim(BodyFrameBasis(MESH), MESH, scene),
+}
+
+
+def test_determinants_and_penetration_match_numpy(rng):
+    f = rng.normal(size=(5, 7, 3, 3))
+    np.testing.assert_allclose(determinants(f.reshape(5, 7, 9)), np.linalg.det(f), rtol=1e-12, atol=1e-12)
+    x = MESH.vertices @ np.diag([1.0, 2.0, -0.5])  # stretched and mirrored: det F = -1 everywhere
+    np.testing.assert_allclose(tet_determinants(MESH.shape_matrix_inverses, MESH.tets, x), -1.0)
+    g = rng.normal(size=(4, 9, 2))
+    q = rng.normal(size=(3, 2))
+    expected = np.linalg.det(np.eye(3) + np.einsum("pck,fk->fpc", g, q).reshape(3, 4, 3, 3)).min(axis=1)
+    np.testing.assert_allclose(cubature_min_det(g, q), expected, rtol=1e-12)
+    planes = np.array([[0.0, 0, 1, 0.01, 0.5], [1.0, 0, 0, 0.2, 0.5]])
+    assert penetration(MESH.vertices, planes) == pytest.approx(0.04)
+    assert penetration(MESH.vertices, np.zeros((0, 5))) == 0.0
+    assert issubclass(PhysicsWarning, LicromWarning) and issubclass(LicromWarning, UserWarning)
+
+
+def test_a_very_soft_solid_that_inverts_warns_and_is_flagged(tmp_path):
+    # E = 10 Pa cannot carry its own weight: the box collapses through inverted tets
+    # and its inside sinks into the ground.
+    scene = Scene(material=Material(youngs_modulus=10.0), initial=InitialState(translation=(0, 0, 0.051)))
+    with pytest.warns(PhysicsWarning) as record:
+        traj = FullSim(MESH, scene).run(15)
+    messages = [str(w.message) for w in record]
+    assert len(messages) == 2
+    assert "inverted elements (min det F = -" in messages[0] and "penetration up to" in messages[1]
+    assert traj.min_det_f[0] == pytest.approx(1.0) and traj.min_det_f.min() < 0.0
+    assert traj.penetration.max() > PENETRATION_LIMIT * MESH.size
+    assert traj.valid[0] and not traj.valid[-1]
+    back = Trajectory.load(traj.save(tmp_path / "soft.npz"))
+    np.testing.assert_array_equal(back.valid, traj.valid)
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_a_start_inside_a_plane_warns(simulator):
+    inside = Scene(initial=InitialState(translation=(0, 0, 0.01)))  # the bottom 4 cm inside the ground
+    with pytest.warns(PhysicsWarning, match=r"starts 0.04 m inside a plane \(23.1 % of the object's size"):
+        sim = SIMULATORS[simulator](inside)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PhysicsWarning)  # thrown out, but nothing more to say
+        traj = sim.run(3)
+    assert traj.penetration[0] == pytest.approx(0.04) and traj.penetration[-1] < 0.01
+    assert not traj.valid[0] and traj.valid[1:].all()
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_a_start_in_contact_at_rest_is_quiet(simulator):
+    # Resting on the plane at its equilibrium depth (well under 1 % of the size).
+    scene = Scene(initial=InitialState(translation=(0, 0, 0.05 - 1e-4)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PhysicsWarning)
+        traj = SIMULATORS[simulator](scene).run(3)
+    assert traj.valid.all() and 0.0 < traj.penetration.max() < 0.01 * PENETRATION_LIMIT * MESH.size
+
+
+def test_a_50_m_per_s_impact_that_inverts_tets_warns():
+    scene = Scene(initial=InitialState(translation=(0, 0, 0.06), velocity=(0, 0, -50.0)))
+    with pytest.warns(PhysicsWarning) as record:
+        traj = FullSim(MESH, scene).run(4)
+    messages = [str(w.message) for w in record]
+    assert "inverted elements" in messages[0] and "first at t = 0.01 s" in messages[0]
+    assert "penetration up to" in messages[1]
+    assert traj.min_det_f[1] < 0.0 and traj.min_det_f[-1] > 0.0  # inverted, then recovered
+
+
+def test_deep_penetration_warns():
+    # Soft contact (k_n = 1e4 N/m^3) cannot hold the box: it sinks deeper than the limit.
+    scene = Scene(contact=ContactParams(normal_stiffness=1e4), initial=InitialState(translation=(0, 0, 0.05)))
+    with pytest.warns(PhysicsWarning, match="penetration up to"):
+        traj = ReducedSim(AffineBasis(), MESH, scene).run(20)
+    assert traj.penetration.max() > PENETRATION_LIMIT * MESH.size
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_non_finite_energy_raises_even_when_recording_failures(simulator):
+    scene = Scene(initial=InitialState(translation=(0, 0, 0.06), velocity=(0, 0, -1e160)), solver=SolverParams(on_failure="record"))
+    with pytest.raises(SolverError, match=r"NaN or inf|non-finite"):
+        SIMULATORS[simulator](scene).run(2)
+
+
+def test_every_plane_is_checked():
+    # Above the ground, but 0.25 m through a wall x <= 0.
+    scene = Scene(planes=(Plane(), Plane((-1, 0, 0), 0.0, 0.5)), initial=InitialState(translation=(0.2, 0, 0.06)))
+    with pytest.warns(PhysicsWarning, match="starts 0.25 m inside a plane"):
+        ReducedSim(AffineBasis(), MESH, scene)
