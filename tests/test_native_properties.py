@@ -143,14 +143,14 @@ def captured_kwargs(target, build):
 @pytest.fixture(scope="module")
 def reduced_kwargs():
     mesh = meshes.box(0.1, resolution=2)
-    scene = Scene(planes=(Plane(friction=0.5),))
+    scene = Scene(planes=(Plane(offset=0.05, friction=0.5),))  # resting on the ground
     return captured_kwargs("ReducedCore", lambda: ReducedSim(AffineBasis(), mesh, scene, cubature=Cubature.full(mesh)))
 
 
 @pytest.fixture(scope="module")
 def body_kwargs():
     mesh = meshes.box(0.1, resolution=2)
-    scene = Scene(planes=(Plane(friction=0.5),))
+    scene = Scene(planes=(Plane(offset=0.05, friction=0.5),))
     return captured_kwargs("BodyFrameCore", lambda: BodyFrameSim(BodyFrameBasis(mesh), mesh, scene, cubature=Cubature.full(mesh)))
 
 

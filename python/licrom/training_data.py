@@ -353,7 +353,9 @@ def make_synthetic_trajectories(
         pos = np.einsum("fij,fnj->fni", rots, (rest - c)[None] + deform) + c + drop[:, None, :]
         disp = pos - rest[None]
         vel = np.gradient(disp, dt, axis=0) if frames > 1 else np.zeros_like(disp)
-        scene = Scene(planes=(Plane(friction=float(0.1 + 0.1 * k)),), dt=dt, initial=InitialState())
+        # The ground touches the rest shape from below, so the scene starts out of it.
+        ground = Plane(offset=-float(rest[:, 2].min()), friction=float(0.1 + 0.1 * k))
+        scene = Scene(planes=(ground,), dt=dt, initial=InitialState())
         out.append(
             Trajectory(
                 rest, mesh.tets, disp, vel, t, scene,
