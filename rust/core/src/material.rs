@@ -286,25 +286,22 @@ impl StableNeoHookean {
     pub fn hessian_batch(&self, fs: &[f64], project: bool, out: &mut [f64]) -> Result<()> {
         check_batch(fs, out.len(), 81)?;
         if project {
-            // The projection clamps NaN eigenvalues to zero, so an overflow inside the
-            // eigensystem can come out finite: the exact energy tells whether F is in range.
-            for f in fs.chunks_exact(9) {
-                if !self.energy(&mat3_row_major(f)).is_finite() {
-                    return Err(LicromError::Overflow { what: "the Hessian", input: "F" });
-                }
+            // Checked inside, on the vectors, where it costs little.
+            if !dispatch(ProjectedBatch { material: self, fs, out }) {
+                return Err(LicromError::Overflow { what: "the Hessian", input: "F" });
             }
-            dispatch(ProjectedBatch { material: self, fs, out });
-        } else {
-            for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(81)) {
-                // The Hessian is symmetric, so nalgebra's column-major storage is row-major too.
-                o.copy_from_slice(self.hessian(&mat3_row_major(f)).as_slice());
-            }
+            return Ok(());
+        }
+        for (f, o) in fs.chunks_exact(9).zip(out.chunks_exact_mut(81)) {
+            // The Hessian is symmetric, so nalgebra's column-major storage is row-major too.
+            o.copy_from_slice(self.hessian(&mat3_row_major(f)).as_slice());
         }
         check_output("the Hessian", "F", out)
     }
 }
 
-/// Projected Hessians of a batch of row-major F (9 values each) into `out` (81 each).
+/// Projected Hessians of a batch of row-major F (9 values each) into `out` (81
+/// each); returns whether all of them are finite.
 struct ProjectedBatch<'a> {
     material: &'a StableNeoHookean,
     fs: &'a [f64],
@@ -312,11 +309,13 @@ struct ProjectedBatch<'a> {
 }
 
 impl WithMadd for ProjectedBatch<'_> {
-    type Output = ();
+    type Output = bool;
     #[inline(always)]
-    fn run<M: Madd>(self) {
+    fn run<M: Madd>(self) -> bool {
         let mut values = [Lanes::splat(0.0); 9];
         let mut vectors = [[Lanes::splat(0.0); 9]; 9];
+        // Sum of `x - x` over the entries: 0 while all are finite, NaN after an overflow.
+        let mut finite = Lanes::splat(0.0);
         for (fs, out) in self.fs.chunks(9 * LANES).zip(self.out.chunks_mut(81 * LANES)) {
             // Missing lanes of the last group hold F = I.
             let mut lanes = [[Lanes::splat(0.0); 3]; 3];
@@ -329,9 +328,11 @@ impl WithMadd for ProjectedBatch<'_> {
                 }
             }
             self.material.eigensystem_of(&lanes, &mut values, &mut vectors);
-            // Sum of clamped modes, formed for the eight points at once.
+            // Sum of clamped modes, formed for the eight points at once. Only negative
+            // eigenvalues are clamped: a NaN one (an overflow inside the eigensystem)
+            // stays and fails the finiteness check.
             let zero = Lanes::splat(0.0);
-            let clamped = values.map(|v| Lanes::select(Lanes::lt(zero, v), v, zero));
+            let clamped = values.map(|v| Lanes::select(Lanes::lt(v, zero), zero, v));
             let mut h = [[zero; 9]; 9];
             for a in 0..9 {
                 for b in a..9 {
@@ -341,6 +342,7 @@ impl WithMadd for ProjectedBatch<'_> {
                     }
                     h[a][b] = acc;
                     h[b][a] = acc;
+                    finite = finite + (acc - acc);
                 }
             }
             for (l, o) in out.chunks_exact_mut(81).enumerate() {
@@ -349,6 +351,7 @@ impl WithMadd for ProjectedBatch<'_> {
                 }
             }
         }
+        finite.0.iter().all(|v| *v == 0.0)
     }
 }
 

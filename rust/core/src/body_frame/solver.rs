@@ -219,10 +219,16 @@ impl BodyFrameSolver {
         self.check_vector("angular_velocity", angular_velocity, 3)?;
         self.check_vector("qdot", qdot, n)?;
         let h = self.system.dt();
+        let prev_center = pose.center - Vector3::from_column_slice(velocity) * h;
+        let prev_rotation = exp_map(&(Vector3::from_column_slice(angular_velocity) * -h)) * rotation;
+        let prev_q_finite = pose.q.iter().zip(qdot).all(|(q, v)| (q - h * v).is_finite());
+        if !(prev_q_finite && prev_center.iter().chain(prev_rotation.iter()).all(|v| v.is_finite())) {
+            return Err(LicromError::Overflow { what: "the previous pose (pose - dt x velocity)", input: "the velocities" });
+        }
         self.pose.assign(pose);
         self.pose.rotation = rotation;
-        self.prev.center = pose.center - Vector3::from_column_slice(velocity) * h;
-        self.prev.rotation = exp_map(&(Vector3::from_column_slice(angular_velocity) * -h)) * rotation;
+        self.prev.center = prev_center;
+        self.prev.rotation = prev_rotation;
         for ((p, q), v) in self.prev.q.iter_mut().zip(&pose.q).zip(qdot) {
             *p = q - h * v;
         }

@@ -323,6 +323,11 @@ fn failed_steps_leave_the_state_and_bad_inputs_are_rejected() {
     assert!(matches!(s.energy(&far), Err(LicromError::Overflow { .. })));
     assert!(matches!(s.gradient(&far), Err(LicromError::Overflow { .. })));
     assert!(matches!(s.hessian(&far, true), Err(LicromError::Overflow { .. })));
+    // A previous pose `pose - dt x velocity` that overflows is refused.
+    let mut inp = b.inputs();
+    inp.dt = 1e300;
+    let mut far = BodyFrameSolver::new(BodyFrameSystem::new(&inp).unwrap(), BodyFrameSettings { tolerance: 1e-6, max_iterations: 5 }).unwrap();
+    assert!(matches!(far.set_state(&pose, &[1e10, 0.0, 0.0], &[0.0; 3], &vec![0.0; b.n]), Err(LicromError::Overflow { .. })));
     // Velocities come back as given.
     s.set_state(&pose, &[0.5, 0.0, -0.2], &[0.0, 1.0, 0.3], &vec![0.1; b.n]).unwrap();
     assert!((s.velocity() - Vector3::new(0.5, 0.0, -0.2)).norm() < 1e-12);
