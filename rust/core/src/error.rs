@@ -102,7 +102,7 @@ pub fn check_output(what: &'static str, input: &'static str, values: &[f64]) -> 
     }
 }
 
-/// Whether every value is finite, in a form that vectorises: `x - x` is 0 for a
+/// Whether every value is finite, in a form that vectorises: `0 x` is 0 for a
 /// finite `x` and NaN otherwise, summed in eight independent partial sums.
 fn all_finite(values: &[f64]) -> bool {
     let mut acc = [0.0_f64; 8];
@@ -110,10 +110,10 @@ fn all_finite(values: &[f64]) -> bool {
     let rest = chunks.remainder();
     for c in chunks {
         for l in 0..8 {
-            acc[l] += c[l] - c[l];
+            acc[l] += c[l] * 0.0;
         }
     }
-    let tail: f64 = rest.iter().map(|v| v - v).sum();
+    let tail: f64 = rest.iter().map(|v| v * 0.0).sum();
     acc.iter().sum::<f64>() + tail == 0.0
 }
 

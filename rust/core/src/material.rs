@@ -314,7 +314,7 @@ impl WithMadd for ProjectedBatch<'_> {
     fn run<M: Madd>(self) -> bool {
         let mut values = [Lanes::splat(0.0); 9];
         let mut vectors = [[Lanes::splat(0.0); 9]; 9];
-        // Sum of `x - x` over the entries: 0 while all are finite, NaN after an overflow.
+        // Sum of `0 x` over the entries: 0 while all are finite, NaN after an overflow.
         let mut finite = Lanes::splat(0.0);
         for (fs, out) in self.fs.chunks(9 * LANES).zip(self.out.chunks_mut(81 * LANES)) {
             // Missing lanes of the last group hold F = I.
@@ -342,7 +342,7 @@ impl WithMadd for ProjectedBatch<'_> {
                     }
                     h[a][b] = acc;
                     h[b][a] = acc;
-                    finite = finite + (acc - acc);
+                    finite = finite + acc * zero;
                 }
             }
             for (l, o) in out.chunks_exact_mut(81).enumerate() {
