@@ -61,6 +61,7 @@ READING = "### Reading"  # the hand-written part of the section, kept when the s
 NUDGE = 1e-4  # m: the noise floor's higher drop
 CHAOTIC_FLOOR = 0.02  # a noise floor above this makes a scene chaotic (target: 3x the floor)
 POD_SIZES = (20, 40)
+TRAINING_AZIMUTHS = (0.0, 50.0, 160.0, 230.0, 300.0)  # deg; the held-out 120 lies between two of them
 
 
 # --- scenes ---------------------------------------------------------------------------------
@@ -130,13 +131,15 @@ def _label(plane: Plane, azimuth: float) -> str:
 
 
 def cheese_family(small: bool) -> Family:
-    """Soft cheese on inclines along x and off-axis: 2 slopes x 2 friction coefficients x 2 azimuths in training."""
+    """Soft cheese on inclines along x and off-axis: 2 slopes x 2 friction coefficients x 5 azimuths in training."""
     mesh = meshes.cheese(resolution=5 if small else 8)
     # E = 20 kPa and a 6 cm drop: peak non-rigid deformation 5-14 % of the size where it slides or sticks (measured).
     base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01)
     height, tilt = 0.06, (0.15, 0.1, 0.0)
     cases = []
-    for az in (0.0, 50.0):
+    # Friction loads the body from the downhill direction, which no rotation of the body frame removes: with
+    # azimuths 0 and 50 alone, POD(20) of the training frames left 20 % of a run at azimuth 120 (its own POD: 0.8 %).
+    for az in TRAINING_AZIMUTHS:
         for slope in (15.0, 30.0):
             for mu in (0.2, 0.8):
                 p = incline(slope, az, mu)
