@@ -1,10 +1,16 @@
-"""Griffe extension: turn the Sphinx roles of licrom's docstrings into mkdocstrings cross-references.
+"""Griffe extensions for licrom's API reference.
 
-The docstrings are Google style but name other objects the Sphinx way (:class:`FullSim`,
-:meth:`Model.load`, :mod:`.config`, :func:`~licrom.rigid.rigid_fit`). Each role becomes an
-optional autoref to the object's canonical path: a link where the object is rendered in the
-API reference, plain code where it is not (a private helper, a module without its own page),
-never a broken link. Titles follow Sphinx: ``~a.b.C`` shows ``C``, anything else as written.
+:class:`SphinxRoles`: the docstrings are Google style but name other objects the Sphinx way
+(:class:`FullSim`, :meth:`Model.load`, :mod:`.config`, :func:`~licrom.rigid.rigid_fit`). Each
+role becomes an optional autoref to the object's canonical path: a link where the object is
+rendered in the API reference, plain code where it is not (a private helper, a module without
+its own page), never a broken link. Titles follow Sphinx: ``~a.b.C`` shows ``C``, anything else
+as written.
+
+:class:`ConstructorSignatures`: the classes of the native module are built by ``__new__`` (pyo3),
+and their stubs say so, but griffe takes a class's signature from ``__init__`` only; without one
+the class would show no parameters and its documented ``Args`` would not match. The extension
+gives such a class an ``__init__`` with the parameters of its ``__new__``.
 """
 
 from __future__ import annotations
@@ -76,3 +82,21 @@ class SphinxRoles(griffe.Extension):
         title = target.rsplit(".", 1)[-1] if short else target
         identifier = _identifier(obj, role, target, collection)
         return f'<autoref identifier="{html.escape(identifier)}" optional><code>{html.escape(title)}</code></autoref>'
+
+
+class ConstructorSignatures(griffe.Extension):
+    """Give a class built by ``__new__`` alone an ``__init__`` with the same parameters."""
+
+    def on_class(self, *, cls: griffe.Class, loader: griffe.GriffeLoader, **kwargs: Any) -> None:
+        new = cls.members.get("__new__")
+        if new is None or new.is_alias or "__init__" in cls.members or not isinstance(new, griffe.Function):
+            return
+        params = list(new.parameters)[1:]  # without cls
+        init = griffe.Function(
+            "__init__",
+            lineno=new.lineno,
+            endlineno=new.endlineno,
+            parameters=griffe.Parameters(griffe.Parameter("self", kind=griffe.ParameterKind.positional_or_keyword), *params),
+            returns="None",
+        )
+        cls.set_member("__init__", init)
