@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ConfigError, ShapeError
+from .mesh import Mesh
 from .rigid import body_frame_displacements, rigid_fit, rotation_angle
 from .scene import Scene
 from .training_data import relative_error
@@ -320,7 +321,7 @@ def compare(full: Trajectory, reduced: Trajectory) -> Comparison:
 def run_comparison(
     basis: Any,
     scene: Scene,
-    mesh=None,
+    mesh: Mesh | None = None,
     steps: int = 100,
     record_every: int = 1,
     device: str = "cpu",

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .basis import Basis
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .scene import Material
@@ -80,7 +81,7 @@ class Cubature:
     def optimized(
         cls,
         mesh: Mesh,
-        basis,
+        basis: Basis,
         material: Material,
         samples: np.ndarray,
         count: int = 1000,
