@@ -570,7 +570,7 @@ def main() -> None:
     ap.add_argument("--r", type=int, nargs="+", default=[20], help="learned / POD modes of the reduced runs")
     ap.add_argument("--epochs", type=int, default=100, help="epochs of the models trained here")
     ap.add_argument("--train-only", nargs="*", choices=("world", "body"), metavar="FRAME",
-                    help="only train the models of these frames from the cached training runs (e.g. on a GPU machine), then stop")
+                    help="only make the training runs and train the models of these frames (none: the runs alone), then stop; writes nothing under --docs")
     ap.add_argument("--device", default="auto", help="training device: auto, cpu or cuda")
     ap.add_argument("--small", action="store_true", help="tiny meshes, few steps: a smoke test that writes nothing under --docs")
     args = ap.parse_args()
@@ -602,7 +602,7 @@ def main() -> None:
     with atomic_path(work / "results.json") as tmp:
         tmp.write_text(json.dumps({"training": train_rows, "held_out": test_rows, "wall_s": wall}, indent=1))
     print(f"wrote {work / 'results.json'} ({wall:.0f} s)")
-    if args.small:
+    if args.small or args.train_only is not None:
         return
     write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/body_frame_experiments.py` on "
                   f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s "
