@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 # so that importing ``licrom.compare`` (which sets the package attribute to the module) cannot
 # shadow it. The module is numpy-only, so this costs nothing.
 from .compare import compare
-from .errors import ConfigError, FileFormatError, LicromError, MeshError, ShapeError, SolverError
+from .errors import ConcurrencyError, ConfigError, FileFormatError, LicromError, MeshError, OutputError, ShapeError, SolverError
 from .mesh import Mesh, MeshQuality
 from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
 from .trajectory import Trajectory
@@ -48,6 +48,8 @@ __all__ = [
     "ConfigError",
     "SolverError",
     "FileFormatError",
+    "OutputError",
+    "ConcurrencyError",
     "Mesh",
     "MeshQuality",
     "Material",

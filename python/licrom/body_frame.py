@@ -149,7 +149,7 @@ class BodyFrameSim:
 
     The user API is that of :class:`licrom.reduced_sim.ReducedSim`: ``step``, ``run``,
     ``positions``, ``velocities``, ``set_state``, ``contact_forces``, ``transfer``,
-    plus the pose ``center``, ``rotation`` and ``q``.
+    plus the pose ``center``, ``rotation`` and ``q``; threads are used as there.
 
     Args:
         basis: body-frame modes (a :class:`BodyFrameBasis`, or any basis whose

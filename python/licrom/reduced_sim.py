@@ -41,6 +41,12 @@ class ReducedSim:
     A body-frame model gives a :class:`~licrom.body_frame.BodyFrameSim` (see the
     module docstring); only the ``"newton"`` solver exists there.
 
+    Threads: a step runs without the GIL, so separate simulations step in parallel in
+    separate threads. One simulation serves one thread at a time: a call (step, state,
+    probe) while another thread's call on it runs raises
+    :class:`~licrom.errors.ConcurrencyError` at once rather than waiting (guard a shared
+    simulation with a ``threading.Lock`` to serialise it on purpose).
+
     Args:
         basis: a basis (``n_modes``, ``values``, ``jacobians``) or a trained ``licrom.Model``.
         mesh: the mesh to simulate (default: the model's mesh).
@@ -54,6 +60,7 @@ class ReducedSim:
     Raises:
         ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
+        ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
 
     def __new__(cls, basis: Basis | None = None, *args: Any, **kwargs: Any) -> Any:

@@ -186,7 +186,7 @@ class SolverParams:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tolerance", _finite("SolverParams.tolerance (m/s)", self.tolerance, positive=True))
-        if not isinstance(self.max_iterations, (int, np.integer)) or self.max_iterations < 1:
+        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, (int, np.integer)) or self.max_iterations < 1:
             raise ConfigError(f"SolverParams.max_iterations must be an integer >= 1, got {self.max_iterations!r}")
         object.__setattr__(self, "max_iterations", int(self.max_iterations))
         if self.on_failure not in ("raise", "record"):
@@ -311,12 +311,16 @@ class Scene:
             )
         except (KeyError, TypeError) as exc:
             raise FileFormatError(f"scene JSON is missing or has unexpected fields: {exc}") from exc
+        except RecursionError:
+            raise FileFormatError("scene JSON is nested too deeply to be a licrom scene") from None
 
     @classmethod
     def from_json(cls, text: str) -> Scene:
         """Parse JSON text written by :meth:`to_json`."""
         try:
             d = json.loads(text)
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, TypeError) as exc:
             raise FileFormatError(f"scene JSON is not valid JSON: {exc}") from exc
+        except RecursionError:
+            raise FileFormatError("scene JSON is nested too deeply to be a licrom scene") from None
         return cls.from_dict(d)
