@@ -134,3 +134,24 @@ def test_cli_generate(tmp_path):
     assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
     assert all(t["skipped"] for t in json.loads((out / MANIFEST_NAME).read_text())["trajectories"])
     assert main(["generate", str(out), "--device", "gpu"]) == 2
+
+
+def test_a_full_disk_stops_the_run_at_the_first_trajectory(tmp_path, monkeypatch, capsys):
+    import errno
+    import os
+
+    from licrom.cli import main
+
+    calls = []
+
+    def full_disk(fh, **arrays):
+        calls.append(1)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(np, "savez_compressed", full_disk)
+    out = tmp_path / "cli"
+    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("licrom: error: cannot write") and "traj_000" in err and "no space left on the device" in err
+    # not recorded as one failed trajectory after another: stopped at the first write, nothing half-written
+    assert len(calls) == 1 and not list(out.glob("*.npz")) and not [p for p in out.iterdir() if p.name.startswith(".")]

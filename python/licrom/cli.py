@@ -224,6 +224,7 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
     import json
 
     from . import meshes
+    from ._io import make_dir
     from .compare import run_comparison
     from .cubature import Cubature
     from .mesh import Mesh
@@ -248,7 +249,7 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
         default_slope = base.planes[0].slope_deg if base.planes else 0.0
         planes = [Plane.incline(s, m) for s in (slope or (default_slope,)) for m in (friction or (default_mu,))]
     if out is not None:
-        Path(out).mkdir(parents=True, exist_ok=True)
+        make_dir(out)
     results = {}
     comparisons = {}
     for plane in planes:
@@ -310,6 +311,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cli.main(args=argv, prog_name="licrom", standalone_mode=False)
     except LicromError as exc:
+        click.echo(f"licrom: error: {exc}", err=True)
+        return 2
+    except OSError as exc:  # an I/O failure outside licrom's own checks: still one line
         click.echo(f"licrom: error: {exc}", err=True)
         return 2
     except click.exceptions.Abort:

@@ -17,8 +17,6 @@ from __future__ import annotations
 import json
 import math
 import time
-import zipfile
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
@@ -27,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_path
-from .errors import ConfigError, FileFormatError, LicromError
+from ._io import atomic_path, load_npz, make_dir
+from .errors import ConfigError, FileFormatError, LicromError, OutputError
 from .mesh import Mesh
 from .placement import drop_state, initial_state_on_plane
 from .scene import InitialState, Plane, Scene
@@ -86,19 +84,10 @@ def _valid_trajectory_file(path: Path, scene: Scene, frames: int) -> bool:
     if not path.is_file():
         return False
     try:
-        with zipfile.ZipFile(path) as zf:
-            if zf.testzip() is not None:  # CRC of every member
-                return False
-        with np.load(path, allow_pickle=False) as data:
-            if "header_json" not in data.files or "times" not in data.files or "displacements" not in data.files:
-                return False
-            header = json.loads(str(data["header_json"]))
-            if header.get("kind") != "trajectory" or header.get("version") != TRAJECTORY_FORMAT_VERSION:
-                return False
-            if Scene.from_dict(header["scene"]) != scene:
-                return False
-            return len(data["times"]) == frames
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, zlib.error, EOFError, json.JSONDecodeError, LicromError):
+        header, arrays = load_npz(path, "trajectory")  # reads every member: their CRCs are checked
+        return (header.get("version") == TRAJECTORY_FORMAT_VERSION and "displacements" in arrays
+                and Scene.from_dict(header["scene"]) == scene and len(arrays.get("times", ())) == frames)
+    except (LicromError, KeyError, TypeError, ValueError):
         return False
 
 
@@ -113,12 +102,17 @@ def load_manifest(out_dir: str | Path) -> dict[str, Any]:
         raise FileFormatError(f"dataset manifest not found: '{p}'")
     try:
         d = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:
         raise FileFormatError(f"dataset manifest '{p}' is not readable JSON: {exc}") from exc
+    except RecursionError:
+        raise FileFormatError(f"dataset manifest '{p}' is nested too deeply to be a licrom manifest") from None
     if not isinstance(d, dict) or d.get("format") != "licrom.dataset":
         raise FileFormatError(f"'{p}' is not a licrom dataset manifest")
     if d.get("version") != DATASET_FORMAT_VERSION:
         raise FileFormatError(f"dataset manifest '{p}' has format version {d.get('version')!r}; this licrom reads version {DATASET_FORMAT_VERSION} only")
+    entries = d.get("trajectories")
+    if not isinstance(entries, list) or not all(isinstance(t, dict) and isinstance(t.get("file"), str) for t in entries):
+        raise FileFormatError(f"dataset manifest '{p}' is corrupt: 'trajectories' must be a list of objects with a 'file' name")
     return d
 
 
@@ -211,8 +205,7 @@ def generate_dataset(
                 scene = base_scene.replace(planes=run_planes, initial=initial)
                 runs.append((mu, run_planes, k, state, scene))
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_dir(out_dir)
     mesh_path = out / MESH_NAME
     existing = None
     if mesh_path.exists():
@@ -307,6 +300,8 @@ def generate_dataset(
                         newton_mean=round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
                         unconverged_steps=int((~traj.converged).sum()),
                     )
+                except OutputError:
+                    raise  # a full or read-only disk fails every later run too
                 except LicromError as exc:
                     entry.update(status="failed", skipped=False, seconds=round(time.perf_counter() - t0, 3),
                                  error=f"{type(exc).__name__}: {exc}")

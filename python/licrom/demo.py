@@ -14,11 +14,10 @@ import json
 import math
 import time
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import click
 
-from ._io import atomic_path
+from ._io import atomic_path, make_dir
 from .errors import ConfigError
 from .rigid import check_frame
 
@@ -97,8 +96,7 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     from .scene import Plane
     from .training import TrainConfig, train
 
-    out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_dir(config.out_dir)
     t0 = time.perf_counter()
     say = click.echo
 

@@ -40,7 +40,7 @@ def run_fingerprint(data: TrainingData, config: ModelConfig) -> dict[str, Any]:
     for a in (data.rest, data.mesh.tets, data.train.residuals, data.val.residuals, data.train_indices, data.val_indices):
         arr = np.ascontiguousarray(a)
         digest.update(f"{arr.dtype.str}{arr.shape}".encode())
-        digest.update(memoryview(arr).cast("B"))
+        digest.update(arr.reshape(-1).view(np.uint8))
     network = config.to_dict()
     r = network.pop("latent_dim")
     return {"data": digest.hexdigest(), "r": r, "network": network}
