@@ -29,7 +29,7 @@ import numpy as np
 
 from .errors import FileFormatError, LicromError, OutputError
 
-__all__ = ["atomic_path", "check_version", "load_npz", "make_dir", "output_error", "save_npz"]
+__all__ = ["atomic_path", "check_version", "load_npz", "make_dir", "output_error", "remove_stale_temporaries", "save_npz"]
 
 _TMP_TAG = ".licrom-tmp-"
 _TMP_NAME = re.compile(r"^\..*" + re.escape(_TMP_TAG) + r"(\d+)-")
