@@ -168,6 +168,8 @@ def test_state_round_trip_and_bad_inputs():
         BodyFrameBasis(mesh, learned=object())
     with pytest.raises(ConfigError, match="needs a scene"):
         BodyFrameSim(BodyFrameBasis(mesh))
+    with pytest.raises(ConfigError, match="strain must be one of"):
+        BodyFrameSim(BodyFrameBasis(mesh), mesh, scene, strain="continuous")
     n = sim.n_modes
     core_args = {
         "total_mass": 1.0, "inertia_moments": np.eye(3), "mode_moments": np.zeros((n, 3, 3)), "mode_products": np.zeros((n, n, 3, 3)),

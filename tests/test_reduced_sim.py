@@ -84,6 +84,8 @@ def test_affine_rigid_rotation_has_no_elastic_force():
     for _ in range(5):
         sim.step()
     np.testing.assert_allclose(sim.positions, start, atol=1e-10)
+    with pytest.raises(ConfigError, match="strain must be one of 'mesh', 'field'"):
+        ReducedSim(AffineBasis(), mesh, scene, strain="continuous")
 
 
 @pytest.mark.parametrize("theta, mu", [(20.0, 0.2), (30.0, 0.3), (35.0, 0.5)])

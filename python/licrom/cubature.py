@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .basis import Basis
+from .basis import Basis, strain_jacobians
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .scene import Material
@@ -88,6 +88,7 @@ class Cubature:
         candidates: int = 20000,
         tolerance: float = 1e-3,
         seed: int = 0,
+        strain: str = "mesh",
     ) -> Cubature:
         """Non-negative weights fitted to reduced elastic forces (An et al. 2008).
 
@@ -104,6 +105,8 @@ class Cubature:
             candidates: tets considered (a random subset on large meshes).
             tolerance: stop when the relative force residual falls below this.
             seed: random seed for the candidate subset.
+            strain: ``"mesh"`` or ``"field"``: the deformation gradients of the simulation
+                that will use the weights (:func:`licrom.basis.strain_jacobians`).
         """
         from scipy.optimize import nnls
 
@@ -118,7 +121,7 @@ class Cubature:
             pool = np.sort(np.random.default_rng(seed).choice(mesh.n_tets, size=candidates, replace=False))
         mu, lam = material.snh_parameters
         # Per-tet reduced forces per unit volume for every sample: columns of A.
-        g = basis.jacobians(mesh.centroids[pool]).reshape(len(pool), 9, -1)  # (P, 9, n)
+        g = strain_jacobians(basis, mesh, pool, strain).reshape(len(pool), 9, -1)  # (P, 9, n)
         eye = np.eye(3).reshape(9)
         cols = np.empty((len(q), basis.n_modes, len(pool)))
         for s, qs in enumerate(q):
