@@ -26,6 +26,7 @@ from .mesh import Mesh
 __all__ = [
     "AFFINE_JACOBIAN",
     "N_AFFINE",
+    "STRAINS",
     "AffineBasis",
     "Basis",
     "MeshBasis",
@@ -35,7 +36,6 @@ __all__ = [
     "affine_values",
     "check_basis",
     "check_basis_output",
-    "STRAINS",
     "strain_jacobians",
 ]
 
