@@ -48,39 +48,64 @@ def _print_mesh_summary(mesh, seconds: float | None = None) -> None:
 @click.option("--radius", type=float, default=None, help="Sphere radius in m.")
 @click.option("--holes", type=int, default=None, help="Cheese: number of holes.")
 @click.option("--seed", type=int, default=None, help="Cheese: hole layout seed.")
+@click.option("--edge-length", type=float, default=None,
+              help="Surfaces: target tet edge length as a fraction of the bounding-box diagonal, in (0, 1] [0.05].")
+@click.option("--epsilon", type=float, default=None,
+              help="Surfaces: largest distance of the tet boundary from the surface, fraction of the diagonal, in (0, 0.1] [1e-3].")
+@click.option("--stop-energy", type=float, default=None, help="Surfaces: tet shape target (AMIPS energy > 3; lower: better, slower) [10].")
+@click.option("--scale", type=float, default=None, help="Surfaces: multiply the coordinates by this first (0.001 for mm) [1].")
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the mesh here (.mesh, .msh, .vtu, ...).")
-def mesh_command(source, resolution, size, radius, holes, seed, output) -> None:
-    """Generate a procedural mesh (box, sphere, cheese) or inspect/convert a mesh file.
+def mesh_command(source, resolution, size, radius, holes, seed, edge_length, epsilon, stop_energy, scale, output) -> None:
+    """Make a tet mesh from a surface (.obj, .stl, .ply, .off) or a procedural shape (box, sphere, cheese), or inspect a tet mesh file.
 
-    SOURCE is 'box', 'sphere', 'cheese', or the path of a tet mesh file.
-    Prints counts and tet quality; with --output, writes the mesh.
+    SOURCE is a surface file (filled with tets by fTetWild), 'box', 'sphere', 'cheese',
+    or the path of a tet mesh file. Prints counts and tet quality; with --output, writes the mesh.
     """
     from . import meshes
     from .mesh import Mesh
+    from .surface import SURFACE_SUFFIXES, Surface, TetrahedralizeParams, tetrahedralize
 
     start = time.perf_counter()
-    if source in meshes.PROCEDURAL:
-        kwargs: dict = {}
-        if resolution is not None:
-            kwargs["resolution"] = resolution
-        if size is not None and source in ("box", "cheese"):
-            kwargs["size"] = tuple(size)
-        if radius is not None and source == "sphere":
-            kwargs["radius"] = radius
-        if source == "cheese" and (holes is not None or seed is not None):
-            base = meshes.CheeseHoles()
-            kwargs["holes"] = meshes.CheeseHoles(
-                count=base.count if holes is None else holes, min_radius=base.min_radius,
-                max_radius=base.max_radius, seed=base.seed if seed is None else seed,
-            )
-        mesh = meshes.PROCEDURAL[source](**kwargs)
-        click.echo(f"{source} mesh")
+    if Path(source).suffix.lower() in SURFACE_SUFFIXES:
+        tkw = {k: v for k, v in (("edge_length", edge_length), ("epsilon", epsilon), ("stop_energy", stop_energy), ("scale", scale))
+               if v is not None}
+        params = TetrahedralizeParams(**tkw)
+        surface = Surface.load(source)
+        click.echo(f"surface {source}: {len(surface.vertices)} vertices, {len(surface.faces)} triangles, "
+                   f"{'closed' if surface.is_closed else 'NOT closed (holes or open edges)'}")
+        click.echo(f"tetrahedralising (fTetWild, edge length {params.edge_length:g} x diagonal, epsilon {params.epsilon:g}) ...")
+        mesh = tetrahedralize(surface, params)
+        elapsed = time.perf_counter() - start
+        _print_mesh_summary(mesh, elapsed)
+        if surface.is_closed:
+            enclosed = surface.enclosed_volume * params.scale**3
+            click.echo(f"surface volume    {enclosed:.6g} m^3 (tets {100 * (mesh.volume / enclosed - 1):+.2f} %)")
     else:
-        mesh = Mesh.load(source)
-        click.echo(f"mesh file {source}")
-    elapsed = time.perf_counter() - start
-    _print_mesh_summary(mesh, elapsed)
+        given = [flag for flag, v in (("--edge-length", edge_length), ("--epsilon", epsilon), ("--stop-energy", stop_energy),
+                                      ("--scale", scale)) if v is not None]
+        if given:
+            raise ConfigError(f"{', '.join(given)}: only for surface files ({', '.join(SURFACE_SUFFIXES)}), not for {source!r}")
+        if source in meshes.PROCEDURAL:
+            kwargs: dict = {}
+            if resolution is not None:
+                kwargs["resolution"] = resolution
+            if size is not None and source in ("box", "cheese"):
+                kwargs["size"] = tuple(size)
+            if radius is not None and source == "sphere":
+                kwargs["radius"] = radius
+            if source == "cheese" and (holes is not None or seed is not None):
+                base = meshes.CheeseHoles()
+                kwargs["holes"] = meshes.CheeseHoles(
+                    count=base.count if holes is None else holes, min_radius=base.min_radius,
+                    max_radius=base.max_radius, seed=base.seed if seed is None else seed,
+                )
+            mesh = meshes.PROCEDURAL[source](**kwargs)
+            click.echo(f"{source} mesh")
+        else:
+            mesh = Mesh.load(source)
+            click.echo(f"mesh file {source}")
+        _print_mesh_summary(mesh, time.perf_counter() - start)
     if output is not None:
         mesh.save(output)
         click.echo(f"wrote {output}")
