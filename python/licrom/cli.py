@@ -201,7 +201,8 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
 @click.argument("data", type=click.Path(exists=True, path_type=Path))
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Model file to write (.lcm); the loss CSV/PNG and checkpoints go beside it.")
-@click.option("--modes", "-r", type=click.IntRange(min=1), default=20, show_default=True, help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame).")
+@click.option("--modes", "-r", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame).")
 @click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
