@@ -100,3 +100,17 @@ def test_unwritable_outputs_are_one_line_errors(data, tmp_path, capsys, monkeypa
         err = capsys.readouterr().err
         assert err.startswith("licrom: error: cannot write") and expected in err and err.count("\n") == 1, err
     assert [p for p in out.rglob("*") if p.is_file()] == []
+
+
+def test_out_of_range_flags_are_refused_with_the_flag_and_the_range(tmp_path, capsys):
+    assert main(["generate", str(tmp_path / "d"), "--slope", "95"]) == 2  # used to run at 85 deg
+    assert "Invalid value for '--slope': 95.0 is not in the range 0<=x<90." in capsys.readouterr().err
+    assert main(["compare", str(tmp_path / "m.lcm"), "--slope", "95"]) == 2
+    assert "'--slope': 95.0 is not in the range 0<=x<90" in capsys.readouterr().err
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "m.lcm"), "-r", "0"]) == 2  # used to name ModelConfig.latent_dim
+    assert "Invalid value for '--modes' / '-r': 0 is not in the range x>=1." in capsys.readouterr().err
+    assert main(["demo", "--modes", "0"]) == 2
+    assert "'--modes' / '-r': 0 is not in the range x>=1" in capsys.readouterr().err
+    assert main(["generate", str(tmp_path / "d"), "--poisson-ratio", "0.5"]) == 2
+    assert "'--poisson-ratio': 0.5 is not in the range -1<x<0.5" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
