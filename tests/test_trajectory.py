@@ -67,3 +67,10 @@ def test_a_file_with_invalid_contents_is_a_file_format_error(tmp_path):
     save_npz(tmp_path / "r.npz", {**arrays, "times": arrays["times"][::-1].copy()}, header)
     with pytest.raises(FileFormatError, match=r"holds invalid data: Trajectory\.times must be"):
         Trajectory.load(tmp_path / "r.npz")
+
+
+def test_repr_is_one_short_line_not_every_array():
+    t = _traj(frames=50)
+    text = repr(t)
+    assert text == str(t) and "\n" not in text and len(text) < 200
+    assert text.startswith("Trajectory(50 frames, t = 0..0.49 s, 27 vertices, 48 tets") and "slope 0 deg, mu 0.5" in text

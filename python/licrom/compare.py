@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ._repr import concise_repr
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .rigid import body_frame_displacements, rigid_fit, rotation_angle
@@ -232,6 +233,8 @@ class Comparison:
     full_iterations: float
     reduced_iterations: float
     object_size: float
+
+    __repr__ = concise_repr
 
     @property
     def stick_slip_agree(self) -> bool:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._repr import concise_repr
 from .basis import Basis, strain_jacobians
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
@@ -44,6 +45,8 @@ class Cubature:
     points: np.ndarray
     scheme: str
     fit_error: float | None = field(default=None)
+
+    __repr__ = concise_repr
 
     def __post_init__(self) -> None:
         if len(self.tets) != len(self.weights) or len(self.tets) != len(self.points):
@@ -175,6 +178,8 @@ class ContactPoints:
 
     indices: np.ndarray
     areas: np.ndarray
+
+    __repr__ = concise_repr
 
     def __post_init__(self) -> None:
         if len(self.indices) != len(self.areas):

@@ -80,6 +80,12 @@ class Trajectory:
     def n_frames(self) -> int:
         return len(self.times)
 
+    def __repr__(self) -> str:
+        span = f"t = {self.times[0]:.4g}..{self.times[-1]:.4g} s" if self.n_frames else "no frames"
+        planes = "; ".join(f"slope {p.slope_deg:.3g} deg, mu {p.friction:g}" for p in self.scene.planes) or "none"
+        return (f"Trajectory({self.n_frames} frames, {span}, {len(self.rest_positions)} vertices, {len(self.tets)} tets, "
+                f"{len(self.iterations)} steps ({int((~self.converged).sum())} unconverged), planes: {planes})")
+
     @cached_property
     def mesh(self) -> Mesh:
         """The rest mesh (built once from the stored arrays)."""
