@@ -6,43 +6,47 @@ The built-in presets are scene files shipped in the package (``licrom/scenes/*.t
 template (``licrom scene cheese -o my-scene.toml``). Every value is checked on loading;
 an error names the key (``planes[1].friction``) and the accepted range, and unknown keys
 and unknown versions are refused. The schema, version 1 (SI units; every table but
-``object`` is optional)::
+``object`` is optional):
 
-    version = 1                      # required
-    name = "my-scene"                # default: the file name
-    description = "..."
-    gravity = [0.0, 0.0, -9.81]      # m/s^2
+```toml
+version = 1                      # required
+name = "my-scene"                # default: the file name
+description = "..."
+gravity = [0.0, 0.0, -9.81]      # m/s^2
 
-    [object]                         # required
-    mesh = "cheese"                  # box | sphere | cheese, or a tet mesh file (relative to this file)
-    resolution = 12                  # procedural shapes: cells along the longest side
-    size = [0.2, 0.12, 0.1]          # box, cheese: edge lengths, m
-    radius = 0.05                    # sphere: radius, m
+[object]                         # required
+mesh = "cheese"                  # box | sphere | cheese, or a tet mesh file (relative to this file)
+resolution = 12                  # procedural shapes: cells along the longest side
+size = [0.2, 0.12, 0.1]          # box, cheese: edge lengths, m
+radius = 0.05                    # sphere: radius, m
 
-    [material]                       # youngs_modulus (Pa, > 0), poisson_ratio (-1, 0.5), density (kg/m^3, > 0)
-    [contact]                        # normal_stiffness (N/m^3), normal_damping (N s/m^3), friction_stiffness (N s/m^3)
-    [solver]                         # tolerance (m/s), max_iterations, on_failure ("raise" | "record")
-    [time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1)
+[material]                       # youngs_modulus (Pa, > 0), poisson_ratio (-1, 0.5), density (kg/m^3, > 0)
+[contact]                        # normal_stiffness (N/m^3), normal_damping (N s/m^3), friction_stiffness (N s/m^3)
+[solver]                         # tolerance (m/s), max_iterations, on_failure ("raise" | "record")
+[time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1)
 
-    [[planes]]                       # any number; default: one horizontal ground, mu 0.5
-    slope = 20.0                     # deg in [0, 90); or normal = [nx, ny, nz] instead of slope/azimuth
-    azimuth = 0.0                    # deg: downhill direction, from +x towards +y
-    offset = 0.0                     # m: the plane is normal . x + offset >= 0
-    friction = 0.5                   # Coulomb mu, >= 0
+[[planes]]                       # any number; default: one horizontal ground, mu 0.5
+slope = 20.0                     # deg in [0, 90); or normal = [nx, ny, nz] instead of slope/azimuth
+azimuth = 0.0                    # deg: downhill direction, from +x towards +y
+offset = 0.0                     # m: the plane is normal . x + offset >= 0
+friction = 0.5                   # Coulomb mu, >= 0
 
-    [sweep]                          # one run per friction x slope x initial state
-    frictions = [0.1, 0.5, 0.9]      # each run gives every plane this mu
-    slopes = [10.0, 20.0]            # each run tilts the first plane to this slope (its azimuth and offset kept)
+[sweep]                          # one run per friction x slope x initial state
+frictions = [0.1, 0.5, 0.9]      # each run gives every plane this mu
+slopes = [10.0, 20.0]            # each run tilts the first plane to this slope (its azimuth and offset kept)
 
-    [[initial]]                      # any number; default: resting on the first plane
-    drop_height = 0.02               # m: lowest point above the first plane, or translation = [...] (world frame)
-    rotation = [0.0, 0.0, 0.0]       # rad, rotation vector
-    velocity = [0.0, 0.0, 0.0]       # m/s; with drop_height, over a horizontal ground carried onto the plane
-    angular_velocity = [0.0, 0.0, 0.0]  # rad/s
+[[initial]]                      # any number; default: resting on the first plane
+drop_height = 0.02               # m: lowest point above the first plane, or translation = [...] (world frame)
+rotation = [0.0, 0.0, 0.0]       # rad, rotation vector
+velocity = [0.0, 0.0, 0.0]       # m/s; with drop_height, over a horizontal ground carried onto the plane
+angular_velocity = [0.0, 0.0, 0.0]  # rad/s
 
-    [[held_out]]                     # scenes kept out of training: compare and demo run them
-    slope = 20.0                     # deg (default: the first plane's)
-    friction = 0.25                  # mu (default: the first plane's)
+[[held_out]]                     # scenes kept out of training: compare and demo run them
+slope = 20.0                     # deg (default: the first plane's)
+friction = 0.25                  # mu (default: the first plane's)
+```
+
+The guide ``docs/guide/own-mesh.md`` walks through a scene file of one's own object.
 """
 
 from __future__ import annotations

@@ -167,6 +167,9 @@ def _working_directory(path: str) -> Iterator[None]:
 def tetrahedralize(surface: Surface, params: TetrahedralizeParams = TetrahedralizeParams()) -> Mesh:
     """Fill a surface with tets (fTetWild); return the tet mesh in m, every tet positively oriented.
 
+    fTetWild is not deterministic: two calls give slightly different meshes, so save the
+    result (:meth:`Mesh.save`) and simulate the saved mesh.
+
     Raises:
         ConfigError: ``params`` is not a :class:`TetrahedralizeParams`.
         MeshError: the mesher failed or produced no tets (a surface that encloses nothing).
