@@ -86,7 +86,7 @@ def test_unreadable_files(tmp_path):
         load_scene(tmp_path / "missing.toml")
     with pytest.raises(FileFormatError, match="not valid TOML"):
         load_scene(_write(tmp_path, "version = = 1"))
-    with pytest.raises(ConfigError, match="unknown built-in scene 'teapot'; built-in: cheese, demo, sphere"):
+    with pytest.raises(ConfigError, match="no scene file 'teapot' and no built-in scene of that name; built-in: cheese, demo, sphere"):
         load_scene("teapot")
 
 

@@ -15,6 +15,7 @@ import click
 
 from .demo import DemoConfig
 from .errors import ConfigError, LicromError
+from .scene_file import builtin_scenes
 
 __all__ = ["cli", "main"]
 
@@ -140,7 +141,7 @@ def scene_command(source, output) -> None:
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--scene", "scene_source", default=None,
               help="Scene file (.toml) or built-in scene (cheese, sphere, demo): object, material, planes, sweep, time [cheese].")
-@click.option("--preset", type=click.Choice(["cheese", "sphere", "demo"]), default=None,
+@click.option("--preset", type=click.Choice(builtin_scenes()), default=None,
               help="A built-in scene (the same as --scene NAME).")
 @click.option("--mesh", "mesh_source", default=None, help="Object: a tet mesh file, or box / sphere / cheese[:RES] [the scene's].")
 @click.option("--resolution", "-r", type=click.IntRange(min=1), default=None, help="Procedural mesh resolution (cells along the longest side).")

@@ -455,7 +455,7 @@ def builtin_scenes() -> tuple[str, ...]:
 def builtin_scene_text(name: str) -> str:
     """The text of a shipped scene file."""
     if name not in builtin_scenes():
-        raise ConfigError(f"unknown built-in scene {name!r}; built-in: {', '.join(builtin_scenes())}")
+        raise ConfigError(f"no scene file {name!r} and no built-in scene of that name; built-in: {', '.join(builtin_scenes())}")
     return resources.files("licrom").joinpath("scenes", f"{name}.toml").read_text(encoding="utf-8")
 
 
