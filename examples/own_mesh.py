@@ -5,7 +5,7 @@ Runs the command sequence of docs/guide/own-mesh.md and prints the wall time of 
     licrom mesh potato.obj -o potato.msh --edge-length 0.2 --epsilon 0.01
     licrom scene potato.toml
     licrom generate potato-data --scene potato.toml
-    licrom train potato-data -o potato.lcm -r 8 --epochs 30
+    licrom train potato-data -o potato.lcm -r 8 --epochs 20
     licrom compare potato.lcm --scene potato.toml --out potato-compare
 
 The surface is a lumpy, potato-like closed triangle surface made here (``--surface`` takes a
@@ -43,6 +43,7 @@ density = 1000.0                    # kg/m^3
 [time]
 dt = 0.01                           # s
 steps = {steps}
+record_every = 2                    # every other step is a training frame
 
 [[planes]]
 friction = 0.5                      # the sweep sets the slope and the friction of each run
@@ -119,7 +120,7 @@ def main() -> None:
         potato(surface)
     else:
         surface = args.surface.resolve()
-    steps, epochs = (20, 2) if args.small else (150, 30)
+    steps, epochs = (20, 2) if args.small else (100, 20)
     (work / "potato.toml").write_text(SCENE.format(steps=steps))
 
     commands = [

@@ -71,8 +71,14 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
     from .mesh import Mesh
     from .surface import SURFACE_SUFFIXES, Surface, TetrahedralizeParams, tetrahedralize
 
+    surface = None
     start = time.perf_counter()
-    if Path(source).suffix.lower() in SURFACE_SUFFIXES:
+    is_surface = Path(source).suffix.lower() in SURFACE_SUFFIXES
+    given = [flag for flag, v in (("--edge-length", edge_length), ("--epsilon", epsilon), ("--stop-energy", stop_energy),
+                                  ("--scale", scale)) if v is not None]
+    if given and not is_surface:
+        raise ConfigError(f"{', '.join(given)}: only for surface files ({', '.join(SURFACE_SUFFIXES)}), not for {source!r}")
+    if is_surface:
         tkw = {k: v for k, v in (("edge_length", edge_length), ("epsilon", epsilon), ("stop_energy", stop_energy), ("scale", scale))
                if v is not None}
         params = TetrahedralizeParams(**tkw)
@@ -81,36 +87,30 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
                    f"{'closed' if surface.is_closed else 'NOT closed (holes or open edges)'}")
         click.echo(f"tetrahedralising (fTetWild, edge length {params.edge_length:g} x diagonal, epsilon {params.epsilon:g}) ...")
         mesh = tetrahedralize(surface, params)
-        elapsed = time.perf_counter() - start
-        _print_mesh_summary(mesh, elapsed)
-        if surface.is_closed:
-            enclosed = surface.enclosed_volume * params.scale**3
-            click.echo(f"surface volume    {enclosed:.6g} m^3 (tets {100 * (mesh.volume / enclosed - 1):+.2f} %)")
+    elif source in meshes.PROCEDURAL:
+        kwargs: dict = {}
+        if resolution is not None:
+            kwargs["resolution"] = resolution
+        if size is not None and source in ("box", "cheese"):
+            kwargs["size"] = tuple(size)
+        if radius is not None and source == "sphere":
+            kwargs["radius"] = radius
+        if source == "cheese" and (holes is not None or seed is not None):
+            base = meshes.CheeseHoles()
+            kwargs["holes"] = meshes.CheeseHoles(
+                count=base.count if holes is None else holes, min_radius=base.min_radius,
+                max_radius=base.max_radius, seed=base.seed if seed is None else seed,
+            )
+        mesh = meshes.PROCEDURAL[source](**kwargs)
+        click.echo(f"{source} mesh")
     else:
-        given = [flag for flag, v in (("--edge-length", edge_length), ("--epsilon", epsilon), ("--stop-energy", stop_energy),
-                                      ("--scale", scale)) if v is not None]
-        if given:
-            raise ConfigError(f"{', '.join(given)}: only for surface files ({', '.join(SURFACE_SUFFIXES)}), not for {source!r}")
-        if source in meshes.PROCEDURAL:
-            kwargs: dict = {}
-            if resolution is not None:
-                kwargs["resolution"] = resolution
-            if size is not None and source in ("box", "cheese"):
-                kwargs["size"] = tuple(size)
-            if radius is not None and source == "sphere":
-                kwargs["radius"] = radius
-            if source == "cheese" and (holes is not None or seed is not None):
-                base = meshes.CheeseHoles()
-                kwargs["holes"] = meshes.CheeseHoles(
-                    count=base.count if holes is None else holes, min_radius=base.min_radius,
-                    max_radius=base.max_radius, seed=base.seed if seed is None else seed,
-                )
-            mesh = meshes.PROCEDURAL[source](**kwargs)
-            click.echo(f"{source} mesh")
-        else:
-            mesh = Mesh.load(source)
-            click.echo(f"mesh file {source}")
-        _print_mesh_summary(mesh, time.perf_counter() - start)
+        mesh = Mesh.load(source)
+        click.echo(f"mesh file {source}")
+    elapsed = time.perf_counter() - start
+    _print_mesh_summary(mesh, elapsed)
+    if surface is not None and surface.is_closed:
+        enclosed = surface.enclosed_volume * params.scale**3
+        click.echo(f"surface volume    {enclosed:.6g} m^3 (tets {100 * (mesh.volume / enclosed - 1):+.2f} %)")
     if output is not None:
         mesh.save(output)
         click.echo(f"wrote {output}")
