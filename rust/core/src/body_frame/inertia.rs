@@ -90,18 +90,6 @@ impl MassMoments {
         let n = self.n_modes();
         (0..n).fold(self.p[k].transpose(), |acc, l| acc + self.q[l * n + k] * q[l])
     }
-
-    /// `C = sum m y y^T = J + sum_k q_k (P_k + P_k^T) + sum_kl q_k q_l Q_kl`.
-    pub fn second_moment(&self, q: &[f64]) -> Matrix3<f64> {
-        let n = self.n_modes();
-        let mut c = self.j;
-        for k in 0..n {
-            // sum_l q_l Q_kl, then q_k (P_k + P_k^T + that).
-            let row = (0..n).fold(Matrix3::zeros(), |acc, l| acc + self.q[k * n + l] * q[l]);
-            c += (self.p[k] + self.p[k].transpose() + row) * q[k];
-        }
-        c
-    }
 }
 
 /// What the inertia needs from the start of a step: the predicted centre of
@@ -174,18 +162,28 @@ impl InertiaTarget {
 /// Adds `cc I` to the centre block, `ww` to the rotation block and
 /// `cross(k)` between omega and q_k (both ways) of the N x N `hess`.
 fn add_blocks(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>, cross: impl Fn(usize) -> Vector3<f64>) {
+    add_rigid(hess, big, cc, ww);
+    for k in 0..big - 6 {
+        add_cross(hess, big, k, &cross(k));
+    }
+}
+
+/// Adds `cc I` to the centre block and `ww` to the rotation block of the N x N `hess`.
+fn add_rigid(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>) {
     for i in 0..3 {
         hess[i * big + i] += cc;
         for j in 0..3 {
             hess[(3 + i) * big + 3 + j] += ww[(i, j)];
         }
     }
-    for k in 0..big - 6 {
-        let v = cross(k);
-        for i in 0..3 {
-            hess[(3 + i) * big + 6 + k] += v[i];
-            hess[(6 + k) * big + 3 + i] += v[i];
-        }
+}
+
+/// Adds `v` between omega and q_k (both ways) of the N x N `hess`.
+#[inline]
+fn add_cross(hess: &mut [f64], big: usize, k: usize, v: &Vector3<f64>) {
+    for i in 0..3 {
+        hess[(3 + i) * big + 6 + k] += v[i];
+        hess[(6 + k) * big + 3 + i] += v[i];
     }
 }
 
@@ -198,7 +196,15 @@ fn add_blocks(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>, cross: i
 /// `a_v`, i.e. up to terms of the order of h^2 times the accelerations.
 pub fn add_gauss_newton(m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
     let r = &pose.rotation;
-    let c = m.second_moment(&pose.q);
+    let big = 6 + m.n_modes();
+    // One pass over the Y_k: with `Q_kl = Q_lk^T`,
+    // `C = J + sum_k q_k (P_k + P_k^T) + sum_kl q_k q_l Q_kl = J + sum_k q_k (P_k + Y_k)^T`.
+    let mut c = m.j;
+    for (k, qk) in pose.q.iter().enumerate() {
+        let y = m.y_mode(&pose.q, k);
+        add_cross(hess, big, k, &(r * axial(&y) * scale));
+        c += (m.p[k] + y).transpose() * *qk;
+    }
     let ww = r * (Matrix3::identity() * c.trace() - c) * r.transpose() * scale;
-    add_blocks(hess, 6 + m.n_modes(), m.total * scale, &ww, |k| r * axial(&m.y_mode(&pose.q, k)) * scale);
+    add_rigid(hess, big, m.total * scale, &ww);
 }

@@ -28,8 +28,8 @@
 //! taken and the solve stops. `iterations` counts these directions (outer
 //! iterations); the model's are counted in [`SolverStats`].
 
-mod contact_model;
-mod direction;
+pub(crate) mod contact_model;
+pub(crate) mod direction;
 pub mod line_search;
 mod settings;
 
@@ -118,7 +118,7 @@ impl Point {
 
 /// What a trial point is evaluated on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Objective {
+pub(crate) enum Objective {
     /// The incremental potential E.
     Energy,
     /// The contact model of the current outer iteration (see `contact_model.rs`).
