@@ -226,16 +226,36 @@ impl BodyContacts {
         Vector3::from(rows_dot::<M, 3>(&self.basis[3 * n * s..3 * n * (s + 1)], v))
     }
 
-    /// Positions of the points at `pose` and their lagged normal forces.
+    /// The lagged normal forces of the points at `pose` and the positions of
+    /// those that carry one (the only ones that use their start position).
     pub fn begin(&self, pose: &Pose, start: &mut ContactStart) {
+        dispatch(BeginKernel { contacts: self, pose, start })
+    }
+
+    #[inline(always)]
+    fn begin_impl<M: Madd>(&self, pose: &Pose, start: &mut ContactStart) {
         let n_planes = self.planes.len();
+        let rt = pose.rotation.transpose();
+        let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
         for s in 0..self.rest.len() {
-            let x = pose.center + pose.rotation * (self.rest[s] + self.mode_motion::<Separate>(s, &pose.q));
+            let forces = &mut start.normal_force[s * n_planes..(s + 1) * n_planes];
+            forces.fill(0.0);
+            if !self.planes.iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm)) {
+                continue;
+            }
+            let x = pose.center + pose.rotation * (self.rest[s] + self.mode_motion::<M>(s, &pose.q));
             start.x_prev[s] = x;
-            for (p, plane) in self.planes.iter().enumerate() {
-                start.normal_force[s * n_planes + p] = self.model.lagged_normal_force(plane, self.areas[s], &x);
+            for (f, plane) in forces.iter_mut().zip(&self.planes) {
+                *f = self.model.lagged_normal_force(plane, self.areas[s], &x);
             }
         }
+    }
+
+    /// Whether point s may touch `plane` (its gap bounded from below through
+    /// `|W_s q| <= |W_s|_F |q|`) for the body at `center` turned by `rt^T`.
+    #[inline(always)]
+    fn may_touch(&self, plane: &Plane, center: &Vector3<f64>, rt: &Matrix3<f64>, s: usize, q_norm: f64) -> bool {
+        plane.gap(center) + (rt * plane.normal()).dot(&self.rest[s]) - self.reach[s] * q_norm < 0.0
     }
 
     /// Contact energy (J) at `pose`, with the parts of `out` requested.
@@ -259,11 +279,7 @@ impl BodyContacts {
             // Lower bound of each gap; a plane is skipped where it cannot be
             // reached and the point carries no lagged force against it.
             let forces = &start.normal_force[s * n_planes..(s + 1) * n_planes];
-            let engaged = self
-                .planes
-                .iter()
-                .zip(forces)
-                .any(|(plane, &f)| f > 0.0 || plane.gap(&pose.center) + (rt * plane.normal()).dot(&self.rest[s]) - self.reach[s] * q_norm < 0.0);
+            let engaged = self.planes.iter().zip(forces).any(|(plane, &f)| f > 0.0 || self.may_touch(plane, &pose.center, &rt, s, q_norm));
             if !engaged {
                 if let Some(terms) = out.terms.as_deref_mut() {
                     for t in &mut terms.terms[s * n_planes..(s + 1) * n_planes] {
@@ -543,5 +559,19 @@ impl WithMadd for StickKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) -> usize {
         self.contacts.stick_impl::<M>(self.start, self.pose, self.dir, self.terms, self.rows, self.rhs)
+    }
+}
+
+struct BeginKernel<'a> {
+    contacts: &'a BodyContacts,
+    pose: &'a Pose,
+    start: &'a mut ContactStart,
+}
+
+impl WithMadd for BeginKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        self.contacts.begin_impl::<M>(self.pose, self.start)
     }
 }

@@ -215,10 +215,9 @@ impl BodyFrameSystem {
         let elastic = if n == 0 {
             None
         } else {
-            let mass = moments.mode_mass();
             let zeros = vec![0.0; n];
             let system = ReducedSystem::new(&ReducedInputs {
-                mass: &mass,
+                mass: moments.mode_mass(),
                 gravity_force: &zeros,
                 cubature_jacobians: inp.cubature_jacobians,
                 cubature_weights: inp.cubature_weights,
