@@ -20,10 +20,11 @@
 //! All three Hessians are PSD; they are returned as at most three weighted
 //! rank-one terms so that assembly can stack their square-root factors.
 //!
-//! This is the friction law. Its sum over the contact points of the reduced
-//! model, with the stick switch that corrects Newton directions crossing the
-//! stick region, is in `reduced/contact.rs`; the solver's use of that switch
-//! in `solver/contact_model.rs`.
+//! This is the friction law, with its stick switch ([`ContactModel::stick_switch`]),
+//! the correction of a Newton direction that would carry a slipping point
+//! through the stick region. Their sums over the contact points are in
+//! `reduced/contact.rs` (world frame) and `body_frame/contact.rs`; the
+//! solvers' use of the switch in `solver/contact_model.rs`.
 
 use nalgebra::{Matrix3, Vector3};
 

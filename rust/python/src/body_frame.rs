@@ -1,5 +1,7 @@
 //! The body-frame simulation state and its solver.
 
+use std::collections::HashMap;
+
 use licrom_core::body_frame::rotation::is_rotation;
 use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver, ROTATION_TOLERANCE};
 use licrom_core::body_frame::{BodyFrameInputs, BodyFrameSystem, Pose};
@@ -11,6 +13,7 @@ use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
 use crate::errors::{error, CoreResultExt, Kind};
+use crate::reduced::stats_dict;
 
 /// Body-frame model, pose history and solver of one simulation.
 #[pyclass(module = "licrom._core")]
@@ -144,6 +147,17 @@ impl BodyFrameCore {
         let solver = &mut self.inner;
         let report = py.detach(|| solver.step()).py_err(py)?;
         Ok((report.iterations, report.residual))
+    }
+
+    /// Work counters since construction (or the last `reset_stats`), as
+    /// `ReducedCore.stats`.
+    fn stats(&self) -> HashMap<&'static str, usize> {
+        stats_dict(self.inner.stats())
+    }
+
+    /// Zeroes the work counters.
+    fn reset_stats(&mut self) {
+        self.inner.reset_stats();
     }
 
     /// Takes the last iterate of a step that just failed to converge as the state.

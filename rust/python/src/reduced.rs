@@ -1,8 +1,10 @@
 //! The reduced simulation state and its solvers.
 
+use std::collections::HashMap;
+
 use licrom_core::contact::Plane;
 use licrom_core::reduced::{ReducedInputs, ReducedSystem};
-use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings};
+use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings, SolverStats};
 use licrom_core::StableNeoHookean;
 use nalgebra::Vector3;
 use numpy::PyArrayDyn;
@@ -126,20 +128,8 @@ impl ReducedCore {
     /// Work counters since construction (or the last `reset_stats`): steps,
     /// iterations, evaluations, model_iterations, model_evaluations,
     /// elastic_hessians, stick_solves, stick_steps.
-    fn stats(&self) -> std::collections::HashMap<&'static str, usize> {
-        let s = self.inner.stats();
-        [
-            ("steps", s.steps),
-            ("iterations", s.iterations),
-            ("evaluations", s.evaluations),
-            ("model_iterations", s.model_iterations),
-            ("model_evaluations", s.model_evaluations),
-            ("elastic_hessians", s.elastic_hessians),
-            ("stick_solves", s.stick_solves),
-            ("stick_steps", s.stick_steps),
-        ]
-        .into_iter()
-        .collect()
+    fn stats(&self) -> HashMap<&'static str, usize> {
+        stats_dict(self.inner.stats())
     }
 
     /// Zeroes the work counters.
@@ -187,4 +177,20 @@ impl ReducedCore {
         py.detach(|| solver.contact_forces(&mut out)).py_err(py)?;
         write(py, out, &[c, 3])
     }
+}
+
+/// The solvers' work counters by name (as `stats()` returns them).
+pub(crate) fn stats_dict(s: SolverStats) -> HashMap<&'static str, usize> {
+    [
+        ("steps", s.steps),
+        ("iterations", s.iterations),
+        ("evaluations", s.evaluations),
+        ("model_iterations", s.model_iterations),
+        ("model_evaluations", s.model_evaluations),
+        ("elastic_hessians", s.elastic_hessians),
+        ("stick_solves", s.stick_solves),
+        ("stick_steps", s.stick_steps),
+    ]
+    .into_iter()
+    .collect()
 }

@@ -9,7 +9,10 @@
 //! incremental contact Hessian) and the search direction in `direction.rs`;
 //! the contact model and friction's stick correction in `contact_model.rs`;
 //! the line search, usable by any solver, in [`line_search`]; the parameters
-//! and reports in `settings.rs`.
+//! and reports in `settings.rs`. The iteration on the contact model, the
+//! factorisation and the lagged elastic Hessian's drift test and BFGS update
+//! are written for any solver and shared with the body-frame one
+//! ([`crate::body_frame::solver`]).
 //!
 //! **Initial guess.** `q_t + h qdot_t + h^2 a`, with `a` the acceleration of the
 //! previous step (`(qdot_t - qdot_{t-1}) / h`), or gravity alone (`M^-1 f`) on the
