@@ -1,5 +1,7 @@
 //! The body-frame simulation state and its solver.
 
+use std::collections::HashMap;
+
 use licrom_core::body_frame::rotation::is_rotation;
 use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver, ROTATION_TOLERANCE};
 use licrom_core::body_frame::{BodyFrameInputs, BodyFrameSystem, Pose};
@@ -12,6 +14,7 @@ use std::sync::Mutex;
 
 use crate::arrays::{count, read, write, Dim};
 use crate::errors::{error, exclusive, CoreResultExt, Kind};
+use crate::reduced::stats_dict;
 
 /// Body-frame model, pose history and solver of one simulation.
 ///
@@ -152,6 +155,18 @@ impl BodyFrameCore {
         let solver = &mut *guard;
         let report = py.detach(|| solver.step()).py_err(py)?;
         Ok((report.iterations, report.residual))
+    }
+
+    /// Work counters since construction (or the last `reset_stats`), as
+    /// `ReducedCore.stats`.
+    fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
+        Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
+    }
+
+    /// Zeroes the work counters.
+    fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
+        exclusive(py, &self.inner)?.reset_stats();
+        Ok(())
     }
 
     /// Takes the last iterate of a step that just failed to converge as the state.

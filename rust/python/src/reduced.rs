@@ -1,8 +1,10 @@
 //! The reduced simulation state and its solvers.
 
+use std::collections::HashMap;
+
 use licrom_core::contact::Plane;
 use licrom_core::reduced::{ReducedInputs, ReducedSystem};
-use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings};
+use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings, SolverStats};
 use licrom_core::StableNeoHookean;
 use nalgebra::Vector3;
 use numpy::PyArrayDyn;
@@ -131,20 +133,8 @@ impl ReducedCore {
     /// Work counters since construction (or the last `reset_stats`): steps,
     /// iterations, evaluations, model_iterations, model_evaluations,
     /// elastic_hessians, stick_solves, stick_steps.
-    fn stats(&self, py: Python<'_>) -> PyResult<std::collections::HashMap<&'static str, usize>> {
-        let s = exclusive(py, &self.inner)?.stats();
-        Ok([
-            ("steps", s.steps),
-            ("iterations", s.iterations),
-            ("evaluations", s.evaluations),
-            ("model_iterations", s.model_iterations),
-            ("model_evaluations", s.model_evaluations),
-            ("elastic_hessians", s.elastic_hessians),
-            ("stick_solves", s.stick_solves),
-            ("stick_steps", s.stick_steps),
-        ]
-        .into_iter()
-        .collect())
+    fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
+        Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
     }
 
     /// Zeroes the work counters.
@@ -197,4 +187,20 @@ impl ReducedCore {
         py.detach(|| solver.contact_forces(&mut out)).py_err(py)?;
         write(py, out, &[c, 3])
     }
+}
+
+/// The solvers' work counters by name (as `stats()` returns them).
+pub(crate) fn stats_dict(s: SolverStats) -> HashMap<&'static str, usize> {
+    [
+        ("steps", s.steps),
+        ("iterations", s.iterations),
+        ("evaluations", s.evaluations),
+        ("model_iterations", s.model_iterations),
+        ("model_evaluations", s.model_evaluations),
+        ("elastic_hessians", s.elastic_hessians),
+        ("stick_solves", s.stick_solves),
+        ("stick_steps", s.stick_steps),
+    ]
+    .into_iter()
+    .collect()
 }
