@@ -15,7 +15,17 @@ from typing import TYPE_CHECKING, Any
 # so that importing ``licrom.compare`` (which sets the package attribute to the module) cannot
 # shadow it. The module is numpy-only, so this costs nothing.
 from .compare import compare
-from .errors import ConcurrencyError, ConfigError, FileFormatError, LicromError, MeshError, OutputError, ShapeError, SolverError
+from .errors import (
+    ConcurrencyError,
+    ConfigError,
+    FileFormatError,
+    LicromError,
+    MeshError,
+    MissingDependencyError,
+    OutputError,
+    ShapeError,
+    SolverError,
+)
 from .mesh import Mesh, MeshQuality
 from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
 from .trajectory import Trajectory
@@ -28,6 +38,7 @@ __version__ = "0.1.0"
 _LAZY: dict[str, tuple[str, str | None]] = {
     "meshes": (".meshes", None),
     "render": (".render", None),
+    "export": (".export", None),
     "FullSim": (".full_sim", "FullSim"),
     "generate_dataset": (".dataset", "generate_dataset"),
     "report_dataset_spec": (".dataset", "report_dataset_spec"),
@@ -58,6 +69,7 @@ __all__ = [
     "FileFormatError",
     "OutputError",
     "ConcurrencyError",
+    "MissingDependencyError",
     "Mesh",
     "MeshQuality",
     "Material",
@@ -87,7 +99,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover
-    from . import meshes, render
+    from . import export, meshes, render
     from .basis import AffineBasis, MeshBasis, StackedBasis
     from .body_frame import BodyFrameBasis, BodyFrameSim
     from .cubature import Cubature

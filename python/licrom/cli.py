@@ -284,7 +284,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
 @click.option("--device", default="cpu", show_default=True, help="Full simulation device: cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Write filmstrips, error plot and summary.json here.")
+              help="Write filmstrips, animations, error plot, summary.json and the runs (.npz, for licrom export) here.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 def compare_command(model_path, scene_source, slope, friction, mesh_source, steps, cubature, solver, device, out, quiet) -> None:
     """Run full and reduced side by side on scenes, and report how they differ.
@@ -349,9 +349,14 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
             results[label] = cmp.summary()
             comparisons[label] = cmp
             if out is not None:
-                from .render import filmstrip
+                from .render import pick_renderer, pictures
 
-                filmstrip([full, reduced], ["full", "reduced"], Path(out) / f"filmstrip_{len(results)}.png", title=label)
+                renderer, why_not = pick_renderer()
+                if why_not and len(results) == 1:
+                    echo(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
+                pictures([full, reduced], ["full", "reduced"], out, str(len(results)), title=label, renderer=renderer)
+                full.save(Path(out) / f"full_{len(results)}.npz")
+                reduced.save(Path(out) / f"reduced_{len(results)}.npz")
             if bar is not None:
                 bar.update(1)
     finally:
@@ -364,7 +369,59 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
         plot_errors(comparisons, Path(out) / "errors.png")
         with atomic_path(Path(out) / "summary.json") as tmp:
             tmp.write_text(json.dumps(results, indent=2))
-        click.echo(f"\nwrote {out}/summary.json, errors.png and filmstrips")
+        click.echo(f"\nwrote {out}/summary.json, errors.png, filmstrips, animations and the runs (full_N.npz, reduced_N.npz)")
+
+
+@cli.command("export")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(["vtu", "usd", "png", "gif"]), required=True,
+              help="vtu: ParaView series (forces, deformation, planes); usd: time-sampled stage; png: filmstrip; gif: animation.")
+@click.option("--output", "-o", type=click.Path(path_type=Path), required=True,
+              help="vtu: a folder; usd: a .usd/.usda/.usdc file; png/gif: the picture file.")
+@click.option("--label", "labels", multiple=True, help="Name of each run, in order (repeatable) [file names].")
+@click.option("--color-by", type=click.Choice(["deformation", "error"]), default="deformation", show_default=True,
+              help="png/gif: colour by non-rigid deformation, or by distance from the first run.")
+@click.option("--frames", type=int, default=6, show_default=True, help="png: snapshots per run.")
+@click.option("--fps", type=float, default=20.0, show_default=True, help="gif: frames per second.")
+@click.option("--max-frames", type=int, default=60, show_default=True, help="gif: at most this many frames.")
+@click.option("--title", default=None, help="png/gif: text above the views.")
+@click.option("--renderer", type=click.Choice(["pyvista", "matplotlib"]), default="pyvista", show_default=True,
+              help="png: matplotlib draws without PyVista (grey, no colours).")
+def export_command(runs, fmt, output, labels, color_by, frames, fps, max_frames, title, renderer) -> None:
+    """Export recorded runs (.npz trajectories from generate, demo or compare) for other tools.
+
+    Several runs of one scene (e.g. full and reduced) go into one picture side by side, one
+    USD stage, or one VTU folder (a series per run).
+    """
+    import re
+
+    from .trajectory import Trajectory
+
+    start = time.perf_counter()
+    trajectories = [Trajectory.load(p) for p in runs]
+    names = list(labels) or [Path(p).stem for p in runs]
+    if len(names) != len(trajectories) or len(set(names)) != len(names):
+        raise ConfigError(f"--label must be given once per run with distinct names: {len(trajectories)} runs, labels {list(labels)}")
+    if fmt == "vtu":
+        from .export import write_vtu_series
+
+        written = [write_vtu_series(t, output, re.sub(r"[^A-Za-z0-9_.-]", "_", n)) for t, n in zip(trajectories, names)]
+    elif fmt == "usd":
+        from .export import write_usd
+
+        written = [write_usd(trajectories, output, names)]
+    else:
+        from .render import RenderStyle, animation, filmstrip
+
+        style = RenderStyle(color_by=color_by)
+        if fmt == "png":
+            written = [filmstrip(trajectories, names, output, frames=frames, title=title, style=style, renderer=renderer)]
+        else:
+            written = [animation(trajectories, names, output, fps=fps, max_frames=max_frames, title=title, style=style)]
+    frames_in = trajectories[0].n_frames
+    for p in written:
+        click.echo(f"wrote {p} ({p.stat().st_size / 1e6:.2f} MB)")
+    click.echo(f"{len(trajectories)} run(s) of {frames_in} frames, wall time {time.perf_counter() - start:.1f} s")
 
 
 DEMO_DEFAULTS = DemoConfig()
@@ -386,8 +443,8 @@ def demo_command(scene_source, out, resolution, epochs, modes, frame, steps, qui
     """The whole pipeline at small scale on a scene file (default: the built-in cheese scene).
 
     Full-space runs of the scene's sweep, training, and the reduced model on the scene's
-    held-out scenes next to the full simulation; summary, filmstrips, error plot and VTU
-    series go to the output folder.
+    held-out scenes next to the full simulation; summary, filmstrips, animations, error plot,
+    the runs (runs/*.npz) and VTU series go to the output folder.
     """
     from dataclasses import replace
 

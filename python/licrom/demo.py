@@ -5,7 +5,10 @@ full-space runs over the scene's sweep of friction coefficients and slopes, a Li
 subspace trained on them (in the body frame by default: rigid motion exact, the learned
 modes hold the deformation), then the reduced model run on the scene's held-out slopes and
 friction coefficients, next to the full simulation of the same scenes. Everything lands in
-one folder: a summary table, filmstrips, an error plot, loss curves and VTU series for ParaView.
+one folder: a summary table, filmstrips and animations from a fixed camera (PyVista; a
+matplotlib filmstrip without it), an error plot, loss curves, the full and reduced runs
+(``runs/*.npz``, for ``licrom export``) and VTU series for ParaView with contact forces,
+non-rigid deformation and the planes.
 """
 
 from __future__ import annotations
@@ -95,8 +98,9 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     """
     from .compare import run_comparison
     from .cubature import Cubature
+    from .export import write_vtu_series
     from .model import ModelConfig
-    from .render import filmstrip, plot_errors, write_vtu_series
+    from .render import pick_renderer, pictures, plot_errors
     from .training import TrainConfig, train
 
     scene_file = demo_scene(config)
@@ -126,6 +130,9 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
 
     cases = scene_file.cases(mesh)
     say(f"[4/4] held-out scenes, full vs reduced: {[label for label, _ in cases]}")
+    renderer, why_not = pick_renderer()
+    if why_not:
+        say(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
     comparisons = {}
     rows = []
     cubature = Cubature.naive(mesh, config.cubature_points)
@@ -135,7 +142,9 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
                                             progress=progress, cubature=cubature)
         tag = f"slope{slope:g}_mu{mu:g}"
         comparisons[label] = cmp
-        filmstrip([full, reduced], ["full", "reduced"], out / f"filmstrip_{tag}.png", title=label)
+        pictures([full, reduced], ["full", "reduced"], out, tag, title=label, renderer=renderer)
+        full.save(out / "runs" / f"full_{tag}.npz")
+        reduced.save(out / "runs" / f"reduced_{tag}.npz")
         write_vtu_series(full, out / f"vtu_{tag}" / "full", "full")
         write_vtu_series(reduced, out / f"vtu_{tag}" / "reduced", "reduced")
         rows.append({"scene": label, "tan(slope)": math.tan(math.radians(slope)), **cmp.summary()})

@@ -7,15 +7,20 @@ keeps working for code that does not know licrom.
 
 from __future__ import annotations
 
+import importlib
+from types import ModuleType
+
 __all__ = [
     "ConcurrencyError",
     "ConfigError",
     "FileFormatError",
     "LicromError",
     "MeshError",
+    "MissingDependencyError",
     "OutputError",
     "ShapeError",
     "SolverError",
+    "require_optional",
 ]
 
 
@@ -77,3 +82,16 @@ class ConcurrencyError(LicromError, RuntimeError):
     A simulation serves one thread at a time; give each thread its own simulation (they run in
     parallel), or guard a shared one with a ``threading.Lock``.
     """
+
+
+class MissingDependencyError(LicromError, ImportError):
+    """An optional package that the asked-for output needs is not installed (the message names the pip extra)."""
+
+
+def require_optional(module: str, extra: str, what: str) -> ModuleType:
+    """Import ``module``, or raise MissingDependencyError naming the ``licrom[extra]`` that installs it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise MissingDependencyError(f"{what} needs the optional package '{module.split('.')[0]}' ({exc}); "
+                                     f"install it with: pip install 'licrom[{extra}]'") from exc
