@@ -52,7 +52,7 @@ from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.compare import compare, first_contact_frame, nonrigid_error
 from licrom.cubature import Cubature
 from licrom.placement import drop_state, initial_state_on_plane
-from licrom.render import filmstrip
+from licrom.render import filmstrip, pick_renderer
 from licrom.rigid import body_frame_displacements, rigid_fit
 from licrom.training import TrainConfig
 
@@ -566,7 +566,8 @@ def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], s
             print(f"    {name} r {r}: non-rigid {_pct(run['nonrigid_error'])} (projection {_pct(bound)}), COM {_pct(run['com_error'])}, "
                   f"{verdict(row, run)}", flush=True)
     if figs is not None and case.figure:
-        filmstrip(list(strip.values()), list(strip), figs / f"body_frame_{case.name}.png", title=f"{fam.name}: {case.kind}")
+        filmstrip(list(strip.values()), list(strip), figs / f"body_frame_{case.name}.png", title=f"{fam.name}: {case.kind}",
+                  renderer=pick_renderer()[0])
     return row
 
 

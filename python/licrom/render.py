@@ -81,7 +81,7 @@ class RenderStyle:
     azimuth: float = 20.0
     colormap: str = "YlOrRd"
     ghost: bool = True
-    edges: bool = True
+    edges: bool = False
 
     def __post_init__(self) -> None:
         if self.color_by not in COLOR_BY:
