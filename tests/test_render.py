@@ -155,6 +155,21 @@ def test_without_pyvista_the_error_names_the_extra(trajs, tmp_path, monkeypatch)
         pyvista_unavailable.cache_clear()
 
 
+def test_a_pyvista_that_cannot_render_is_reported_not_fatal(monkeypatch):
+    import subprocess
+
+    from licrom import render
+
+    failed = subprocess.CompletedProcess([], 0, stdout="", stderr="vtkOSOpenGLRenderWindow: libOSMesa not found\n")
+    monkeypatch.setattr(render.subprocess, "run", lambda *a, **k: failed)  # VTK exits 0 without a picture
+    pyvista_unavailable.cache_clear()
+    try:
+        renderer, why = render.pick_renderer()
+        assert renderer == "matplotlib" and "cannot render off-screen" in why and "libOSMesa not found" in why
+    finally:
+        pyvista_unavailable.cache_clear()
+
+
 def test_error_plot(trajs, tmp_path):
     c = compare(trajs[0], trajs[0])
     image = iio.imread(plot_errors({"same": c}, tmp_path / "errors.png"))
