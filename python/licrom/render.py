@@ -445,10 +445,13 @@ def pictures(
     """The pictures of runs of one scene: ``filmstrip_TAG.png`` and, with PyVista, ``animation_TAG.gif``.
 
     Args:
-        trajectories, labels, title, style: as for :func:`filmstrip`.
+        trajectories: the runs (as for :func:`filmstrip`).
+        labels: a name per run.
         folder: where the pictures go.
         tag: the file names' suffix (e.g. the scene's name).
+        title: text above the views.
         renderer: ``"pyvista"``, or ``"matplotlib"`` for the filmstrip alone (see :func:`pick_renderer`).
+        style: colours, camera angles and view size of the PyVista renderer.
 
     Returns:
         The paths written.
