@@ -227,13 +227,21 @@ class _Views:
             ]
             self.scalar_label = "non-rigid deformation (mm)"
         top = max(float(s.max()) for s in self.scalars)
-        self.clim = (0.0, top if top > 1e-9 else 1e-9)
+        self.clim = (0.0, max(top, 0.01))  # a rigid run: a scale of 0 to 10 micrometres, not of 0 to 0
         every = np.concatenate([x.reshape(-1, 3) for x in self.positions])
         size = max(t.mesh.size for t in runs)
         scene = runs[0].scene
         self.patches = [plane_patch(p, every, 0.6 * float(np.ptp(every, axis=0).max()) + 0.5 * size, scene.gravity)
                         for p in scene.planes]
-        self.camera = self._camera(every, size)
+        # The camera frames the run and the ground under it: the feet of the positions on every
+        # plane that the run comes within one object size of (a far wall does not widen the view).
+        framed = [every]
+        for p in scene.planes:
+            n = np.asarray(p.normal)
+            gaps = every @ n + p.offset
+            if gaps.min() < size:
+                framed.append(every - np.outer(gaps, n))
+        self.camera = self._camera(np.concatenate(framed), size)
         spacing = np.diff(runs[0].times)
         self.decimals = max(2, math.ceil(-math.log10(spacing[spacing > 0].min()) - 1e-6)) if np.any(spacing > 0) else 2
         self.plotters: list[Any] = []
