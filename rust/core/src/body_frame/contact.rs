@@ -70,7 +70,8 @@ pub struct ContactStart {
 pub struct ContactRows {
     rows: Vec<f64>,
     out: Vec<f64>,
-    count: usize,
+    /// Rows of the last evaluation that asked for them.
+    pub(super) count: usize,
 }
 
 /// What an evaluation with gradient leaves for the Hessian and the stick
@@ -99,11 +100,6 @@ impl BodyContactHessian {
     /// S, N x N full symmetric.
     pub fn body_matrix(&self) -> &[f64] {
         self.gram.matrix()
-    }
-
-    /// Forms S from scratch at the next update.
-    pub fn invalidate(&mut self) {
-        self.gram.invalidate();
     }
 }
 
@@ -384,9 +380,9 @@ impl BodyContacts {
         at + count
     }
 
-    /// Adds `B^T B` of the rows of the last evaluation to the full symmetric `hess` (N x N).
-    pub(super) fn add_rows(&self, rows: &ContactRows, hess: &mut [f64]) {
-        add_gram(hess, 6 + self.n, &rows.rows, rows.count);
+    /// Adds `B^T B` of the first `count` rows in `rows` to the full symmetric `hess` (N x N).
+    pub(super) fn add_rows(&self, rows: &ContactRows, count: usize, hess: &mut [f64]) {
+        add_gram(hess, 6 + self.n, &rows.rows, count);
     }
 
     /// Brings `state` to the terms of the last evaluation with gradient
@@ -445,9 +441,7 @@ impl BodyContacts {
         rows: &mut ContactRows,
         rhs: &mut [f64],
     ) -> usize {
-        let count = dispatch(StickKernel { contacts: self, start, pose, dir, terms, rows: &mut *rows, rhs });
-        rows.count = count;
-        count
+        dispatch(StickKernel { contacts: self, start, pose, dir, terms, rows, rhs })
     }
 
     #[inline(always)]

@@ -394,7 +394,7 @@ impl BodyFrameSystem {
         };
         let out_c = ContactOut { grad: None, rows: Some(&mut ws.rows), geometric, terms: None };
         self.contacts.evaluate(&start.contact, pose, out_c);
-        self.contacts.add_rows(&ws.rows, out);
+        self.contacts.add_rows(&ws.rows, ws.rows.count, out);
     }
 
     /// Whether the model has contact points with area and planes (contact and
@@ -450,10 +450,10 @@ impl BodyFrameSystem {
         self.contacts.stick_switch(&start.contact, pose, dir, &ws.terms, &mut ws.rows, rhs)
     }
 
-    /// Adds the product of the rows of the last [`Self::stick_switch`] to the
-    /// full symmetric `hess`.
-    pub fn add_switch_rows(&self, ws: &BodyWorkspace, hess: &mut [f64]) {
-        self.contacts.add_rows(&ws.rows, hess);
+    /// Adds the product of the first `count` switch rows of
+    /// [`Self::stick_switch`] to the full symmetric `hess`.
+    pub fn add_switch_rows(&self, ws: &BodyWorkspace, count: usize, hess: &mut [f64]) {
+        self.contacts.add_rows(&ws.rows, count, hess);
     }
 
     /// Contact forces (N) on the C points at `pose` over the step that started

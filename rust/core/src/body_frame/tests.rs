@@ -335,7 +335,7 @@ fn stick_switch_turns_slipping_points_into_sticking_ones() {
     let mut hess = vec![0.0; big * big];
     sys.hessian(&start, &pose, BodyHessian::GaussNewton, &mut ws, &mut hess);
     sys.stick_switch(&start, &pose, &back, &mut ws, &mut vec![0.0; big]);
-    sys.add_switch_rows(&ws, &mut hess);
+    sys.add_switch_rows(&ws, rows, &mut hess);
     let planes: Vec<Plane> = b.planes.iter().map(|p| Plane::new(p.normal(), p.offset(), 1e9).unwrap()).collect();
     let sticky = BodyFrameSystem::new(&BodyFrameInputs { planes: &planes, ..b.inputs() }).unwrap();
     // The step start does not depend on the friction coefficient.
