@@ -93,21 +93,29 @@ def mesh_command(source, resolution, size, radius, holes, seed, output) -> None:
 @click.option("--resolution", "-r", type=int, default=None, help="Mesh resolution (cells along the longest side).")
 @click.option("--steps", type=int, default=None, help="Time steps per trajectory (preset default if omitted).")
 @click.option("--record-every", type=int, default=None, help="Record every n-th step (preset default if omitted).")
-@click.option("--device", default="cpu", show_default=True, help="Simulation device: cpu, cuda or cuda:N.")
+@click.option("--device", default="auto", show_default=True, help="Simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local: this machine (--jobs processes); ray: one task per run on a Ray cluster (RAY_ADDRESS, else a local one).")
+@click.option("--jobs", "-j", type=int, default=None, help="Processes of the local executor [1].")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-def generate_command(out_dir, preset, resolution, steps, record_every, device, quiet) -> None:
+def generate_command(out_dir, preset, resolution, steps, record_every, device, executor, jobs, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
     Writes one traj_XXX_*.npz per run, mesh.vtu and manifest.json, and prints what it wrote.
     """
     from .dataset import report_dataset_spec
+    from .executors import check_executor
+    from .full_sim import check_device_name, resolve_device
 
     start = time.perf_counter()
+    executor, n_jobs = check_executor(executor, jobs)
+    device = resolve_device(device) if executor == "local" else check_device_name(device)
     spec = report_dataset_spec(preset, resolution=resolution, steps=steps, record_every=record_every)
+    where = f"{n_jobs} process{'es' if n_jobs > 1 else ''}" if executor == "local" else "Ray"
     click.echo(f"preset {spec.name}: {spec.description}")
     click.echo(f"mesh {spec.mesh.n_vertices} vertices, {spec.mesh.n_tets} tets; {spec.n_trajectories} trajectories x "
-               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}")
-    manifest_path = spec.generate(out_dir, device=device, progress=not quiet)
+               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}, {where}")
+    manifest_path = spec.generate(out_dir, device=device, progress=not quiet, executor=executor, jobs=jobs)
     import json
 
     manifest = json.loads(manifest_path.read_text())
@@ -117,7 +125,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
         total += size
         state = "skipped (exists)" if t.get("skipped") else t["status"]
         seconds = "" if t.get("seconds") is None else f"{t['seconds']:.1f} s"
-        click.echo(f"  {t['file']:<36} {state:<17} {seconds:>9} {size / 1e6:8.2f} MB")
+        click.echo(f"  {t['file']:<36} {state:<17} {seconds:>9} {size / 1e6:8.2f} MB  {t.get('device') or ''}")
     mesh_file = Path(out_dir) / manifest["mesh"]
     total += mesh_file.stat().st_size + manifest_path.stat().st_size
     done = sum(t["status"] == "done" for t in manifest["trajectories"])
@@ -210,7 +218,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
 @click.option("--steps", type=int, default=150, show_default=True, help="Time steps.")
 @click.option("--cubature", type=int, default=1000, show_default=True, help="Cubature tets (naive scheme).")
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
-@click.option("--device", default="cpu", show_default=True, help="Full simulation device: cpu, cuda or cuda:N.")
+@click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write filmstrips, error plot and summary.json here.")
 def compare_command(model_path, slope, friction, mesh_source, steps, cubature, solver, device, out) -> None:
