@@ -152,6 +152,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, e
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Training device (auto: CUDA when available).")
 @click.option("--gpus", type=int, default=None, help="GPUs to use (default all visible; >1 trains with DDP).")
+@click.option("--nodes", type=int, default=None, help="Machines of a multi-node DDP run, each with --gpus GPUs [1] (see docs/scaling.md).")
 @click.option("--batch-frames", type=int, default=None, help="Frames per step [16].")
 @click.option("--points", type=int, default=None, help="Points sampled per step, shared by its frames [2048].")
 @click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
@@ -161,7 +162,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, e
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
+def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, nodes, batch_frames, points, val_fraction, width,
                   layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -174,7 +175,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
-                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus)):
+                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}
