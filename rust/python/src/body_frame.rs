@@ -15,7 +15,7 @@ use crate::errors::{error, CoreResultExt, Kind};
 /// Body-frame model, pose history and solver of one simulation.
 #[pyclass(module = "licrom._core")]
 pub struct BodyFrameCore {
-    inner: BodyFrameSolver,
+    pub(crate) inner: BodyFrameSolver,
 }
 
 /// Row-major values of a 3x3 matrix.

@@ -14,7 +14,7 @@ use crate::errors::{error, CoreResultExt, Kind};
 /// Reduced model, state `(q, qdot)` and solver of one simulation.
 #[pyclass(module = "licrom._core")]
 pub struct ReducedCore {
-    inner: ReducedSolver,
+    pub(crate) inner: ReducedSolver,
 }
 
 #[pymethods]
