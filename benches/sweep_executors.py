@@ -8,8 +8,9 @@ The sweep: a cheese (``--resolution``) dropped onto ``--slopes`` x ``--frictions
 - ``ray``: one Ray task per run on a local Ray cluster of ``--ray-cpus`` CPUs started here
   (its start-up is timed apart; on a standing cluster a sweep does not pay it);
 
-each into its own folder, prints the wall times, and compares every file with the serial
-run's, array by array and bit for bit (the per-step wall-clock times left out).
+each into its own folder, prints the wall times (and the runs' own times summed, which over the
+wall time says how many ran at once), and compares every file with the serial run's, array by
+array and bit for bit (the per-step wall-clock times left out).
 
     python benches/sweep_executors.py --resolution 8 --steps 40
 """
@@ -67,8 +68,10 @@ def main() -> None:
             seconds = time.perf_counter() - start
             m = load_manifest(out)
             assert m["complete"] and len(m["trajectories"]) == runs
+            # The runs' own wall times summed, over the sweep's: how many ran at once, on average.
+            busy = sum(e["seconds"] for e in m["trajectories"])
             same = "" if label == "local" else ("  same files" if contents(out) == reference else "  FILES DIFFER")
-            print(f"{label:<18} {seconds:8.2f} s{same}")
+            print(f"{label:<18} {seconds:8.2f} s   runs {busy:7.2f} s in all, {busy / seconds:4.2f} at a time{same}")
             if same.strip() == "FILES DIFFER":
                 raise SystemExit(f"{label} wrote other files than the serial run")
             return seconds
