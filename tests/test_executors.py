@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 from licrom import ConfigError, ContactParams, Material, Scene, meshes
-from licrom.dataset import MANIFEST_NAME, generate_dataset, load_manifest
+from licrom.dataset import MANIFEST_NAME, generate_dataset, load_manifest, local_devices
 from licrom.executors import check_executor, run_tasks, task_resources
 from licrom.placement import drop_state
 
@@ -85,6 +85,17 @@ def test_ray_tasks_ask_for_a_gpu_where_the_cluster_has_gpus(ray_cluster):
     assert task_resources({"CPU": 64.0, "GPU": 8.0}) == {"num_cpus": 1, "num_gpus": 1}
     assert task_resources({"CPU": 64.0}) == task_resources({"CPU": 2.0, "GPU": 0.0}) == {"num_cpus": 1, "num_gpus": 0}
     assert task_resources(ray_cluster.cluster_resources())["num_gpus"] == 0  # this test's cluster: 2 CPUs
+
+
+def test_local_processes_take_the_gpus_in_turn(monkeypatch):
+    from licrom.full_sim import device as device_module
+
+    warp = device_module.warp_ready()
+    monkeypatch.setattr(warp, "get_cuda_device_count", lambda: 3)
+    assert local_devices("cuda", 4) == ["cuda:0", "cuda:1", "cuda:2"]
+    assert local_devices("cuda", 1) == ["cuda"] and local_devices("cuda:1", 4) == ["cuda:1"] and local_devices("cpu", 4) == ["cpu"]
+    monkeypatch.setattr(warp, "get_cuda_device_count", lambda: 1)
+    assert local_devices("cuda", 4) == ["cuda"]
 
 
 def test_ray_missing_is_a_config_error_naming_the_extra(monkeypatch, tmp_path):

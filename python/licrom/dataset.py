@@ -47,6 +47,7 @@ __all__ = [
     "DatasetSpec",
     "generate_dataset",
     "load_manifest",
+    "local_devices",
     "report_dataset_spec",
     "simulate_run",
 ]
@@ -133,6 +134,18 @@ def _write_manifest(path: Path, manifest: dict[str, Any]) -> None:
         tmp.write_text(json.dumps(manifest, indent=2))
 
 
+def local_devices(device: str, jobs: int) -> list[str]:
+    """The devices the local executor's runs take in turn: every CUDA device of the machine when
+    ``device`` is ``"cuda"`` (as ``"auto"`` resolves on a GPU machine) and several processes run,
+    else ``device`` alone."""
+    if device != "cuda" or jobs < 2:
+        return [device]
+    from .full_sim.device import warp_ready
+
+    count = warp_ready().get_cuda_device_count()
+    return [f"cuda:{i}" for i in range(count)] if count > 1 else [device]
+
+
 def simulate_run(
     out_dir: str,
     mesh: Mesh,
@@ -213,8 +226,10 @@ def generate_dataset(
         steps: time steps per run.
         record_every: record every n-th step (frame 0 is the initial state).
         device: warp device of the simulations: ``None``/``"auto"`` (CUDA where a task sees
-            a GPU, else the CPU), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``. Each manifest entry
-            records the device its run used.
+            a GPU, else the CPU), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``. Several local
+            processes on a machine of several GPUs take the GPUs in turn (see
+            :func:`local_devices`); Ray gives each task its own. Each manifest entry records
+            the device its run used.
         progress: show progress bars (runs as they finish; with the serial local executor
             also the steps of the current run).
         initial_frame: ``"world"``: initial states as given; ``"plane"``: initial states
@@ -335,6 +350,7 @@ def generate_dataset(
     todo: list[int] = []
     task_args: list[tuple[Any, ...]] = []
     step_bars = progress and executor == "local" and jobs == 1  # one run at a time: its steps can be shown
+    run_devices = local_devices(device, jobs) if executor == "local" else [device]
     for index, (mu, run_planes, k, state, scene) in enumerate(runs):
         fname = _file_name(index, mu, run_planes, k)
         entry: dict[str, Any] = {
@@ -356,7 +372,8 @@ def generate_dataset(
         else:
             info = {"dataset": name, "index": index, "friction": mu, "slope_deg": entry["slope_deg"], "initial_index": k, "mesh": MESH_NAME}
             todo.append(index)
-            task_args.append((str(out), mesh, scene, fname, int(steps), int(record_every), device, precision, info, step_bars))
+            run_device = run_devices[len(task_args) % len(run_devices)]
+            task_args.append((str(out), mesh, scene, fname, int(steps), int(record_every), run_device, precision, info, step_bars))
 
     bar = None
     if progress:
