@@ -98,10 +98,21 @@ def test_local_processes_take_the_gpus_in_turn(monkeypatch):
     assert local_devices("cuda", 4) == ["cuda"]
 
 
+def test_nothing_to_run_starts_no_ray_cluster(monkeypatch):
+    import types
+
+    def init(**kw):
+        raise AssertionError("ray.init called without tasks")
+
+    monkeypatch.setitem(sys.modules, "ray", types.SimpleNamespace(is_initialized=lambda: False, init=init))
+    assert list(run_tasks(operator.mul, [], "ray")) == []
+
+
 def test_ray_missing_is_a_config_error_naming_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
-    with pytest.raises(ConfigError, match=r'pip install "licrom\[ray\]"'):
-        list(run_tasks(operator.mul, [(1, 2)], "ray"))
+    for args in ([(1, 2)], []):
+        with pytest.raises(ConfigError, match=r'pip install "licrom\[ray\]"'):
+            list(run_tasks(operator.mul, args, "ray"))
     with pytest.raises(ConfigError, match="Ray"):
         _sweep(tmp_path / "no_ray", executor="ray")
 

@@ -96,6 +96,8 @@ def task_resources(cluster: dict[str, float]) -> dict[str, float]:
 
 def _run_ray(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
     ray = _import_ray()
+    if not args:  # nothing to run: no cluster to start
+        return
     started = not ray.is_initialized()
     if started:
         ray.init(include_dashboard=False)
