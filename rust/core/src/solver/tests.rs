@@ -108,7 +108,9 @@ fn steps_after_set_state_are_those_of_a_new_solver() {
     let (q, qdot) = model.dropped_state(30.0, 0.002);
     let run = |s: &mut ReducedSolver| -> Vec<f64> {
         s.set_state(&q, &qdot).unwrap();
-        (0..12).for_each(|_| drop(s.step().unwrap()));
+        for _ in 0..12 {
+            s.step().unwrap();
+        }
         s.q().to_vec()
     };
     let fresh = run(&mut solver(&model, SolverKind::Newton, 1e-8, 100));
