@@ -25,13 +25,21 @@ def test_demo_reduced_runs_follow_the_full_ones(tiny_demo):
         assert case["reduced_step_ms"] < case["full_step_ms"]
 
 
-def test_demo_refuses_a_test_case_from_the_training_set():
+def test_demo_refuses_a_held_out_scene_from_the_training_set(tmp_path, tiny_demo_scene):
+    from licrom.demo import run_demo
+
+    scene = tmp_path / "s.toml"
+    scene.write_text(tiny_demo_scene.replace("friction = 0.9", "friction = 0.6").replace("slope = 20.0\nfriction = 0.6", "slope = 30.0\nfriction = 0.6"))
     with pytest.raises(ConfigError, match="held-out"):
-        DemoConfig(train_slopes=(20.0,), train_frictions=(0.5,), test_cases=((20.0, 0.5),))
+        run_demo(DemoConfig(out_dir=str(tmp_path / "out"), scene=str(scene)), progress=False)
+    assert not (tmp_path / "out").exists()  # refused before anything ran
+    scene.write_text(tiny_demo_scene.split("[[held_out]]")[0])
+    with pytest.raises(ConfigError, match=r"needs held-out scenes"):
+        run_demo(DemoConfig(out_dir=str(tmp_path / "out"), scene=str(scene)), progress=False)
 
 
 @pytest.mark.parametrize("field, value", [("epochs", 0), ("modes", -1), ("steps", 0), ("cubature_points", 0),
-                                          ("resolution", 2), ("drop_height", float("nan"))])
+                                          ("resolution", 2), ("frame", "space")])
 def test_demo_refuses_bad_settings_before_simulating(field, value):
     with pytest.raises(ConfigError, match=f"DemoConfig.{field}"):
         DemoConfig(**{field: value})

@@ -381,3 +381,22 @@ def test_custom_contact_points_and_validation():
     v = np.ones((mesh.n_vertices, 3))
     sim.set_state(velocities=v)
     np.testing.assert_array_equal(sim.velocities, v)
+
+
+def test_cpu_run_prints_no_missing_driver_warning_but_other_native_output_passes(capfd):
+    import os
+    import subprocess
+    import sys
+
+    from licrom.full_sim.device import _NO_DRIVER_WARNING, _native_stderr_without
+
+    code = ("import licrom; licrom.FullSim(licrom.meshes.box(resolution=1), licrom.Scene()).run(1); "
+            "import warp; print(warp.get_cuda_device_count())")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert _NO_DRIVER_WARNING not in r.stderr and "Warp CUDA warning" not in r.stderr
+    with _native_stderr_without(_NO_DRIVER_WARNING):
+        os.write(2, f"Warp CUDA warning: {_NO_DRIVER_WARNING}. GPU execution will not be available.\n".encode())
+        os.write(2, b"Warp CUDA error: a real error\n")
+    err = capfd.readouterr().err
+    assert err == "Warp CUDA error: a real error\n"

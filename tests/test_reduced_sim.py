@@ -84,6 +84,8 @@ def test_affine_rigid_rotation_has_no_elastic_force():
     for _ in range(5):
         sim.step()
     np.testing.assert_allclose(sim.positions, start, atol=1e-10)
+    with pytest.raises(ConfigError, match="strain must be one of 'mesh', 'field'"):
+        ReducedSim(AffineBasis(), mesh, scene, strain="continuous")
 
 
 @pytest.mark.parametrize("theta, mu", [(20.0, 0.2), (30.0, 0.3), (35.0, 0.5)])
@@ -195,6 +197,79 @@ def test_a_non_basis_is_refused_naming_what_it_lacks():
     mesh = meshes.box(0.1, resolution=2)
     with pytest.raises(ConfigError, match=r"not a basis: it lacks 'n_modes', 'values', 'jacobians'"):
         ReducedSim(object(), mesh, Scene())
+
+
+def _contend(sim, steps=5000):
+    """Step ``sim`` in a second thread while this one reads and steps it; return the exceptions raised here."""
+    import threading
+
+    raised, failed = [], []
+
+    def stepper():
+        try:
+            for _ in range(steps):
+                if raised:
+                    return
+                sim.step()
+        except Exception as exc:  # collected: any error of the stepping thread fails the test
+            failed.append(exc)
+
+    thread = threading.Thread(target=stepper)
+    thread.start()
+    while thread.is_alive() and not raised:
+        try:
+            _ = sim.q
+            sim.step()
+        except Exception as exc:
+            raised.append(exc)
+    thread.join()
+    assert not failed, failed
+    return raised
+
+
+def _serial_and_threaded(make, steps=8):
+    """Final q of two simulations run one after the other, and of two run at once in two threads."""
+    import threading
+
+    serial = [make(), make()]
+    for sim in serial:
+        for _ in range(steps):
+            sim.step()
+    sims = [make(), make()]
+    threads = [threading.Thread(target=lambda s=s: [s.step() for _ in range(steps)]) for s in sims]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return [s.q for s in serial], [s.q for s in sims]
+
+
+
+def _world_frame_sim():
+    mesh = meshes.box(0.1, 2)
+    scene = Scene(material=STIFF, planes=(Plane((0, 0, 1), 0.05, 0.5),), solver=TIGHT, initial=InitialState(velocity=(0.2, 0, -0.5)))
+    return ReducedSim(MeshBasis.identity(mesh), mesh, scene, cubature=Cubature.full(mesh))
+
+
+def _body_frame_sim():
+    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+
+    mesh = meshes.box(0.1, 4)
+    scene = Scene(planes=(Plane((0, 0, 1), 0.05, 0.5),), solver=TIGHT, initial=InitialState(angular_velocity=(1.0, 2.0, 0.0)))
+    return BodyFrameSim(BodyFrameBasis(mesh), mesh, scene, cubature=Cubature.full(mesh))
+
+
+@pytest.mark.parametrize("make", [_world_frame_sim, _body_frame_sim], ids=["world", "body"])
+def test_one_simulation_in_two_threads_is_a_named_error_and_two_run_in_parallel(make):
+    from licrom import ConcurrencyError
+
+    raised = _contend(make())
+    # a read or step while the other thread's step runs (without the GIL) is refused by name
+    assert raised and all(isinstance(e, ConcurrencyError) for e in raised), raised
+    assert "another thread" in str(raised[0]) and isinstance(raised[0], RuntimeError)
+    serial, threaded = _serial_and_threaded(make)
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a, b)
 
 
 def _many_scenes():

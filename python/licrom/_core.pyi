@@ -242,6 +242,12 @@ class BodyFrameCore:
                 ``iterations`` and ``residual``) or non-finite values; the state is
                 left unchanged.
         """
+    def stats(self) -> dict[str, int]:
+        """Work counters since construction or :meth:`reset_stats`, as
+        :meth:`ReducedCore.stats` (the same solver machinery: contact model, stick
+        correction, lagged elastic Hessian)."""
+    def reset_stats(self) -> None:
+        """Zero the work counters."""
     def accept_last_iterate(self) -> None:
         """After a step that did not converge, take its last iterate as the new pose."""
     @property

@@ -12,9 +12,10 @@ its own file atomically; the runs go one after the other in this process, to a p
 local processes (``jobs``) or to a Ray cluster (``executor="ray"``), see
 :mod:`licrom.executors`. The manifest is written here as runs finish.
 
-:func:`report_dataset_spec` gives the report's sets as named presets ("cheese": 5 friction
-coefficients x 3 inclines with a cheese dropped from a short height; "sphere": a sphere
-bouncing down a 20 degree slope with mu 0.5).
+:func:`report_dataset_spec` gives the built-in scene files (``licrom/scenes/*.toml``) as
+dataset specs: the report's sets ("cheese": 5 friction coefficients x 3 inclines with a
+cheese dropped from a short height; "sphere": a sphere bouncing down a 20 degree slope with
+mu 0.5) and the demo's training set ("demo").
 """
 
 from __future__ import annotations
@@ -22,8 +23,6 @@ from __future__ import annotations
 import json
 import math
 import time
-import zipfile
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
@@ -32,11 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_path
-from .errors import ConfigError, FileFormatError, LicromError
+from ._io import atomic_path, load_npz, make_dir
+from .errors import ConfigError, FileFormatError, LicromError, OutputError
 from .mesh import Mesh
-from .placement import drop_state, initial_state_on_plane
+from .placement import initial_state_on_plane
 from .scene import InitialState, Plane, Scene
+from .scene_file import builtin_scenes, load_scene
 from .trajectory import TRAJECTORY_FORMAT_VERSION
 
 __all__ = [
@@ -50,12 +50,13 @@ __all__ = [
     "local_devices",
     "report_dataset_spec",
     "simulate_run",
+    "sweep_runs",
 ]
 
 DATASET_FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"
 MESH_NAME = "mesh.vtu"
-PRESETS = ("cheese", "sphere")
+PRESETS = builtin_scenes()
 INITIAL_FRAMES = ("world", "plane")
 
 
@@ -93,19 +94,10 @@ def _valid_trajectory_file(path: Path, scene: Scene, frames: int) -> bool:
     if not path.is_file():
         return False
     try:
-        with zipfile.ZipFile(path) as zf:
-            if zf.testzip() is not None:  # CRC of every member
-                return False
-        with np.load(path, allow_pickle=False) as data:
-            if "header_json" not in data.files or "times" not in data.files or "displacements" not in data.files:
-                return False
-            header = json.loads(str(data["header_json"]))
-            if header.get("kind") != "trajectory" or header.get("version") != TRAJECTORY_FORMAT_VERSION:
-                return False
-            if Scene.from_dict(header["scene"]) != scene:
-                return False
-            return len(data["times"]) == frames
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, zlib.error, EOFError, json.JSONDecodeError, LicromError):
+        header, arrays = load_npz(path, "trajectory")  # reads every member: their CRCs are checked
+        return (header.get("version") == TRAJECTORY_FORMAT_VERSION and "displacements" in arrays
+                and Scene.from_dict(header["scene"]) == scene and len(arrays.get("times", ())) == frames)
+    except (LicromError, KeyError, TypeError, ValueError):
         return False
 
 
@@ -120,18 +112,65 @@ def load_manifest(out_dir: str | Path) -> dict[str, Any]:
         raise FileFormatError(f"dataset manifest not found: '{p}'")
     try:
         d = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:
         raise FileFormatError(f"dataset manifest '{p}' is not readable JSON: {exc}") from exc
+    except RecursionError:
+        raise FileFormatError(f"dataset manifest '{p}' is nested too deeply to be a licrom manifest") from None
     if not isinstance(d, dict) or d.get("format") != "licrom.dataset":
         raise FileFormatError(f"'{p}' is not a licrom dataset manifest")
     if d.get("version") != DATASET_FORMAT_VERSION:
         raise FileFormatError(f"dataset manifest '{p}' has format version {d.get('version')!r}; this licrom reads version {DATASET_FORMAT_VERSION} only")
+    entries = d.get("trajectories")
+    if not isinstance(entries, list) or not all(isinstance(t, dict) and isinstance(t.get("file"), str) for t in entries):
+        raise FileFormatError(f"dataset manifest '{p}' is corrupt: 'trajectories' must be a list of objects with a 'file' name")
     return d
 
 
 def _write_manifest(path: Path, manifest: dict[str, Any]) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(manifest, indent=2))
+
+
+def sweep_runs(
+    mesh: Mesh,
+    base_scene: Scene,
+    frictions: Sequence[float] | None = None,
+    planes: Sequence[Any] | None = None,
+    initial_states: Sequence[InitialState] | None = None,
+    initial_frame: str = "world",
+) -> list[tuple[float | None, tuple[Plane, ...], int, InitialState, Scene]]:
+    """The runs of a sweep, in file order: ``(friction, planes, initial index, initial state, scene)`` each.
+
+    Arguments as in :func:`generate_dataset`; ``scene`` is what the run simulates.
+
+    Raises:
+        ConfigError: bad arguments.
+    """
+    mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
+    for m in mus:
+        if m is not None and (not math.isfinite(m) or m < 0):
+            raise ConfigError(f"friction coefficients must be finite and >= 0, got {m}")
+    plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
+    states = [base_scene.initial] if initial_states is None else list(initial_states)
+    for s in states:
+        if not isinstance(s, InitialState):
+            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
+    if not mus or not plane_items or not states:
+        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
+    if initial_frame not in INITIAL_FRAMES:
+        raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
+    runs = []
+    for mu in mus:
+        for p_item in plane_items:
+            run_planes = _as_planes(p_item, mu)
+            for k, state in enumerate(states):
+                initial = state
+                if initial_frame == "plane":
+                    if not run_planes:
+                        raise ConfigError("initial_frame='plane' needs at least one plane in every run")
+                    initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
+                runs.append((mu, run_planes, k, state, base_scene.replace(planes=run_planes, initial=initial)))
+    return runs
 
 
 def local_devices(device: str, jobs: int) -> list[str]:
@@ -190,6 +229,8 @@ def simulate_run(
             "newton_mean": round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
             "unconverged_steps": int((~traj.converged).sum()),
         }
+    except OutputError:
+        raise  # a full or read-only disk fails every later run too
     except LicromError as exc:
         return {"status": "failed", "seconds": round(time.perf_counter() - t0, 3), "device": device, "error": f"{type(exc).__name__}: {exc}"}
 
@@ -264,40 +305,17 @@ def generate_dataset(
         raise ConfigError(f"steps must be an integer >= 1, got {steps!r}")
     if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
         raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
-    if initial_frame not in INITIAL_FRAMES:
-        raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
     if precision not in ("float32", "float64"):
         raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
+    runs = sweep_runs(mesh, base_scene, frictions, planes, initial_states, initial_frame)
     executor, jobs = check_executor(executor, jobs)
     # Local runs use this machine's devices; Ray tasks choose on the node that runs them.
     device = resolve_device(device) if executor == "local" else check_device_name(device)
     mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
-    for m in mus:
-        if m is not None and (not math.isfinite(m) or m < 0):
-            raise ConfigError(f"friction coefficients must be finite and >= 0, got {m}")
     plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
     states = [base_scene.initial] if initial_states is None else list(initial_states)
-    for s in states:
-        if not isinstance(s, InitialState):
-            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
-    if not mus or not plane_items or not states:
-        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
 
-    runs = []
-    for mu in mus:
-        for p_item in plane_items:
-            run_planes = _as_planes(p_item, mu)
-            for k, state in enumerate(states):
-                initial = state
-                if initial_frame == "plane":
-                    if not run_planes:
-                        raise ConfigError("initial_frame='plane' needs at least one plane in every run")
-                    initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
-                scene = base_scene.replace(planes=run_planes, initial=initial)
-                runs.append((mu, run_planes, k, state, scene))
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_dir(out_dir)
     mesh_path = out / MESH_NAME
     existing = None
     if mesh_path.exists():
@@ -424,6 +442,10 @@ class DatasetSpec:
     def n_trajectories(self) -> int:
         return len(self.frictions or (None,)) * len(self.planes or (None,)) * len(self.initial_states)
 
+    def scenes(self) -> list[Scene]:
+        """The scene of every run, in file order."""
+        return [run[-1] for run in sweep_runs(self.mesh, self.base_scene, self.frictions, self.planes, self.initial_states, self.initial_frame)]
+
     def generate(self, out_dir: str | Path, device: str | None = None, progress: bool = True, executor: str = "local",
                  jobs: int | None = None) -> Path:
         """Run :func:`generate_dataset` on this spec; return the manifest path."""
@@ -447,59 +469,26 @@ class DatasetSpec:
 
 def report_dataset_spec(preset: str = "cheese", resolution: int | None = None, steps: int | None = None,
                         record_every: int | None = None) -> DatasetSpec:
-    """The report's training/test sets as named presets.
+    """A built-in scene file (``licrom/scenes/NAME.toml``) as a dataset spec.
 
-    - ``"cheese"``: the cheese block (default resolution 12, ~2.5k tets; E = 100 kPa,
-      nu = 0.3, 1000 kg/m^3) dropped from 2 cm, slightly tilted, onto an incline: 5 friction
-      coefficients (0.1, 0.3, 0.5, 0.7, 0.9) x 3 slopes (10, 20, 30 deg) = 15 runs of 2 s
-      (h = 10 ms). tan(10, 20, 30 deg) = 0.18, 0.36, 0.58, so the set holds sliding
-      (mu < tan) and sticking (mu > tan) runs on every slope but the steepest-with-0.9.
+    - ``"cheese"``: the report's training set: the cheese block (default resolution 12,
+      ~2.5k tets; E = 100 kPa, nu = 0.3, 1000 kg/m^3) dropped from 2 cm, slightly tilted,
+      onto an incline: 5 friction coefficients (0.1, 0.3, 0.5, 0.7, 0.9) x 3 slopes (10, 20,
+      30 deg) = 15 runs of 2 s (h = 10 ms). tan(10, 20, 30 deg) = 0.18, 0.36, 0.58, so the
+      set holds sliding (mu < tan) and sticking (mu > tan) runs on every slope but the
+      steepest-with-0.9.
     - ``"sphere"``: a ball (radius 5 cm, default resolution 8, E = 100 kPa) thrown down a
       20 deg slope with mu 0.5 from 20 cm, moving downhill at 0.5 m/s and into the plane
       at 1 m/s; h = 2 ms so that backward Euler keeps the bounces (at h = 10 ms its
-      numerical damping absorbs them), 1.5 s.
+      numerical damping absorbs them), 1.5 s (750 steps, every 5th recorded).
+    - ``"demo"``: the training set of ``licrom demo`` (a small cheese, 2 slopes x 3 mu).
 
     Args:
-        preset: ``"cheese"`` or ``"sphere"``.
-        resolution: mesh resolution (cells along the longest side).
-        steps: time steps per run (default 200 for the cheese, 750 for the sphere).
-        record_every: record every n-th step (default 1 for the cheese, 5 for the sphere).
+        preset: the name of a built-in scene (:data:`PRESETS`).
+        resolution: mesh resolution (cells along the longest side) [the scene's].
+        steps: time steps per run [the scene's].
+        record_every: record every n-th step [the scene's].
     """
-    from . import meshes
-    from .scene import ContactParams, Material
-
     if preset not in PRESETS:
         raise ConfigError(f"unknown dataset preset {preset!r}; accepted: {', '.join(PRESETS)}")
-    contact = ContactParams(normal_stiffness=1.0e7, normal_damping=0.0, friction_stiffness=1.0e7)
-    material = Material(youngs_modulus=1.0e5, poisson_ratio=0.3, density=1000.0)
-    if preset == "cheese":
-        mesh = meshes.cheese(resolution=12 if resolution is None else resolution)
-        scene = Scene(material=material, contact=contact, dt=0.01)
-        state = drop_state(mesh, material.density, height=0.02, rotation=(0.15, 0.1, 0.0))
-        return DatasetSpec(
-            name="cheese",
-            mesh=mesh,
-            base_scene=scene,
-            frictions=(0.1, 0.3, 0.5, 0.7, 0.9),
-            planes=(10.0, 20.0, 30.0),
-            initial_states=(state,),
-            steps=200 if steps is None else steps,
-            record_every=1 if record_every is None else record_every,
-            initial_frame="plane",
-            description="cheese dropped from 2 cm onto inclines: mu 0.1..0.9 x slopes 10, 20, 30 deg",
-        )
-    mesh = meshes.sphere(radius=0.05, resolution=8 if resolution is None else resolution)
-    scene = Scene(material=material, contact=contact, dt=0.002)
-    state = drop_state(mesh, material.density, height=0.2, velocity=(0.5, 0.0, -1.0))
-    return DatasetSpec(
-        name="sphere",
-        mesh=mesh,
-        base_scene=scene,
-        frictions=(0.5,),
-        planes=(20.0,),
-        initial_states=(state,),
-        steps=750 if steps is None else steps,
-        record_every=5 if record_every is None else record_every,
-        initial_frame="plane",
-        description="sphere bouncing down a 20 deg slope, mu 0.5",
-    )
+    return load_scene(preset).overridden(resolution=resolution, steps=steps, record_every=record_every).dataset_spec()

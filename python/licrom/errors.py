@@ -8,10 +8,12 @@ keeps working for code that does not know licrom.
 from __future__ import annotations
 
 __all__ = [
+    "ConcurrencyError",
     "ConfigError",
     "FileFormatError",
     "LicromError",
     "MeshError",
+    "OutputError",
     "ShapeError",
     "SolverError",
 ]
@@ -53,3 +55,25 @@ class SolverError(LicromError, RuntimeError):
 
 class FileFormatError(LicromError, OSError):
     """A file is missing, truncated, corrupt, foreign, or of an unknown format version."""
+
+
+class OutputError(LicromError, OSError):
+    """An output cannot be written: the disk is full, the folder is read-only, or the path is a directory.
+
+    Nothing half-written is left behind: the destination keeps its previous contents (or stays absent).
+
+    Attributes:
+        errno: the operating system's error number (``errno.ENOSPC``, ``errno.EACCES``, ...; None when not known).
+    """
+
+    def __init__(self, message: str, *, errno: int | None = None) -> None:
+        super().__init__(message)
+        self.errno = errno
+
+
+class ConcurrencyError(LicromError, RuntimeError):
+    """One simulation was used from two threads at once (a step or evaluation was running in another thread).
+
+    A simulation serves one thread at a time; give each thread its own simulation (they run in
+    parallel), or guard a shared one with a ``threading.Lock``.
+    """

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from .basis import Basis, SubspaceProjector, check_basis, check_basis_output
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError, SolverError
 from .mesh import Mesh
@@ -97,6 +97,12 @@ class ReducedSim:
     A body-frame model gives a :class:`~licrom.body_frame.BodyFrameSim` (see the
     module docstring); only the ``"newton"`` solver exists there.
 
+    Threads: a step runs without the GIL, so separate simulations step in parallel in
+    separate threads. One simulation serves one thread at a time: a call (step, state,
+    probe) while another thread's call on it runs raises
+    :class:`~licrom.errors.ConcurrencyError` at once rather than waiting (guard a shared
+    simulation with a ``threading.Lock`` to serialise it on purpose).
+
     Args:
         basis: a basis (``n_modes``, ``values``, ``jacobians``) or a trained ``licrom.Model``.
         mesh: the mesh to simulate (default: the model's mesh).
@@ -106,10 +112,15 @@ class ReducedSim:
         contact_points: where contact acts (default: every boundary vertex).
         solver: ``"newton"`` (dense Newton, Cholesky, line search) or ``"prefactored"``
             (the report's scheme: factor ``M_r/h^2 + K_r(rest)`` once, iterate gradients).
+        strain: how the deformation gradient at the cubature tets follows q: ``"mesh"``
+            (the linear-tet gradient of the basis' vertex values, as in the FEM) or
+            ``"field"`` (the basis' own gradient, LiCROM as published); see
+            :func:`licrom.basis.strain_jacobians`.
 
     Raises:
         ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
+        ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
 
     step_many = staticmethod(step_many)
@@ -127,6 +138,7 @@ class ReducedSim:
         cubature: Cubature | None = None,
         contact_points: ContactPoints | None = None,
         solver: str = "newton",
+        strain: str = "mesh",
     ) -> None:
         if mesh is None:
             mesh = getattr(basis, "mesh", None)
@@ -148,7 +160,8 @@ class ReducedSim:
         k = int(basis.n_modes)
         n = mesh.n_vertices
         self._values = check_basis_output("values", basis.values(mesh.vertices), (n, 3, k))
-        jac = check_basis_output("jacobians", basis.jacobians(self.cubature.points), (self.cubature.count, 3, 3, k))
+        self.strain = strain
+        jac = check_basis_output("jacobians", strain_jacobians(basis, mesh, self.cubature.tets, strain, self._values), (self.cubature.count, 3, 3, k))
         self._masses = mesh.vertex_masses(scene.material.density)
         self._projector = SubspaceProjector(self._values, self._masses)
         gravity_force = self._projector.reduce(self._masses[:, None] * np.asarray(scene.gravity))
@@ -285,7 +298,7 @@ class ReducedSim:
         """
         if cubature is None:
             cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
-        other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver)
+        other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver, strain=self.strain)
         other._core.set_state(self.q, self.qdot)
         other.time = self.time
         return other
@@ -323,6 +336,7 @@ def _body_frame_sim(
     cubature: Cubature | None = None,
     contact_points: ContactPoints | None = None,
     solver: str = "newton",
+    strain: str = "mesh",
 ) -> Any:
     """The body-frame simulation of a body-frame model, with ReducedSim's defaults."""
     from .body_frame import BodyFrameBasis, BodyFrameSim
@@ -332,4 +346,4 @@ def _body_frame_sim(
     mesh = model.mesh if mesh is None else mesh
     scene = model.default_scene if scene is None else scene
     basis = BodyFrameBasis(mesh, learned=model, density=scene.material.density)
-    return BodyFrameSim(basis, mesh=mesh, scene=scene, cubature=cubature, contact_points=contact_points)
+    return BodyFrameSim(basis, mesh=mesh, scene=scene, cubature=cubature, contact_points=contact_points, strain=strain)

@@ -10,7 +10,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from ._io import atomic_path
+from ._io import atomic_path, make_dir
 from .compare import Comparison
 from .errors import ShapeError
 from .trajectory import Trajectory
@@ -125,8 +125,7 @@ def write_vtu_series(traj: Trajectory, folder: str | os.PathLike, name: str = "f
     ParaView collection ``name.pvd`` that plays them in time. Returns the ``.pvd`` path."""
     import meshio
 
-    out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_dir(folder)
     entries = []
     for f in range(traj.n_frames):
         fname = f"{name}_{f:04d}.vtu"

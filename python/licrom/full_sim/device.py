@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
+import sys
+import tempfile
+from collections.abc import Iterator
 from typing import Any
 
 import warp as wp
@@ -32,13 +37,36 @@ MODE_RAW_HESSIAN = wp.constant(3)
 MODE_FORCES = wp.constant(4)
 
 _initialised = False
+# warp's native library prints this at initialisation on every machine without an NVIDIA driver.
+# A CPU run needs no driver, and a CUDA device asked for without one is refused by resolve_device.
+_NO_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
+
+
+@contextlib.contextmanager
+def _native_stderr_without(text: str) -> Iterator[None]:
+    """Capture what native code writes to file descriptor 2 and pass on every line but those holding ``text``."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            kept = [line for line in capture.read().decode(errors="replace").splitlines(keepends=True) if text not in line]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
 
 
 def warp_ready() -> Any:
-    """Initialise warp once and return it."""
+    """Initialise warp once (without its missing-driver warning on CPU-only machines) and return it."""
     global _initialised
     if not _initialised:
-        wp.init()
+        with _native_stderr_without(_NO_DRIVER_WARNING):
+            wp.init()
         _initialised = True
     return wp
 

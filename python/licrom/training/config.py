@@ -61,7 +61,9 @@ class TrainConfig:
         precision: Lightning precision string (``"32-true"``; ``"bf16-mixed"`` on GPUs).
         checkpoint_dir: Lightning checkpoints; default ``<model>.checkpoints`` beside the model.
         checkpoint_every: epochs between checkpoints (``last.ckpt`` is overwritten).
-        resume: continue from ``last.ckpt`` in the checkpoint directory when it exists.
+        resume: continue from the most recently written checkpoint of the same run (data, r,
+            network) in the checkpoint directory; another run's is refused by name
+            (:mod:`licrom.training.checkpoints`).
         progress: show Lightning's progress bar.
         num_threads: CPU threads for torch (None: leave torch's setting).
         max_time_s: stop (gracefully, after the current step) when training has run this

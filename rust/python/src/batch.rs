@@ -1,8 +1,11 @@
 //! Many reduced simulations stepped at once, on threads, without the GIL.
 
 use std::collections::HashMap;
+use std::sync::{Mutex, MutexGuard, TryLockError};
 
 use licrom_core::batch::{self, BatchItem, OnFailure, Stepper};
+use licrom_core::body_frame::solver::BodyFrameSolver;
+use licrom_core::solver::ReducedSolver;
 use pyo3::exceptions::PyBaseException;
 use pyo3::prelude::*;
 
@@ -10,28 +13,40 @@ use crate::body_frame::BodyFrameCore;
 use crate::errors::{error, from_core, CoreResultExt, Kind};
 use crate::reduced::ReducedCore;
 
-/// A simulation of either kind, borrowed mutably for the call.
-enum Borrowed<'py> {
-    World(PyRefMut<'py, ReducedCore>),
-    Body(PyRefMut<'py, BodyFrameCore>),
+/// A simulation of either kind, held exclusively for the call.
+enum Held<'a> {
+    World(MutexGuard<'a, ReducedSolver>),
+    Body(MutexGuard<'a, BodyFrameSolver>),
 }
 
-impl Borrowed<'_> {
+impl Held<'_> {
     fn stepper(&mut self) -> &mut dyn Stepper {
         match self {
-            Borrowed::World(core) => &mut core.inner,
-            Borrowed::Body(core) => &mut core.inner,
+            Held::World(solver) => &mut **solver,
+            Held::Body(solver) => &mut **solver,
         }
     }
 }
 
-fn borrow<'py>(py: Python<'py>, i: usize, sim: &Bound<'py, PyAny>) -> PyResult<Borrowed<'py>> {
-    let busy = |_| error(py, Kind::Config, format!("sims[{i}] is in use by another call (another thread is stepping or reading it)"));
+/// The solver behind `lock`, or a `ConcurrencyError` naming `sims[i]` when another
+/// thread is using it.
+fn hold<'a, T>(py: Python<'_>, i: usize, lock: &'a Mutex<T>) -> PyResult<MutexGuard<'a, T>> {
+    match lock.try_lock() {
+        Ok(guard) => Ok(guard),
+        // A panic in an earlier call already reached its caller as an exception.
+        Err(TryLockError::Poisoned(poisoned)) => Ok(poisoned.into_inner()),
+        Err(TryLockError::WouldBlock) => {
+            Err(error(py, Kind::Concurrency, format!("sims[{i}] is busy in another thread (a step or evaluation is running there)")))
+        }
+    }
+}
+
+fn held<'a>(py: Python<'_>, i: usize, sim: &'a Bound<'_, PyAny>) -> PyResult<Held<'a>> {
     if let Ok(core) = sim.cast::<ReducedCore>() {
-        return core.try_borrow_mut().map(Borrowed::World).map_err(busy);
+        return hold(py, i, &core.get().inner).map(Held::World);
     }
     if let Ok(core) = sim.cast::<BodyFrameCore>() {
-        return core.try_borrow_mut().map(Borrowed::Body).map_err(busy);
+        return hold(py, i, &core.get().inner).map(Held::Body);
     }
     let type_name = sim.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
     Err(error(py, Kind::Config, format!("sims[{i}] must be a ReducedCore or a BodyFrameCore, got {type_name}")))
@@ -74,8 +89,8 @@ pub fn step_many(
             return Err(error(py, Kind::Config, format!("sims[{first}] and sims[{i}] are the same simulation; each may appear once")));
         }
     }
-    let mut borrowed = sims.iter().enumerate().map(|(i, sim)| borrow(py, i, sim)).collect::<PyResult<Vec<_>>>()?;
-    let mut items: Vec<BatchItem<'_>> = borrowed
+    let mut held = sims.iter().enumerate().map(|(i, sim)| held(py, i, sim)).collect::<PyResult<Vec<_>>>()?;
+    let mut items: Vec<BatchItem<'_>> = held
         .iter_mut()
         .zip(&record_failures)
         .map(|(b, &record)| BatchItem { sim: b.stepper(), on_failure: if record { OnFailure::Record } else { OnFailure::Stop } })

@@ -9,7 +9,10 @@
 //! incremental contact Hessian) and the search direction in `direction.rs`;
 //! the contact model and friction's stick correction in `contact_model.rs`;
 //! the line search, usable by any solver, in [`line_search`]; the parameters
-//! and reports in `settings.rs`.
+//! and reports in `settings.rs`. The iteration on the contact model, the
+//! factorisation and the lagged elastic Hessian's drift test and BFGS update
+//! are written for any solver and shared with the body-frame one
+//! ([`crate::body_frame::solver`]).
 //!
 //! **Initial guess.** `q_t + h qdot_t + h^2 a`, with `a` the acceleration of the
 //! previous step (`(qdot_t - qdot_{t-1}) / h`), or gravity alone (`M^-1 f`) on the
@@ -28,8 +31,8 @@
 //! taken and the solve stops. `iterations` counts these directions (outer
 //! iterations); the model's are counted in [`SolverStats`].
 
-mod contact_model;
-mod direction;
+pub(crate) mod contact_model;
+pub(crate) mod direction;
 pub mod line_search;
 mod settings;
 
@@ -118,7 +121,7 @@ impl Point {
 
 /// What a trial point is evaluated on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Objective {
+pub(crate) enum Objective {
     /// The incremental potential E.
     Energy,
     /// The contact model of the current outer iteration (see `contact_model.rs`).
