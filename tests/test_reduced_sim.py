@@ -349,3 +349,33 @@ def test_step_many_failures_and_bad_arguments():
     with pytest.raises(ConfigError, match="steps must be an integer >= 0"):
         ReducedSim.step_many([ok], steps=-1)
     assert [a.shape for a in ReducedSim.step_many([], steps=2)] == [(0, 2)] * 3
+
+
+def test_step_many_of_a_simulation_busy_in_another_thread_is_a_named_error():
+    import threading
+
+    from licrom import ConcurrencyError
+
+    sim, other = _world_frame_sim(), _world_frame_sim()
+    raised, stop = [], threading.Event()
+
+    def stepper():
+        while not stop.is_set():
+            try:
+                sim.step()
+            except ConcurrencyError:  # step_many holds it just now
+                pass
+
+    thread = threading.Thread(target=stepper)
+    thread.start()
+    try:
+        for _ in range(5000):
+            try:
+                ReducedSim.step_many([other, sim])
+            except ConcurrencyError as exc:
+                raised.append(exc)
+                break
+    finally:
+        stop.set()
+        thread.join()
+    assert raised and "sims[1] is busy in another thread" in str(raised[0])
