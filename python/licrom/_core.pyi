@@ -290,9 +290,9 @@ def step_many(
     error)``: one entry per step taken (a failed step: its iterations, its residual or NaN,
     False) and the licrom exception that stopped it, or None.
 
-    Raises ConfigError for a simulation given twice, an object of another type, a
-    simulation in use by another thread, ``steps < 0`` or ``threads < 1``; ShapeError for
-    ``record_failures`` of another length than ``sims``.
+    Raises ConfigError for a simulation given twice, an object of another type,
+    ``steps < 0`` or ``threads < 1``; ConcurrencyError for a simulation busy in another
+    thread; ShapeError for ``record_failures`` of another length than ``sims``.
     """
 
 @final

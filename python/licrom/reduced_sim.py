@@ -57,6 +57,7 @@ def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -
 
     Raises:
         ConfigError: a simulation given twice or not a reduced simulation, bad ``steps`` or ``threads``.
+        ConcurrencyError: a simulation is busy in another thread (named ``sims[i]``).
         SolverError: a step failed in a simulation with ``on_failure == "raise"``; the message
             names it (``sims[i]``) and its step.
     """
