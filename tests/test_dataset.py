@@ -104,8 +104,10 @@ def test_bad_arguments(tmp_path):
         generate_dataset(tmp_path, mesh, Scene(), planes=["steep"], progress=False)
     with pytest.raises(ConfigError, match="initial_frame"):
         generate_dataset(tmp_path, mesh, Scene(), initial_frame="body", progress=False)
-    with pytest.raises(ConfigError, match="cpu, cuda"):
+    with pytest.raises(ConfigError, match="auto, cpu, cuda"):
         generate_dataset(tmp_path, mesh, Scene(), device="tpu", progress=False)
+    with pytest.raises(ConfigError, match="executor"):
+        generate_dataset(tmp_path, mesh, Scene(), executor="threads", progress=False)
     with pytest.raises(ConfigError, match="preset"):
         report_dataset_spec("teapot")
 
@@ -128,9 +130,9 @@ def test_cli_generate(tmp_path):
     from licrom.cli import main
 
     out = tmp_path / "cli"
-    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
+    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q", "--jobs", "2"]) == 0
     m = json.loads((out / MANIFEST_NAME).read_text())
-    assert len(m["trajectories"]) == 15 and m["complete"]
+    assert len(m["trajectories"]) == 15 and m["complete"] and m["jobs"] == 2 and m["device"] == "cpu"
     assert (out / MESH_NAME).is_file()
     assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
     assert all(t["skipped"] for t in json.loads((out / MANIFEST_NAME).read_text())["trajectories"])

@@ -158,7 +158,7 @@ def test_relative_error():
 @pytest.mark.parametrize(
     "kwargs",
     [{"epochs": 0}, {"lr": -1.0}, {"sample": "faces"}, {"device": "tpu"}, {"val_fraction": 1.0}, {"batch_frames": 1.5},
-     {"projection_weight": -1.0}, {"devices": 0}, {"objective": "vae"}],
+     {"projection_weight": -1.0}, {"devices": 0}, {"nodes": 0}, {"objective": "vae"}],
 )
 def test_train_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):

@@ -22,7 +22,7 @@ from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, st
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .reduced_sim import sampling, step_or_record
+from .reduced_sim import sampling, step_many, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import record_run
@@ -149,7 +149,7 @@ class BodyFrameSim:
 
     The user API is that of :class:`licrom.reduced_sim.ReducedSim`: ``step``, ``run``,
     ``positions``, ``velocities``, ``set_state``, ``contact_forces``, ``transfer``,
-    plus the pose ``center``, ``rotation`` and ``q``; threads are used as there.
+    ``step_many``, plus the pose ``center``, ``rotation`` and ``q``; threads are used as there.
 
     Args:
         basis: body-frame modes (a :class:`BodyFrameBasis`, or any basis whose
@@ -165,6 +165,8 @@ class BodyFrameSim:
         ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass, unknown strain.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
+
+    step_many = staticmethod(step_many)
 
     def __init__(
         self,

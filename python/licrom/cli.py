@@ -153,21 +153,29 @@ def scene_command(source, output) -> None:
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, help="Time step in s [the scene's].")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps per trajectory [the scene's].")
 @click.option("--record-every", type=click.IntRange(min=1), default=None, help="Record every n-th step [the scene's].")
-@click.option("--device", default="cpu", show_default=True, help="Simulation device: cpu, cuda or cuda:N.")
+@click.option("--device", default="auto", show_default=True, help="Simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local: this machine (--jobs processes); ray: one task per run on a Ray cluster (RAY_ADDRESS, else a local one).")
+@click.option("--jobs", "-j", type=int, default=None, help="Processes of the local executor [1].")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 def generate_command(out_dir, scene_source, preset, mesh_source, resolution, youngs_modulus, poisson_ratio, density, friction, slope,
-                     dt, steps, record_every, device, quiet) -> None:
+                     dt, steps, record_every, device, executor, jobs, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
     The runs are the scene file's sweep (friction x slope x initial state); the options
     replace the scene's values. Writes one traj_XXX_*.npz per run, mesh.vtu and
     manifest.json, and prints what it wrote.
     """
+    from .executors import check_executor
+    from .full_sim import check_device_name, resolve_device
     from .scene_file import load_scene
 
     if scene_source is not None and preset is not None:
         raise ConfigError("give --scene or --preset, not both")
     start = time.perf_counter()
+    executor, n_jobs = check_executor(executor, jobs)
+    device = resolve_device(device) if executor == "local" else check_device_name(device)
+    where = f"{n_jobs} process{'es' if n_jobs > 1 else ''}" if executor == "local" else "Ray"
     scene = load_scene(scene_source or preset or "cheese").overridden(
         mesh=mesh_source, resolution=resolution, youngs_modulus=youngs_modulus, poisson_ratio=poisson_ratio, density=density,
         frictions=friction or None, slopes=slope or None, dt=dt, steps=steps, record_every=record_every,
@@ -175,8 +183,8 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
     spec = scene.dataset_spec()
     click.echo(f"scene {spec.name} ({scene.source}): {spec.description}".rstrip(": "))
     click.echo(f"mesh {scene.object.describe()}: {spec.mesh.n_vertices} vertices, {spec.mesh.n_tets} tets; {spec.n_trajectories} trajectories x "
-               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}")
-    manifest_path = spec.generate(out_dir, device=device, progress=not quiet)
+               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}, {where}")
+    manifest_path = spec.generate(out_dir, device=device, progress=not quiet, executor=executor, jobs=jobs)
     import json
 
     manifest = json.loads(manifest_path.read_text())
@@ -186,7 +194,7 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
         total += size
         state = "skipped (exists)" if t.get("skipped") else t["status"]
         seconds = "" if t.get("seconds") is None else f"{t['seconds']:.1f} s"
-        click.echo(f"  {t['file']:<36} {state:<17} {seconds:>9} {size / 1e6:8.2f} MB")
+        click.echo(f"  {t['file']:<36} {state:<17} {seconds:>9} {size / 1e6:8.2f} MB  {t.get('device') or ''}")
     mesh_file = Path(out_dir) / manifest["mesh"]
     total += mesh_file.stat().st_size + manifest_path.stat().st_size
     done = sum(t["status"] == "done" for t in manifest["trajectories"])
@@ -214,6 +222,7 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Training device (auto: CUDA when available).")
 @click.option("--gpus", type=int, default=None, help="GPUs to use (default all visible; >1 trains with DDP).")
+@click.option("--nodes", type=int, default=None, help="Machines of a multi-node DDP run, each with --gpus GPUs [1] (see docs/scaling.md).")
 @click.option("--batch-frames", type=int, default=None, help="Frames per step [16].")
 @click.option("--points", type=int, default=None, help="Points sampled per step, shared by its frames [2048].")
 @click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
@@ -223,7 +232,7 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
+def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, nodes, batch_frames, points, val_fraction, width,
                   layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -236,7 +245,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
-                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus)):
+                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}
@@ -282,7 +291,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps [the scene's; 150 without --scene].")
 @click.option("--cubature", type=click.IntRange(min=1), default=1000, show_default=True, help="Cubature tets (naive scheme).")
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
-@click.option("--device", default="cpu", show_default=True, help="Full simulation device: cpu, cuda or cuda:N.")
+@click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write filmstrips, animations, error plot, summary.json and the runs (.npz, for licrom export) here.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")

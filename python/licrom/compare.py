@@ -327,7 +327,7 @@ def run_comparison(
     mesh: Mesh | None = None,
     steps: int = 100,
     record_every: int = 1,
-    device: str = "cpu",
+    device: str | None = None,
     progress: bool = False,
     **reduced_options: Any,
 ) -> tuple[Comparison, Trajectory, Trajectory]:
@@ -339,7 +339,7 @@ def run_comparison(
         mesh: the mesh (default: the model's mesh).
         steps: time steps to run.
         record_every: record every n-th step.
-        device: warp device of the full simulation.
+        device: warp device of the full simulation (default: CUDA when visible, else the CPU).
         progress: show progress bars.
         **reduced_options: passed to :class:`~licrom.ReducedSim` (cubature, solver, ...).
 

@@ -7,6 +7,11 @@ listing every run with its parameters, status and timing. It is resumable: a run
 file exists and is valid (readable archive, licrom trajectory header, the same scene and
 frame count) is skipped, so an interrupted sweep continues where it stopped.
 
+Each run is one task (:func:`simulate_run`, the same code for every executor) that writes
+its own file atomically; the runs go one after the other in this process, to a pool of
+local processes (``jobs``) or to a Ray cluster (``executor="ray"``), see
+:mod:`licrom.executors`. The manifest is written here as runs finish.
+
 :func:`report_dataset_spec` gives the built-in scene files (``licrom/scenes/*.toml``) as
 dataset specs: the report's sets ("cheese": 5 friction coefficients x 3 inclines with a
 cheese dropped from a short height; "sphere": a sphere bouncing down a 20 degree slope with
@@ -42,7 +47,9 @@ __all__ = [
     "DatasetSpec",
     "generate_dataset",
     "load_manifest",
+    "local_devices",
     "report_dataset_spec",
+    "simulate_run",
     "sweep_runs",
 ]
 
@@ -166,6 +173,68 @@ def sweep_runs(
     return runs
 
 
+def local_devices(device: str, jobs: int) -> list[str]:
+    """The devices the local executor's runs take in turn: every CUDA device of the machine when
+    ``device`` is ``"cuda"`` (as ``"auto"`` resolves on a GPU machine) and several processes run,
+    else ``device`` alone."""
+    if device != "cuda" or jobs < 2:
+        return [device]
+    from .full_sim.device import warp_ready
+
+    count = warp_ready().get_cuda_device_count()
+    return [f"cuda:{i}" for i in range(count)] if count > 1 else [device]
+
+
+def simulate_run(
+    out_dir: str,
+    mesh: Mesh,
+    scene: Scene,
+    file: str,
+    steps: int,
+    record_every: int,
+    device: str | None,
+    precision: str,
+    info: dict[str, Any],
+    progress: bool = False,
+) -> dict[str, Any]:
+    """One run of a sweep, wherever it runs: simulate, write ``out_dir/file`` atomically, report.
+
+    The same code for every executor of :func:`generate_dataset`. The dataset's mesh file
+    must be visible in ``out_dir`` (written by the caller), which on a cluster means a
+    shared file system.
+
+    Returns:
+        The manifest entry's fields: ``status`` ("done" or "failed"), ``seconds``,
+        ``device``, and ``bytes``, ``newton_mean``, ``unconverged_steps`` or ``error``.
+    """
+    from .full_sim import FullSim
+
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    try:
+        if not (out / MESH_NAME).is_file():
+            import socket
+
+            raise ConfigError(f"dataset directory '{out}' (with its {MESH_NAME}) is not visible on host {socket.gethostname()}; "
+                              "the tasks of a cluster need a file system shared with the caller")
+        sim = FullSim(mesh, scene, device=device)
+        traj = sim.run(int(steps), record_every=int(record_every), progress=progress)
+        traj.info.update(info)
+        path = traj.save(out / file, precision=precision)
+        return {
+            "status": "done",
+            "seconds": round(time.perf_counter() - t0, 3),
+            "device": sim.device,
+            "bytes": path.stat().st_size,
+            "newton_mean": round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
+            "unconverged_steps": int((~traj.converged).sum()),
+        }
+    except OutputError:
+        raise  # a full or read-only disk fails every later run too
+    except LicromError as exc:
+        return {"status": "failed", "seconds": round(time.perf_counter() - t0, 3), "device": device, "error": f"{type(exc).__name__}: {exc}"}
+
+
 def generate_dataset(
     out_dir: str | Path,
     mesh: Mesh,
@@ -175,11 +244,13 @@ def generate_dataset(
     initial_states: Sequence[InitialState] | None = None,
     steps: int = 200,
     record_every: int = 1,
-    device: str = "cpu",
+    device: str | None = None,
     progress: bool = True,
     initial_frame: str = "world",
     precision: str = "float32",
     name: str | None = None,
+    executor: str = "local",
+    jobs: int | None = None,
 ) -> Path:
     """Simulate the cartesian product of frictions x planes x initial states; return the manifest path.
 
@@ -195,22 +266,36 @@ def generate_dataset(
         initial_states: initial placements and velocities. ``None``: the base scene's.
         steps: time steps per run.
         record_every: record every n-th step (frame 0 is the initial state).
-        device: warp device of the simulations.
-        progress: show progress bars (runs, and steps of the current run).
+        device: warp device of the simulations: ``None``/``"auto"`` (CUDA where a task sees
+            a GPU, else the CPU), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``. Several local
+            processes on a machine of several GPUs take the GPUs in turn (see
+            :func:`local_devices`); Ray gives each task its own. Each manifest entry records
+            the device its run used.
+        progress: show progress bars (runs as they finish; with the serial local executor
+            also the steps of the current run).
         initial_frame: ``"world"``: initial states as given; ``"plane"``: initial states
             are given over a horizontal ground ``z = 0`` and carried onto the first plane
             of each run (see :func:`initial_state_on_plane`), so a drop height means the
             same on every slope.
         precision: storage precision of the frames (``"float32"`` or ``"float64"``).
         name: a name recorded in the manifest.
+        executor: ``"local"`` (this machine) or ``"ray"`` (one Ray task per run, a GPU per
+            task where the cluster has GPUs; ``out_dir`` must then be on a file system the
+            tasks share). See :mod:`licrom.executors`.
+        jobs: processes of the local executor (default 1: the runs in this process, one
+            after the other); not for Ray.
 
-    Existing valid files are skipped; runs that fail (SolverError with
-    ``on_failure="raise"``) are recorded as failed and retried on the next call.
+    Every run is :func:`simulate_run`, which writes its file atomically; this process
+    writes the manifest as runs finish. The files do not depend on the executor. Existing
+    valid files are skipped, whatever executor wrote them; runs that fail (SolverError
+    with ``on_failure="raise"``) are recorded as failed and retried on the next call.
 
     Raises:
-        ConfigError: bad arguments, or ``out_dir`` holds a dataset of another mesh.
+        ConfigError: bad arguments, Ray missing for ``executor="ray"``, or ``out_dir``
+            holds a dataset of another mesh.
     """
-    from .full_sim import FullSim, resolve_device
+    from .executors import check_executor, run_tasks
+    from .full_sim import check_device_name, resolve_device
 
     if not isinstance(mesh, Mesh):
         raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
@@ -223,7 +308,9 @@ def generate_dataset(
     if precision not in ("float32", "float64"):
         raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
     runs = sweep_runs(mesh, base_scene, frictions, planes, initial_states, initial_frame)
-    device = resolve_device(device)
+    executor, jobs = check_executor(executor, jobs)
+    # Local runs use this machine's devices; Ray tasks choose on the node that runs them.
+    device = resolve_device(device) if executor == "local" else check_device_name(device)
     mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
     plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
     states = [base_scene.initial] if initial_states is None else list(initial_states)
@@ -263,6 +350,8 @@ def generate_dataset(
         "record_every": int(record_every),
         "frames": frames,
         "device": device,
+        "executor": executor,
+        "jobs": jobs if executor == "local" else None,
         "precision": precision,
         "trajectories": [],
     }
@@ -274,72 +363,61 @@ def generate_dataset(
         except (FileFormatError, KeyError, TypeError):
             previous = {}
 
+    # Entries in sweep order; a run still to simulate has its entry filled when its task finishes.
+    entries: list[dict[str, Any]] = []
+    todo: list[int] = []
+    task_args: list[tuple[Any, ...]] = []
+    step_bars = progress and executor == "local" and jobs == 1  # one run at a time: its steps can be shown
+    run_devices = local_devices(device, jobs) if executor == "local" else [device]
+    for index, (mu, run_planes, k, state, scene) in enumerate(runs):
+        fname = _file_name(index, mu, run_planes, k)
+        entry: dict[str, Any] = {
+            "index": index,
+            "file": fname,
+            "friction": mu if mu is not None else [p.friction for p in run_planes],
+            "slope_deg": [p.slope_deg for p in run_planes],
+            "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
+            "initial_index": k,
+            "initial": state.__dict__,
+            "scene_initial": scene.initial.__dict__,
+        }
+        entries.append(entry)
+        if _valid_trajectory_file(out / fname, scene, frames):
+            old = previous.get(fname, {})
+            entry.update(status="done", skipped=True, seconds=old.get("seconds"), device=old.get("device"),
+                         bytes=(out / fname).stat().st_size, newton_mean=old.get("newton_mean"),
+                         unconverged_steps=old.get("unconverged_steps"))
+        else:
+            info = {"dataset": name, "index": index, "friction": mu, "slope_deg": entry["slope_deg"], "initial_index": k, "mesh": MESH_NAME}
+            todo.append(index)
+            run_device = run_devices[len(task_args) % len(run_devices)]
+            task_args.append((str(out), mesh, scene, fname, int(steps), int(record_every), run_device, precision, info, step_bars))
+
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj")
+        bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj", initial=len(runs) - len(todo))
     start_all = time.perf_counter()
-    entries = manifest["trajectories"]
+
+    def write(complete: bool) -> None:
+        manifest["trajectories"] = [e for e in entries if "status" in e]
+        manifest["seconds"] = round(time.perf_counter() - start_all, 3)
+        manifest["complete"] = complete
+        _write_manifest(manifest_path, manifest)
+
     try:
-        for index, (mu, run_planes, k, state, scene) in enumerate(runs):
-            fname = _file_name(index, mu, run_planes, k)
-            path = out / fname
-            entry: dict[str, Any] = {
-                "index": index,
-                "file": fname,
-                "friction": mu if mu is not None else [p.friction for p in run_planes],
-                "slope_deg": [p.slope_deg for p in run_planes],
-                "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
-                "initial_index": k,
-                "initial": state.__dict__,
-                "scene_initial": scene.initial.__dict__,
-            }
-            if _valid_trajectory_file(path, scene, frames):
-                old = previous.get(fname, {})
-                entry.update(
-                    status="done",
-                    skipped=True,
-                    seconds=old.get("seconds"),
-                    bytes=path.stat().st_size,
-                    newton_mean=old.get("newton_mean"),
-                    unconverged_steps=old.get("unconverged_steps"),
-                )
-            else:
-                t0 = time.perf_counter()
-                try:
-                    sim = FullSim(mesh, scene, device=device)
-                    traj = sim.run(int(steps), record_every=int(record_every), progress=progress)
-                    traj.info.update(
-                        dataset=name, index=index, friction=mu, slope_deg=entry["slope_deg"], initial_index=k,
-                        mesh=MESH_NAME,
-                    )
-                    traj.save(path, precision=precision)
-                    entry.update(
-                        status="done",
-                        skipped=False,
-                        seconds=round(time.perf_counter() - t0, 3),
-                        bytes=path.stat().st_size,
-                        newton_mean=round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
-                        unconverged_steps=int((~traj.converged).sum()),
-                    )
-                except OutputError:
-                    raise  # a full or read-only disk fails every later run too
-                except LicromError as exc:
-                    entry.update(status="failed", skipped=False, seconds=round(time.perf_counter() - t0, 3),
-                                 error=f"{type(exc).__name__}: {exc}")
-            entries.append(entry)
-            manifest["seconds"] = round(time.perf_counter() - start_all, 3)
-            _write_manifest(manifest_path, {**manifest, "complete": False})
+        for i, result in run_tasks(simulate_run, task_args, executor, jobs if executor == "local" else None):
+            entry = entries[todo[i]]
+            entry.update(skipped=False, **result)
+            write(False)
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(last=entry["status"] + (" (skipped)" if entry.get("skipped") else ""), refresh=False)
+                bar.set_postfix(last=f"{entry['file']} {entry['status']}", refresh=False)
     finally:
         if bar is not None:
             bar.close()
-    manifest["seconds"] = round(time.perf_counter() - start_all, 3)
-    manifest["complete"] = all(e["status"] == "done" for e in entries)
-    _write_manifest(manifest_path, manifest)
+    write(all(e["status"] == "done" for e in entries))
     return manifest_path
 
 
@@ -368,7 +446,8 @@ class DatasetSpec:
         """The scene of every run, in file order."""
         return [run[-1] for run in sweep_runs(self.mesh, self.base_scene, self.frictions, self.planes, self.initial_states, self.initial_frame)]
 
-    def generate(self, out_dir: str | Path, device: str = "cpu", progress: bool = True) -> Path:
+    def generate(self, out_dir: str | Path, device: str | None = None, progress: bool = True, executor: str = "local",
+                 jobs: int | None = None) -> Path:
         """Run :func:`generate_dataset` on this spec; return the manifest path."""
         return generate_dataset(
             out_dir,
@@ -383,6 +462,8 @@ class DatasetSpec:
             progress=progress,
             initial_frame=self.initial_frame,
             name=self.name,
+            executor=executor,
+            jobs=jobs,
         )
 
 

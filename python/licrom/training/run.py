@@ -163,6 +163,7 @@ def train(
         trainer = pl.Trainer(
             accelerator=accelerator,
             devices=devices,
+            num_nodes=cfg.nodes,
             strategy="auto",
             precision=cfg.precision,
             max_epochs=cfg.epochs,

@@ -22,7 +22,7 @@ use crate::reduced::stats_dict;
 /// GIL) raises `ConcurrencyError` instead of waiting.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct BodyFrameCore {
-    inner: Mutex<BodyFrameSolver>,
+    pub(crate) inner: Mutex<BodyFrameSolver>,
     n: usize,
 }
 

@@ -20,7 +20,7 @@ use crate::errors::{error, exclusive, CoreResultExt, Kind};
 /// GIL) raises `ConcurrencyError` instead of waiting.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct ReducedCore {
-    inner: Mutex<ReducedSolver>,
+    pub(crate) inner: Mutex<ReducedSolver>,
     n: usize,
 }
 

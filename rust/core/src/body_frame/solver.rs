@@ -309,7 +309,9 @@ impl BodyFrameSolver {
     /// Replaces the state: pose and velocities (m/s, world angular velocity in
     /// rad/s, modal per second). The previous pose becomes
     /// `(c - h v, exp(-h [w]x) R, q - h qdot)`. Contact forces read zero until
-    /// the next step.
+    /// the next step, which starts with fresh elastic and contact Hessians, so
+    /// that the steps from here depend on the state alone (the same as a new
+    /// solver's, bit for bit).
     pub fn set_state(&mut self, pose: &Pose, velocity: &[f64], angular_velocity: &[f64], qdot: &[f64]) -> Result<()> {
         let n = self.system.n_modes();
         let rotation = self.check_pose(pose.center.as_slice(), pose.rotation.transpose().as_slice(), &pose.q)?;
@@ -328,6 +330,7 @@ impl BodyFrameSolver {
         self.has_failed = false;
         self.has_prev2 = false;
         self.elastic_valid = false;
+        self.contact.invalidate();
         Ok(())
     }
 

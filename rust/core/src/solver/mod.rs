@@ -284,7 +284,9 @@ impl ReducedSolver {
     }
 
     /// Replaces the state. Contact forces read zero until the next step; the
-    /// next step starts from the free-fall guess and a fresh elastic Hessian.
+    /// next step starts from the free-fall guess and fresh elastic and contact
+    /// Hessians, so that the steps from here depend on the state alone (the same
+    /// as a new solver's, bit for bit).
     pub fn set_state(&mut self, q: &[f64], qdot: &[f64]) -> Result<()> {
         self.check_state("q", q)?;
         self.check_state("qdot", qdot)?;
@@ -294,6 +296,7 @@ impl ReducedSolver {
         self.failed.clear();
         self.qdot_prev.clear();
         self.elastic.clear();
+        self.contact.invalidate();
         Ok(())
     }
 
