@@ -101,6 +101,12 @@ impl BodyContactHessian {
     pub fn body_matrix(&self) -> &[f64] {
         self.gram.matrix()
     }
+
+    /// Forms S from scratch at the next update (after a new state, so that the
+    /// steps after it depend on the state alone).
+    pub fn invalidate(&mut self) {
+        self.gram.invalidate();
+    }
 }
 
 /// What an evaluation computes besides the energy.
