@@ -20,7 +20,7 @@
 //! faces, K = 1000; each measured iteration runs the 80 steps (0.8 s) from the
 //! drop and reports the mean time per step, for both solvers at r in {20, 60}.
 //!
-//! The iteration counts are printed first.
+//! The iteration counts and the solvers' work counters are printed first.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -66,7 +66,7 @@ fn body_frame_step(c: &mut Criterion) {
                     ReducedSolver::new(system, SolverSettings::new(m.total_mass, TOLERANCE, 500, SolverKind::Newton)).expect("valid settings");
                 s.set_state(&q, &qdot).expect("state");
                 let report = s.step().expect("the benchmark step converges");
-                eprintln!("{id}: {} iterations, residual {:.1e} m/s", report.iterations, report.residual);
+                eprintln!("{id}: {} iterations, residual {:.1e} m/s; {:?}", report.iterations, report.residual, s.stats());
                 (s, q, qdot)
             });
             b.iter(|| {
@@ -86,7 +86,7 @@ fn body_frame_step(c: &mut Criterion) {
                 let mut s = BodyFrameSolver::new(system, BodyFrameSettings { tolerance: TOLERANCE, max_iterations: 500 }).expect("valid settings");
                 s.set_state(&pose, &[SLIDING_SPEED, 0.0, 0.0], &[0.0; 3], &vec![0.0; m.n]).expect("state");
                 let report = s.step().expect("the benchmark step converges");
-                eprintln!("{id}: {} iterations, residual {:.1e} m/s", report.iterations, report.residual);
+                eprintln!("{id}: {} iterations, residual {:.1e} m/s; {:?}", report.iterations, report.residual, s.stats());
                 (s, pose)
             });
             let n = pose.q.len();
@@ -133,7 +133,7 @@ fn body_frame_landing(c: &mut Criterion) {
                     ReducedSolver::new(system, SolverSettings::new(m.total_mass, TOLERANCE, 500, SolverKind::Newton)).expect("valid settings");
                 s.set_state(&q, &qdot).expect("state");
                 let its: usize = (0..LANDING_STEPS).map(|_| s.step().expect("the landing converges").iterations).sum();
-                eprintln!("{id}: {its} iterations over {LANDING_STEPS} steps");
+                eprintln!("{id}: {its} iterations over {LANDING_STEPS} steps; {:?}", s.stats());
                 (s, q, qdot)
             });
             b.iter_custom(|iters| {
@@ -168,7 +168,7 @@ fn body_frame_landing(c: &mut Criterion) {
                 let mut s = BodyFrameSolver::new(system, BodyFrameSettings { tolerance: TOLERANCE, max_iterations: 500 }).expect("valid settings");
                 s.set_state(&pose, &[0.0; 3], &[0.0; 3], &vec![0.0; m.n]).expect("state");
                 let its: usize = (0..LANDING_STEPS).map(|_| s.step().expect("the landing converges").iterations).sum();
-                eprintln!("{id}: {its} iterations over {LANDING_STEPS} steps");
+                eprintln!("{id}: {its} iterations over {LANDING_STEPS} steps; {:?}", s.stats());
                 (s, pose)
             });
             let qdot = vec![0.0; pose.q.len()];

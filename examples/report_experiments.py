@@ -40,7 +40,7 @@ from licrom.cubature import ContactPoints, Cubature
 from licrom.dataset import report_dataset_spec
 from licrom.model import ModelConfig
 from licrom.placement import initial_state_between_planes, initial_state_on_plane
-from licrom.render import filmstrip, plot_errors
+from licrom.render import filmstrip, pick_renderer, plot_errors
 from licrom.training import TrainConfig
 
 CHEESE_HELD_OUT = [  # (slope deg, mu, where it lies w.r.t. the training set)
@@ -234,7 +234,8 @@ def main() -> None:
             rows.append(row)
             curves[f"{slope:g} deg, mu {mu:g}"] = row.c
             if where != "inside" or mu == 0.4:
-                filmstrip([full, reduced], ["full", "reduced"], figs / f"cheese_{slope:g}_{mu:g}.png", title=case)
+                filmstrip([full, reduced], ["full", "reduced"], figs / f"cheese_{slope:g}_{mu:g}.png", title=case,
+                          renderer=pick_renderer()[0])
         plot_errors(curves, figs / "cheese_errors.png")
         sections.append("## 1. Cheese on held-out slopes and friction coefficients\n\n"
                         "Training: the report's 15 runs (mu 0.1, 0.3, 0.5, 0.7, 0.9 x slopes 10, 20, 30 deg; "
@@ -258,7 +259,8 @@ def main() -> None:
                                       work / "full" / f"sphere_{slope:g}_{mu:g}.npz", sphere.steps, sphere.record_every,
                                       cubature=Cubature.naive(sphere.mesh, args.cubature))
             rows.append(row)
-            filmstrip([full, reduced], ["full", "reduced"], figs / f"sphere_{slope:g}_{mu:g}.png", frames=8, title=row.case)
+            filmstrip([full, reduced], ["full", "reduced"], figs / f"sphere_{slope:g}_{mu:g}.png", frames=8, title=row.case,
+                      renderer=pick_renderer()[0])
             if where == "training scene":
                 controls = _sphere_controls(sphere.mesh, scene, full, sphere.steps, sphere.record_every, row,
                                             modes=2 if args.small else 40)

@@ -23,7 +23,37 @@ def tiny_demo(tmp_path_factory):
     """
     from licrom.demo import DemoConfig, run_demo
 
-    out = tmp_path_factory.mktemp("demo") / "demo"
-    config = DemoConfig(out_dir=str(out), resolution=4, train_slopes=(10.0, 30.0), train_frictions=(0.3, 0.6),
-                        test_cases=((20.0, 0.1), (20.0, 0.9)), steps=60, modes=4, epochs=3, cubature_points=40)
+    root = tmp_path_factory.mktemp("demo")
+    out = root / "demo"
+    (root / "tiny.toml").write_text(TINY_DEMO_SCENE)
+    config = DemoConfig(out_dir=str(out), scene=str(root / "tiny.toml"), resolution=4, steps=60, modes=4, epochs=3, cubature_points=40)
     return out, run_demo(config, progress=False)
+
+
+@pytest.fixture
+def tiny_demo_scene():
+    """The text of the tiny demo's scene file."""
+    return TINY_DEMO_SCENE
+
+
+# The built-in demo scene with a smaller sweep and held-out scenes that slide and stick.
+TINY_DEMO_SCENE = """
+version = 1
+[object]
+mesh = "cheese"
+[material]
+youngs_modulus = 1.0e5
+[[planes]]
+friction = 0.5
+[sweep]
+frictions = [0.3, 0.6]
+slopes = [10.0, 30.0]
+[[initial]]
+drop_height = 0.01
+[[held_out]]
+slope = 20.0
+friction = 0.1
+[[held_out]]
+slope = 20.0
+friction = 0.9
+"""

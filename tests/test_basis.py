@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
-from licrom.basis import SubspaceProjector
+from licrom.basis import SubspaceProjector, strain_jacobians
 
 
 def _fd_jacobian(basis, points, eps=1e-6):
@@ -85,3 +85,40 @@ def test_pod_modes_are_mass_orthonormal(rng):
     w = b.modes.reshape(-1, 4)
     np.testing.assert_allclose(w.T @ (m[:, None] * w), np.eye(4), atol=1e-10)
     assert np.all(np.diff(sigma) <= 0)
+
+
+class _Wiggly:
+    """A basis whose values are linear at the vertices but whose own gradient is not the mesh's (a field between vertices)."""
+
+    n_modes = 1
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def values(self, points):
+        p = np.asarray(points, dtype=np.float64)
+        return (p + 0.3 * np.sin(40.0 * p))[:, :, None]
+
+    def jacobians(self, points):
+        p = np.asarray(points, dtype=np.float64)
+        d = 1.0 + 0.3 * 40.0 * np.cos(40.0 * p)
+        return (d[:, :, None] * np.eye(3))[..., None]
+
+
+def test_strain_jacobians_mesh_is_the_fem_gradient_of_the_vertex_values(rng):
+    mesh = meshes.cheese(resolution=4)
+    basis = _Wiggly(mesh)
+    tets = np.arange(0, mesh.n_tets, 3)
+    q = np.array([0.01])
+    mesh_jac = strain_jacobians(basis, mesh, tets, "mesh")
+    # The deformation gradient of the linear FEM with every vertex moved by the basis' values.
+    x = mesh.vertices + basis.values(mesh.vertices)[:, :, 0] * q[0]
+    f = mesh.deformation_gradients(x)[tets]
+    np.testing.assert_allclose(np.eye(3) + mesh_jac @ q, f, atol=1e-12)
+    field_jac = strain_jacobians(basis, mesh, tets, "field")
+    np.testing.assert_allclose(field_jac, basis.jacobians(mesh.centroids[tets]))
+    assert np.abs(field_jac - mesh_jac).max() > 0.1  # the wiggle between vertices: the two differ here
+    lin = MeshBasis(mesh, rng.normal(size=(mesh.n_vertices, 3, 2)))  # linear in each tet: both agree
+    np.testing.assert_allclose(strain_jacobians(lin, mesh, tets, "field"), strain_jacobians(lin, mesh, tets, "mesh"), atol=1e-10)
+    with pytest.raises(ConfigError, match="strain must be one of 'mesh', 'field'"):
+        strain_jacobians(lin, mesh, tets, "exact")

@@ -128,6 +128,11 @@ def test_transfer_to_a_finer_mesh_keeps_the_pose():
     sim = BodyFrameSim(BodyFrameBasis(coarse), coarse, scene)
     for _ in range(5):
         sim.step()
+    # The solver's work counters, as the world-frame solver's.
+    stats = sim._core.stats()
+    assert stats["steps"] == 5 and stats["evaluations"] >= stats["iterations"] >= 5
+    sim._core.reset_stats()
+    assert all(v == 0 for v in sim._core.stats().values())
     other = sim.transfer(fine)
     np.testing.assert_allclose(other.center, sim.center, atol=1e-15)
     np.testing.assert_allclose(other.rotation, sim.rotation, atol=1e-15)
@@ -171,6 +176,8 @@ def test_state_round_trip_and_bad_inputs():
         BodyFrameBasis(mesh, learned=object())
     with pytest.raises(ConfigError, match="needs a scene"):
         BodyFrameSim(BodyFrameBasis(mesh))
+    with pytest.raises(ConfigError, match="strain must be one of"):
+        BodyFrameSim(BodyFrameBasis(mesh), mesh, scene, strain="continuous")
     n = sim.n_modes
     core_args = {
         "total_mass": 1.0, "inertia_moments": np.eye(3), "mode_moments": np.zeros((n, 3, 3)), "mode_products": np.zeros((n, n, 3, 3)),

@@ -1,6 +1,9 @@
+import errno
+import os
 import subprocess
 import sys
 
+import pytest
 from licrom.cli import main
 
 
@@ -38,7 +41,8 @@ def test_compare_command_reports_and_writes_pictures(tiny_demo, tmp_path, capsys
     assert "slope 25.0 deg, mu 0.1" in text and "slope 25.0 deg, mu 0.9" in text and "stick/slip" in text
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slope 25.0 deg, mu 0.1"]["slid_full"] and not summary["slope 25.0 deg, mu 0.9"]["slid_full"]
-    assert {p.name for p in out.iterdir()} == {"summary.json", "errors.png", "filmstrip_1.png", "filmstrip_2.png"}
+    assert {p.name for p in out.iterdir()} == {"summary.json", "errors.png", "filmstrip_1.png", "filmstrip_2.png", "animation_1.gif",
+                                               "animation_2.gif", "full_1.npz", "reduced_1.npz", "full_2.npz", "reduced_2.npz"}
 
 
 def test_compare_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
@@ -48,3 +52,95 @@ def test_compare_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
     assert capsys.readouterr().err.startswith("licrom: error:")
     assert main(["compare", str(tiny_demo[0] / "model.lcm"), "--mesh", "sphere:abc"]) == 2
     assert "needs an integer resolution" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    from licrom import meshes
+    from licrom.training_data import make_synthetic_trajectories
+
+    d = tmp_path_factory.mktemp("data")
+    for k, t in enumerate(make_synthetic_trajectories(meshes.box((0.2, 0.1, 0.1), resolution=3), count=2, frames=4, seed=0)):
+        t.save(d / f"traj_{k}.npz")
+    return d
+
+
+def _full_disk(monkeypatch):
+    import licrom._io as lio
+
+    def fsync(fd):  # where a delayed-allocation file system reports a full disk
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(lio.os, "fsync", fsync)
+    return "no space left on the device"
+
+
+def _read_only(monkeypatch):
+    # simulated: as root, a chmod'ed folder stays writable
+    import licrom._io as lio
+
+    def mkstemp(*args, **kwargs):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+
+    monkeypatch.setattr(lio.tempfile, "mkstemp", mkstemp)
+    return "permission denied: the folder is read-only"
+
+
+@pytest.mark.parametrize("failure", [_full_disk, _read_only], ids=["full", "read-only"])
+def test_unwritable_outputs_are_one_line_errors(data, tmp_path, capsys, monkeypatch, failure):
+    out = tmp_path / "out"
+    commands = [
+        ["mesh", "box", "--resolution", "4", "-o", str(out / "box.vtu")],
+        ["generate", str(out / "gen"), "--resolution", "4", "--steps", "2", "-q"],
+        ["train", str(data), "-o", str(out / "m.lcm"), "-r", "2", "--epochs", "1", "--points", "128", "--batch-frames", "4",
+         "--width", "16", "--fourier", "0", "--val-fraction", "0", "--device", "cpu", "-q"],
+    ]
+    expected = failure(monkeypatch)
+    for args in commands:
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert err.startswith("licrom: error: cannot write") and expected in err and err.count("\n") == 1, err
+    assert [p for p in out.rglob("*") if p.is_file()] == []
+
+
+def test_out_of_range_flags_are_refused_with_the_flag_and_the_range(tmp_path, capsys):
+    assert main(["generate", str(tmp_path / "d"), "--slope", "95"]) == 2  # used to run at 85 deg
+    assert "Invalid value for '--slope': 95.0 is not in the range 0<=x<90." in capsys.readouterr().err
+    assert main(["compare", str(tmp_path / "m.lcm"), "--slope", "95"]) == 2
+    assert "'--slope': 95.0 is not in the range 0<=x<90" in capsys.readouterr().err
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "m.lcm"), "-r", "0"]) == 2  # used to name ModelConfig.latent_dim
+    assert "Invalid value for '--modes' / '-r': 0 is not in the range x>=1." in capsys.readouterr().err
+    assert main(["demo", "--modes", "0"]) == 2
+    assert "'--modes' / '-r': 0 is not in the range x>=1" in capsys.readouterr().err
+    assert main(["generate", str(tmp_path / "d"), "--poisson-ratio", "0.5"]) == 2
+    assert "'--poisson-ratio': 0.5 is not in the range -1<x<0.5" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
+def test_export_command_writes_every_format(tiny_demo, tmp_path, capsys):
+    import imageio.v3 as iio
+    import meshio
+    from pxr import Usd
+
+    runs = [str(tiny_demo[0] / "runs" / f"{kind}_slope20_mu0.1.npz") for kind in ("full", "reduced")]
+    assert main(["export", *runs, "--format", "gif", "-o", str(tmp_path / "run.gif"), "--max-frames", "5", "--title", "t"]) == 0
+    assert "wrote" in capsys.readouterr().out and len(iio.imread(tmp_path / "run.gif")) == 5
+    assert main(["export", *runs, "--format", "png", "-o", str(tmp_path / "run.png"), "--color-by", "error", "--frames", "3"]) == 0
+    assert main(["export", runs[0], "--format", "png", "-o", str(tmp_path / "mpl.png"), "--renderer", "matplotlib"]) == 0
+    assert iio.imread(tmp_path / "run.png").shape[1] > iio.imread(tmp_path / "run.png").shape[0]
+    assert main(["export", *runs, "--format", "vtu", "-o", str(tmp_path / "vtu"), "--label", "full", "--label", "reduced"]) == 0
+    assert {"full.pvd", "reduced.pvd", "full_plane_0.vtu"} <= {p.name for p in (tmp_path / "vtu").iterdir()}
+    assert "contact_friction_force" in meshio.read(tmp_path / "vtu" / "reduced_0010.vtu").point_data
+    assert main(["export", *runs, "--format", "usd", "-o", str(tmp_path / "run.usda")]) == 0
+    stage = Usd.Stage.Open(str(tmp_path / "run.usda"))
+    assert stage.GetPrimAtPath("/World/full_slope20_mu0_1").IsValid() and stage.GetPrimAtPath("/World/plane_0").IsValid()
+
+
+def test_export_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
+    run = str(tiny_demo[0] / "runs" / "full_slope20_mu0.1.npz")
+    assert main(["export", run, "--format", "vtu", "-o", str(tmp_path), "--label", "a", "--label", "b"]) == 2
+    assert "--label must be given once per run" in capsys.readouterr().err
+    assert main(["export", run, "--format", "usd", "-o", str(tmp_path / "run.obj")]) == 2
+    assert ".usda" in capsys.readouterr().err
+    assert main(["export", str(tmp_path / "missing.npz"), "--format", "gif", "-o", str(tmp_path / "x.gif")]) == 2
+    assert "not found" in capsys.readouterr().err

@@ -247,3 +247,9 @@ def test_summary_and_table_carry_the_deformation_metrics():
     row = next(line for line in table.splitlines() if line.startswith("non-rigid deformation error (from 0 s)"))
     assert row.endswith("  20.00 %")
     assert "total rotation full / reduced" in table and f"{c.rotation_full:.1f} deg" in table
+
+
+def test_comparison_repr_shows_shapes_not_values():
+    a = _sliding_box(0.1)
+    text = repr(compare(a, a))
+    assert "frame_errors=array(float64, shape=(21,))" in text and "mean_error=0.0" in text and "\n" not in text

@@ -35,3 +35,10 @@ def test_bad_counts():
         Cubature.naive(m, 0)
     with pytest.raises(ConfigError, match="count must be an integer >= 1"):
         ContactPoints.subset(m, -1)
+
+
+def test_repr_shows_shapes_not_values():
+    m = meshes.box(0.1, 3)
+    text = repr(Cubature.naive(m, 20))
+    assert "weights=array(float64, shape=(20,))" in text and "scheme='naive'" in text and "\n" not in text
+    assert repr(ContactPoints.all(m)).startswith("ContactPoints(indices=array(int64")

@@ -104,8 +104,10 @@ def test_bad_arguments(tmp_path):
         generate_dataset(tmp_path, mesh, Scene(), planes=["steep"], progress=False)
     with pytest.raises(ConfigError, match="initial_frame"):
         generate_dataset(tmp_path, mesh, Scene(), initial_frame="body", progress=False)
-    with pytest.raises(ConfigError, match="cpu, cuda"):
+    with pytest.raises(ConfigError, match="auto, cpu, cuda"):
         generate_dataset(tmp_path, mesh, Scene(), device="tpu", progress=False)
+    with pytest.raises(ConfigError, match="executor"):
+        generate_dataset(tmp_path, mesh, Scene(), executor="threads", progress=False)
     with pytest.raises(ConfigError, match="preset"):
         report_dataset_spec("teapot")
 
@@ -113,10 +115,11 @@ def test_bad_arguments(tmp_path):
 def test_report_presets():
     cheese = report_dataset_spec("cheese", resolution=6)
     assert cheese.n_trajectories == 15
-    assert cheese.frictions == (0.1, 0.3, 0.5, 0.7, 0.9) and cheese.planes == (10.0, 20.0, 30.0)
-    tans = [math.tan(math.radians(s)) for s in cheese.planes]
-    slides = [(mu, s) for mu in cheese.frictions for s, t in zip(cheese.planes, tans) if mu < t]
-    sticks = [(mu, s) for mu in cheese.frictions for s, t in zip(cheese.planes, tans) if mu > t]
+    slopes = sorted({scene.planes[0].slope_deg for scene in cheese.scenes()})
+    assert cheese.frictions == (0.1, 0.3, 0.5, 0.7, 0.9) and slopes == pytest.approx([10.0, 20.0, 30.0])
+    tans = [math.tan(math.radians(s)) for s in slopes]
+    slides = [(mu, s) for mu in cheese.frictions for s, t in zip(slopes, tans) if mu < t]
+    sticks = [(mu, s) for mu in cheese.frictions for s, t in zip(slopes, tans) if mu > t]
     assert len(slides) >= 3 and len(sticks) >= 3  # both outcomes in the set
     sphere = report_dataset_spec("sphere", resolution=4)
     assert sphere.n_trajectories == 1 and sphere.frictions == (0.5,)
@@ -127,10 +130,59 @@ def test_cli_generate(tmp_path):
     from licrom.cli import main
 
     out = tmp_path / "cli"
-    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
+    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q", "--jobs", "2"]) == 0
     m = json.loads((out / MANIFEST_NAME).read_text())
-    assert len(m["trajectories"]) == 15 and m["complete"]
+    assert len(m["trajectories"]) == 15 and m["complete"] and m["jobs"] == 2 and m["device"] == "cpu"
     assert (out / MESH_NAME).is_file()
     assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
     assert all(t["skipped"] for t in json.loads((out / MANIFEST_NAME).read_text())["trajectories"])
     assert main(["generate", str(out), "--device", "gpu"]) == 2
+
+
+def test_a_full_disk_stops_the_run_at_the_first_trajectory(tmp_path, monkeypatch, capsys):
+    import errno
+    import os
+
+    from licrom.cli import main
+
+    calls = []
+
+    def full_disk(fh, **arrays):
+        calls.append(1)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(np, "savez_compressed", full_disk)
+    out = tmp_path / "cli"
+    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("licrom: error: cannot write") and "traj_000" in err and "no space left on the device" in err
+    # not recorded as one failed trajectory after another: stopped at the first write, nothing half-written
+    assert len(calls) == 1 and not list(out.glob("*.npz")) and not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def _presets_as_they_were_built_in_code(preset: str, resolution: int):
+    """The presets as report_dataset_spec built them before they became scene files."""
+    from licrom.dataset import DatasetSpec
+
+    contact = ContactParams(normal_stiffness=1.0e7, normal_damping=0.0, friction_stiffness=1.0e7)
+    material = Material(youngs_modulus=1.0e5, poisson_ratio=0.3, density=1000.0)
+    if preset == "cheese":
+        mesh = meshes.cheese(resolution=resolution)
+        state = drop_state(mesh, material.density, height=0.02, rotation=(0.15, 0.1, 0.0))
+        return DatasetSpec("cheese", mesh, Scene(material=material, contact=contact, dt=0.01), (0.1, 0.3, 0.5, 0.7, 0.9),
+                           (10.0, 20.0, 30.0), (state,), 200, 1, "plane")
+    mesh = meshes.sphere(radius=0.05, resolution=resolution)
+    state = drop_state(mesh, material.density, height=0.2, velocity=(0.5, 0.0, -1.0))
+    return DatasetSpec("sphere", mesh, Scene(material=material, contact=contact, dt=0.002), (0.5,), (20.0,), (state,), 750, 5, "plane")
+
+
+@pytest.mark.parametrize("preset", ["cheese", "sphere"])
+def test_presets_as_scene_files_are_the_old_presets(preset):
+    old = _presets_as_they_were_built_in_code(preset, resolution=5)
+    new = report_dataset_spec(preset, resolution=5)
+    assert new.mesh.same_as(old.mesh)
+    assert new.base_scene == old.base_scene
+    assert (new.name, new.frictions, new.steps, new.record_every, new.initial_frame) == (
+        old.name, old.frictions, old.steps, old.record_every, old.initial_frame)
+    assert new.initial_states == old.initial_states
+    assert new.scenes() == old.scenes()  # every run: planes, friction, placement on the plane

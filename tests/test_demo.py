@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 from licrom.demo import DemoConfig
 from licrom.errors import ConfigError
@@ -8,7 +9,8 @@ from licrom.errors import ConfigError
 def test_demo_writes_every_output(tiny_demo):
     out, summary = tiny_demo
     for name in ("cheese.vtu", "model.lcm", "model.losses.csv", "model.losses.png", "errors.png", "summary.md",
-                 "filmstrip_slope20_mu0.1.png", "filmstrip_slope20_mu0.9.png",
+                 "filmstrip_slope20_mu0.1.png", "filmstrip_slope20_mu0.9.png", "animation_slope20_mu0.1.gif",
+                 "animation_slope20_mu0.9.gif", "runs/full_slope20_mu0.1.npz", "runs/reduced_slope20_mu0.9.npz",
                  "vtu_slope20_mu0.1/full/full.pvd", "vtu_slope20_mu0.9/reduced/reduced.pvd"):
         assert (out / name).is_file(), name
     assert len(list((out / "data").glob("*.npz"))) == 4
@@ -25,13 +27,45 @@ def test_demo_reduced_runs_follow_the_full_ones(tiny_demo):
         assert case["reduced_step_ms"] < case["full_step_ms"]
 
 
-def test_demo_refuses_a_test_case_from_the_training_set():
+def test_demo_without_pyvista_draws_filmstrips_with_matplotlib_and_says_so(tmp_path, monkeypatch, capsys, tiny_demo_scene):
+    from licrom import render
+    from licrom.demo import run_demo
+
+    monkeypatch.setattr(render, "pyvista_unavailable", lambda: "PyVista is not installed (pip install 'licrom[render]')")
+    scene = tmp_path / "one.toml"
+    one_run = tiny_demo_scene.replace("frictions = [0.3, 0.6]", "frictions = [0.3]").replace("slopes = [10.0, 30.0]", "slopes = [10.0]")
+    scene.write_text("[[held_out]]".join(one_run.split("[[held_out]]")[:2]))  # held out: 20 deg, mu 0.1
+    config = DemoConfig(out_dir=str(tmp_path / "out"), scene=str(scene), resolution=4, steps=10, modes=2, epochs=1, cubature_points=20)
+    run_demo(config, progress=False)
+    said = capsys.readouterr().out
+    assert said.count("pictures: PyVista is not installed (pip install 'licrom[render]'); drawing filmstrips with matplotlib") == 1
+    assert (tmp_path / "out" / "filmstrip_slope20_mu0.1.png").is_file() and not list((tmp_path / "out").glob("*.gif"))
+
+
+def test_demo_saves_the_runs_it_pictures(tiny_demo):
+    from licrom import Trajectory
+
+    full = Trajectory.load(tiny_demo[0] / "runs" / "full_slope20_mu0.1.npz")
+    reduced = Trajectory.load(tiny_demo[0] / "runs" / "reduced_slope20_mu0.1.npz")
+    assert full.n_frames == reduced.n_frames == 61 and full.info["source"] == "full"
+    assert np.abs(reduced.displacements[-1] - full.displacements[-1]).max() < 0.1 * full.mesh.size
+
+
+def test_demo_refuses_a_held_out_scene_from_the_training_set(tmp_path, tiny_demo_scene):
+    from licrom.demo import run_demo
+
+    scene = tmp_path / "s.toml"
+    scene.write_text(tiny_demo_scene.replace("friction = 0.9", "friction = 0.6").replace("slope = 20.0\nfriction = 0.6", "slope = 30.0\nfriction = 0.6"))
     with pytest.raises(ConfigError, match="held-out"):
-        DemoConfig(train_slopes=(20.0,), train_frictions=(0.5,), test_cases=((20.0, 0.5),))
+        run_demo(DemoConfig(out_dir=str(tmp_path / "out"), scene=str(scene)), progress=False)
+    assert not (tmp_path / "out").exists()  # refused before anything ran
+    scene.write_text(tiny_demo_scene.split("[[held_out]]")[0])
+    with pytest.raises(ConfigError, match=r"needs held-out scenes"):
+        run_demo(DemoConfig(out_dir=str(tmp_path / "out"), scene=str(scene)), progress=False)
 
 
 @pytest.mark.parametrize("field, value", [("epochs", 0), ("modes", -1), ("steps", 0), ("cubature_points", 0),
-                                          ("resolution", 2), ("drop_height", float("nan"))])
+                                          ("resolution", 2), ("frame", "space")])
 def test_demo_refuses_bad_settings_before_simulating(field, value):
     with pytest.raises(ConfigError, match=f"DemoConfig.{field}"):
         DemoConfig(**{field: value})

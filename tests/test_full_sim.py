@@ -330,12 +330,39 @@ def test_run_records_frames_and_metadata():
     assert sim.time == pytest.approx(0.06)
 
 
+def test_device_auto_picks_cuda_when_warp_sees_a_gpu_and_says_which(monkeypatch, caplog):
+    import logging
+
+    from licrom.full_sim import device as device_module
+    from licrom.full_sim import resolve_device
+
+    mesh, scene, _ = _box_on_incline(0.0, 0.5, res=1)
+    gpus = device_module.warp_ready().get_cuda_device_count()
+    expected = "cuda" if gpus else "cpu"
+    assert resolve_device(None) == resolve_device("auto") == expected
+    with caplog.at_level(logging.INFO, logger="licrom.full_sim"):
+        sim = FullSim(mesh, scene)
+    assert sim.device == expected
+    assert f"on {expected}" in caplog.text and f"{mesh.n_tets} tets" in caplog.text
+    assert sim.run(1).info["device"] == expected
+    # The choice itself, with and without a GPU in sight (nothing is launched).
+    monkeypatch.setattr(device_module.warp_ready(), "get_cuda_device_count", lambda: 1)
+    assert resolve_device(None) == "cuda" and resolve_device("cuda:0") == "cuda:0"
+    with pytest.raises(ConfigError, match=r"cuda:1.*1 CUDA device"):
+        resolve_device("cuda:1")
+    monkeypatch.setattr(device_module.warp_ready(), "get_cuda_device_count", lambda: 0)
+    assert resolve_device(None) == "cpu" and resolve_device("cpu") == "cpu"
+    for name in ("cuda", "cuda:0"):
+        with pytest.raises(ConfigError, match=r"no CUDA device.*accepted here: auto, cpu"):
+            FullSim(mesh, scene, device=name)
+
+
 def test_custom_contact_points_and_validation():
     mesh, scene, _ = _box_on_incline(0.0, 0.5)
     sub = mesh.boundary_vertices[:5]
     sim = FullSim(mesh, scene, contact_points=(sub, np.full(5, 1e-3)))
     np.testing.assert_array_equal(sim.contact_indices, sub)
-    with pytest.raises(ConfigError, match="cpu, cuda, cuda:N"):
+    with pytest.raises(ConfigError, match="auto, cpu, cuda, cuda:N"):
         FullSim(mesh, scene, device="gpu")
     with pytest.raises(ConfigError, match="vertex indices"):
         FullSim(mesh, scene, contact_points=([0, mesh.n_vertices], [1.0, 1.0]))
@@ -354,3 +381,22 @@ def test_custom_contact_points_and_validation():
     v = np.ones((mesh.n_vertices, 3))
     sim.set_state(velocities=v)
     np.testing.assert_array_equal(sim.velocities, v)
+
+
+def test_cpu_run_prints_no_missing_driver_warning_but_other_native_output_passes(capfd):
+    import os
+    import subprocess
+    import sys
+
+    from licrom.full_sim.device import _NO_DRIVER_WARNING, _native_stderr_without
+
+    code = ("import licrom; licrom.FullSim(licrom.meshes.box(resolution=1), licrom.Scene()).run(1); "
+            "import warp; print(warp.get_cuda_device_count())")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert _NO_DRIVER_WARNING not in r.stderr and "Warp CUDA warning" not in r.stderr
+    with _native_stderr_without(_NO_DRIVER_WARNING):
+        os.write(2, f"Warp CUDA warning: {_NO_DRIVER_WARNING}. GPU execution will not be available.\n".encode())
+        os.write(2, b"Warp CUDA error: a real error\n")
+    err = capfd.readouterr().err
+    assert err == "Warp CUDA error: a real error\n"

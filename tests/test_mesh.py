@@ -118,3 +118,24 @@ def test_missing_and_truncated_files(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(FileFormatError):
             meshes.box(0.1, 2).save(tmp_path / "x.unknownext")
+
+
+def test_write_errors_name_the_users_path_not_a_temporary_one(tmp_path):
+    from licrom.errors import OutputError
+
+    m = meshes.box(0.1, resolution=1)
+    for name in ("mesh.xyz", "mesh"):
+        with pytest.raises(FileFormatError, match="unknown file extension") as info:
+            m.save(tmp_path / name)
+        assert f"'{tmp_path / name}'" in str(info.value) and f".{name}." not in str(info.value)
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(OutputError, match=r"cannot write '.*afile': a part of the path is a file"):
+        m.save(tmp_path / "afile" / "m.vtu")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]  # nothing left behind
+
+
+def test_msh_is_written_in_gmsh_format(tmp_path):
+    m = meshes.box(0.1, resolution=2)
+    m.save(tmp_path / "m.msh")
+    assert (tmp_path / "m.msh").read_bytes().startswith(b"$MeshFormat")  # Gmsh, not ANSYS (meshio's first .msh match)
+    assert Mesh.load(tmp_path / "m.msh").same_as(m)

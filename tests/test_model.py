@@ -348,3 +348,36 @@ def test_old_world_frame_model_file_loads_as_world_frame():
     traj = sim.run(5)
     assert traj.n_frames == 6 and np.isfinite(traj.displacements).all()
     assert traj.converged.all() and np.abs(traj.displacements[-1]).max() > 0.0
+
+
+def test_save_onto_a_directory_is_an_output_error(mesh, tmp_path):
+    from licrom import OutputError
+
+    with pytest.raises(OutputError, match="is a directory"):
+        _random_model(mesh, r=2).save(tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_absurd_header_sizes_are_refused_before_the_network_is_built(mesh, tmp_path, monkeypatch):
+    import json
+
+    import licrom.model.trained as trained
+    from licrom.model.networks import state_size
+
+    good = _random_model(mesh, r=2).save(tmp_path / "good.lcm")
+    with np.load(good, allow_pickle=False) as d:
+        arrays = {k: d[k] for k in d.files}
+    header = json.loads(str(arrays.pop("header_json")))
+    header["model_config"]["latent_dim"] = header["n_learned"] = 10**6
+    np.savez(tmp_path / "huge.lcm", **arrays, header_json=np.array(json.dumps(header)))
+
+    def never(*args, **kwargs):
+        raise AssertionError("the network was built from an absurd header")
+
+    monkeypatch.setattr(trained, "LicromNet", never)
+    with pytest.raises(FileFormatError, match=r"latent_dim=1000000.*needs \d+ weights, the file holds \d+"):
+        Model.load(tmp_path / "huge.lcm.npz")
+    # the size it checks is the network's own
+    for cfg in (ModelConfig(), ModelConfig(latent_dim=3, field_layers=2, field_width=7, fourier_features=0,
+                                           encoder_point_widths=(5,), encoder_fc_widths=())):
+        assert state_size(cfg) == sum(v.numel() for v in LicromNet(cfg).state_dict().values())

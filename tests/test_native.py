@@ -302,3 +302,8 @@ def test_state_and_probes_check_their_arguments(block):
     q = core.q
     q[0] = 1.0  # a copy: the state is untouched
     assert core.q[0] == 0.0
+
+
+def test_a_bool_is_not_an_iteration_count(block):
+    with pytest.raises(ConfigError, match="max_iterations must be an integer >= 1, got True"):
+        block.core(max_iterations=True)

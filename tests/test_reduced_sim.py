@@ -84,6 +84,8 @@ def test_affine_rigid_rotation_has_no_elastic_force():
     for _ in range(5):
         sim.step()
     np.testing.assert_allclose(sim.positions, start, atol=1e-10)
+    with pytest.raises(ConfigError, match="strain must be one of 'mesh', 'field'"):
+        ReducedSim(AffineBasis(), mesh, scene, strain="continuous")
 
 
 @pytest.mark.parametrize("theta, mu", [(20.0, 0.2), (30.0, 0.3), (35.0, 0.5)])
@@ -227,3 +229,184 @@ def test_prefactored_follows_newton_with_pod_modes_on_an_incline():
     assert runs["prefactored"].converged.all()
     scale = np.abs(runs["newton"].displacements).max()
     assert np.abs(runs["prefactored"].displacements - runs["newton"].displacements).max() < 1e-4 * scale
+def _contend(sim, steps=5000):
+    """Step ``sim`` in a second thread while this one reads and steps it; return the exceptions raised here."""
+    import threading
+
+    raised, failed = [], []
+
+    def stepper():
+        try:
+            for _ in range(steps):
+                if raised:
+                    return
+                sim.step()
+        except Exception as exc:  # collected: any error of the stepping thread fails the test
+            failed.append(exc)
+
+    thread = threading.Thread(target=stepper)
+    thread.start()
+    while thread.is_alive() and not raised:
+        try:
+            _ = sim.q
+            sim.step()
+        except Exception as exc:
+            raised.append(exc)
+    thread.join()
+    assert not failed, failed
+    return raised
+
+
+def _serial_and_threaded(make, steps=8):
+    """Final q of two simulations run one after the other, and of two run at once in two threads."""
+    import threading
+
+    serial = [make(), make()]
+    for sim in serial:
+        for _ in range(steps):
+            sim.step()
+    sims = [make(), make()]
+    threads = [threading.Thread(target=lambda s=s: [s.step() for _ in range(steps)]) for s in sims]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return [s.q for s in serial], [s.q for s in sims]
+
+
+
+def _world_frame_sim():
+    mesh = meshes.box(0.1, 2)
+    scene = Scene(material=STIFF, planes=(Plane((0, 0, 1), 0.05, 0.5),), solver=TIGHT, initial=InitialState(velocity=(0.2, 0, -0.5)))
+    return ReducedSim(MeshBasis.identity(mesh), mesh, scene, cubature=Cubature.full(mesh))
+
+
+def _body_frame_sim():
+    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+
+    mesh = meshes.box(0.1, 4)
+    scene = Scene(planes=(Plane((0, 0, 1), 0.05, 0.5),), solver=TIGHT, initial=InitialState(angular_velocity=(1.0, 2.0, 0.0)))
+    return BodyFrameSim(BodyFrameBasis(mesh), mesh, scene, cubature=Cubature.full(mesh))
+
+
+@pytest.mark.parametrize("make", [_world_frame_sim, _body_frame_sim], ids=["world", "body"])
+def test_one_simulation_in_two_threads_is_a_named_error_and_two_run_in_parallel(make):
+    from licrom import ConcurrencyError
+
+    raised = _contend(make())
+    # a read or step while the other thread's step runs (without the GIL) is refused by name
+    assert raised and all(isinstance(e, ConcurrencyError) for e in raised), raised
+    assert "another thread" in str(raised[0]) and isinstance(raised[0], RuntimeError)
+    serial, threaded = _serial_and_threaded(make)
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a, b)
+
+
+def _many_scenes():
+    """World-frame (affine) and body-frame sims of an 84-tet cheese: drops and slides on several slopes."""
+    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+
+    mesh = meshes.cheese(resolution=4)
+    soft = Material(youngs_modulus=1e5, poisson_ratio=0.3)
+    sims = []
+    for k, (slope, mu) in enumerate([(10.0, 0.2), (25.0, 0.3), (30.0, 0.9), (0.0, 0.5)]):
+        # Touching or up to 2.4 cm deep at the start (the limit of licrom.validity is 2.6 cm here).
+        scene = Scene(material=soft, planes=(Plane.incline(slope, mu, offset=0.075),),
+                      initial=InitialState(rotation=(0.1 * k, 0.05, 0.0), velocity=(0.2 * k, 0.0, -0.3)))
+        sims.append(ReducedSim(AffineBasis(), mesh, scene))
+        if k < 2:
+            sims.append(BodyFrameSim(BodyFrameBasis(mesh, density=soft.density), mesh, scene))
+    return sims
+
+
+def _state(sim):
+    names = ("q", "qdot", "center", "rotation", "velocity", "angular_velocity")
+    return [getattr(sim, n).tobytes() for n in names if hasattr(sim, n)] + [sim.time]
+
+
+def test_step_many_equals_stepping_each_alone_bit_for_bit():
+    from licrom.body_frame import BodyFrameSim
+    from licrom.reduced_sim import step_or_record
+
+    steps = 8
+    alone = _many_scenes()
+    expected = np.array([[step_or_record(s)[0] for _ in range(steps)] for s in alone])
+    assert sum(isinstance(s, BodyFrameSim) for s in alone) == 2 and len(alone) == 6
+    assert expected.max() > 1  # landing: real Newton solves, not free flight
+    for threads in (1, 2, None):
+        sims = _many_scenes()
+        its, res, ok = ReducedSim.step_many(sims, steps=steps, threads=threads)
+        assert its.shape == res.shape == ok.shape == (len(sims), steps) and ok.all()
+        np.testing.assert_array_equal(its, expected)
+        for a, b in zip(sims, alone):
+            assert _state(a) == _state(b)
+    # Steps in several calls are the same steps; BodyFrameSim has the same function.
+    sims = _many_scenes()
+    BodyFrameSim.step_many(sims, steps=3, threads=2)
+    ReducedSim.step_many(sims, steps=steps - 3)
+    assert [_state(s) for s in sims] == [_state(s) for s in alone]
+
+
+def test_step_many_failures_and_bad_arguments():
+    mesh = meshes.box(0.1, 2)
+    hopeless = SolverParams(tolerance=1e-14, max_iterations=1)
+    scene = _incline_scene(30.0, 0.3, initial=InitialState(velocity=(0, 0, -1.0)))
+    ok, failing = ReducedSim(AffineBasis(), mesh, scene), ReducedSim(AffineBasis(), mesh, scene.replace(solver=hopeless))
+    reference = ReducedSim(AffineBasis(), mesh, scene)
+    for _ in range(3):
+        reference.step()
+    before = failing.q
+    with pytest.raises(SolverError, match=r"sims\[1\], at its step 1 of 3: .*converge") as info:
+        ReducedSim.step_many([ok, failing], steps=3, threads=2)
+    assert info.value.step_index == 0 and info.value.iterations == 1
+    # The failing sim stopped at the start of its failed step; the other took all its steps.
+    np.testing.assert_array_equal(failing.q, before)
+    assert failing.time == 0.0 and _state(ok) == _state(reference)
+    # on_failure="record": the failed steps are recorded, as run() records them.
+    record = scene.replace(solver=SolverParams(1e-14, 1, "record"))
+    batched, looped = ReducedSim(AffineBasis(), mesh, record), ReducedSim(AffineBasis(), mesh, record)
+    its, res, conv = ReducedSim.step_many([batched], steps=3)
+    traj = looped.run(3)
+    assert not conv.any() and (its == 1).all()
+    np.testing.assert_array_equal(res[0], traj.residuals)
+    assert _state(batched) == _state(looped)
+
+    with pytest.raises(ConfigError, match=r"sims\[0\] and sims\[2\] are the same simulation"):
+        ReducedSim.step_many([ok, reference, ok])
+    with pytest.raises(ConfigError, match=r"sims\[1\] must be a ReducedSim or BodyFrameSim"):
+        ReducedSim.step_many([ok, "sim"])
+    with pytest.raises(ConfigError, match="threads must be None"):
+        ReducedSim.step_many([ok], threads=0)
+    with pytest.raises(ConfigError, match="steps must be an integer >= 0"):
+        ReducedSim.step_many([ok], steps=-1)
+    assert [a.shape for a in ReducedSim.step_many([], steps=2)] == [(0, 2)] * 3
+
+
+def test_step_many_of_a_simulation_busy_in_another_thread_is_a_named_error():
+    import threading
+
+    from licrom import ConcurrencyError
+
+    sim, other = _world_frame_sim(), _world_frame_sim()
+    raised, stop = [], threading.Event()
+
+    def stepper():
+        while not stop.is_set():
+            try:
+                sim.step()
+            except ConcurrencyError:  # step_many holds it just now
+                pass
+
+    thread = threading.Thread(target=stepper)
+    thread.start()
+    try:
+        for _ in range(5000):
+            try:
+                ReducedSim.step_many([other, sim])
+            except ConcurrencyError as exc:
+                raised.append(exc)
+                break
+    finally:
+        stop.set()
+        thread.join()
+    assert raised and "sims[1] is busy in another thread" in str(raised[0])

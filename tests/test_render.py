@@ -1,13 +1,32 @@
-import xml.etree.ElementTree as ET
+import dataclasses
 
-import meshio
+import imageio.v3 as iio
 import numpy as np
 import pytest
-from licrom import meshes
+from licrom import FullSim, Plane, meshes
 from licrom.compare import compare
-from licrom.errors import ShapeError
-from licrom.render import filmstrip, plot_errors, write_vtu_series
+from licrom.dataset import report_dataset_spec
+from licrom.errors import ConfigError, MissingDependencyError, ShapeError
+from licrom.placement import drop_state, initial_state_on_plane
+from licrom.render import COLORBAR_PX, HEADER_PX, PANEL_GAP, RenderStyle, animation, filmstrip, pictures, plot_errors, pyvista_unavailable
 from licrom.training_data import make_synthetic_trajectories
+
+SLOPE = 20.0  # tan = 0.36: mu 0.1 slides (a = 2.4 m/s^2, 0.1 m in 0.3 s), mu 0.9 sticks
+STYLE = RenderStyle(panel_size=(240, 160))
+
+
+@pytest.fixture(scope="module")
+def incline_runs():
+    """``{mu: trajectory}`` of an 84-tet cheese set down on a 20 deg incline, 0.4 s in 11 frames."""
+    mesh = meshes.cheese(resolution=4)
+    base = report_dataset_spec("cheese", resolution=4).base_scene
+    rest = drop_state(mesh, base.material.density, 0.0)
+    runs = {}
+    for mu in (0.1, 0.9):
+        plane = Plane.incline(SLOPE, mu)
+        scene = base.replace(planes=(plane,), initial=initial_state_on_plane(rest, plane, mesh, base.material.density))
+        runs[mu] = FullSim(mesh, scene).run(40, record_every=4)
+    return runs
 
 
 @pytest.fixture(scope="module")
@@ -15,32 +34,90 @@ def trajs():
     return make_synthetic_trajectories(meshes.box(0.1, 2), count=2, frames=5, seed=1)
 
 
-def _png(path):
-    import matplotlib.image
-
-    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    return matplotlib.image.imread(path)
-
-
-def test_vtu_series_reads_back_every_frame(trajs, tmp_path):
-    traj = trajs[0]
-    pvd = write_vtu_series(traj, tmp_path / "series", name="run")
-    entries = ET.parse(pvd).getroot().find("Collection")
-    assert len(entries) == traj.n_frames
-    for f, entry in enumerate(entries):
-        assert float(entry.get("timestep")) == pytest.approx(traj.times[f])
-        m = meshio.read(pvd.parent / entry.get("file"))
-        np.testing.assert_allclose(m.points, traj.positions(f))
-        np.testing.assert_allclose(m.point_data["displacement"], traj.displacements[f])
-        np.testing.assert_array_equal(m.cells_dict["tetra"], traj.tets)
-    assert sorted(p.name for p in pvd.parent.iterdir()) == ["run.pvd"] + [f"run_{f:04d}.vtu" for f in range(traj.n_frames)]
+def _object_centroid(panel):
+    """(column, row) centroid of the coloured (object) pixels of a panel; plane, ghost, text and background are grey."""
+    rgb = panel[..., :3].astype(float)
+    hi = rgb.max(axis=-1)
+    coloured = (hi - rgb.min(axis=-1)) > 0.12 * np.maximum(hi, 1.0)
+    assert coloured.sum() > 200, "no object in the view"
+    rows, cols = np.nonzero(coloured)
+    return np.array([cols.mean(), rows.mean()])
 
 
-def test_filmstrip_has_a_row_per_trajectory(trajs, tmp_path):
-    one = _png(filmstrip(trajs[:1], ["a"], tmp_path / "one.png", frames=4))
-    two = _png(filmstrip(trajs, ["a", "b"], tmp_path / "two.png", frames=4, title="t"))
+def _gif_panels(path, title=True):
+    """The views (the run's panel) of every frame of a one-run animation."""
+    frames = iio.imread(path)
+    w, h = STYLE.panel_size
+    top = HEADER_PX if title else 0
+    assert frames.shape[1:3] == (top + h + COLORBAR_PX, w)
+    return frames[:, top:top + h, :w]
+
+
+def test_animation_slider_moves_down_the_slope_and_sticker_stays(incline_runs, tmp_path):
+    centroids = {}
+    for mu, traj in incline_runs.items():
+        path = animation([traj], [f"mu {mu}"], tmp_path / f"mu{mu}.gif", title=f"mu {mu}", style=STYLE)
+        panels = _gif_panels(path)
+        assert len(panels) == traj.n_frames == 11
+        centroids[mu] = np.array([_object_centroid(p) for p in panels])
+    slide = centroids[0.1][-1] - centroids[0.1][0]
+    # Downhill is +x, seen from the side: the slider crosses the view to the right and down (rows grow).
+    assert slide[0] > 40 and slide[1] > 5
+    assert np.all(np.diff(centroids[0.1][3:, 0]) > 0)  # keeps going once it has landed
+    assert np.abs(centroids[0.9] - centroids[0.9][0]).max() < 2.0  # pixels
+
+
+def test_animation_keeps_at_most_max_frames(incline_runs, tmp_path):
+    path = animation(list(incline_runs.values()), ["slides", "sticks"], tmp_path / "both.gif", max_frames=4, style=STYLE)
+    frames = iio.imread(path)
+    w, h = STYLE.panel_size
+    assert frames.shape == (4, h + COLORBAR_PX, 2 * w + PANEL_GAP, 3)
+
+
+def test_filmstrip_rows_are_runs_and_columns_are_times(incline_runs, tmp_path):
+    runs = [incline_runs[0.1], incline_runs[0.9]]
+    path = filmstrip(runs, ["slides", "sticks"], tmp_path / "strip.png", frames=3, title="20 deg", style=STYLE)
+    image = iio.imread(path)
+    w, h = STYLE.panel_size
+    assert image.shape[:2] == (HEADER_PX + 2 * h + PANEL_GAP + COLORBAR_PX, 3 * w + 2 * PANEL_GAP)
+
+    def panel(row, col):
+        top, left = HEADER_PX + row * (h + PANEL_GAP), col * (w + PANEL_GAP)
+        return image[top:top + h, left:left + w]
+
+    # One camera for every view: both runs start in the same place, then only the slider moves.
+    assert np.abs(_object_centroid(panel(0, 0)) - _object_centroid(panel(1, 0))).max() < 1.0
+    assert _object_centroid(panel(0, 2))[0] - _object_centroid(panel(0, 0))[0] > 40
+    assert np.abs(_object_centroid(panel(1, 2)) - _object_centroid(panel(1, 0))).max() < 2.0
+
+
+def test_error_colouring_leaves_the_reference_at_zero(incline_runs, tmp_path):
+    traj = incline_runs[0.9]
+    shifted = dataclasses.replace(traj, displacements=traj.displacements + [0.0, 0.0, 0.005])
+    path = animation([traj, shifted], ["ref", "shifted"], tmp_path / "err.gif", max_frames=2,
+                     style=RenderStyle(panel_size=(240, 160), color_by="error", ghost=False))
+    last = iio.imread(path)[-1].astype(float)
+    w, h = STYLE.panel_size
+    ref, other = last[:h, :w], last[:h, w + PANEL_GAP:]
+    # The colour map's zero is pale yellow; 5 mm everywhere is its darkest red: less green, much less blue.
+    assert ref[..., 2].mean() > other[..., 2].mean() + 10
+    with pytest.raises(ShapeError, match="first run's mesh"):
+        other_mesh = make_synthetic_trajectories(meshes.box(0.1, 2), count=1, frames=traj.n_frames, seed=3)[0]
+        animation([traj, other_mesh], ["a", "b"], tmp_path / "x.gif", style=RenderStyle(color_by="error"))
+
+
+def test_pictures_writes_a_filmstrip_and_an_animation(trajs, tmp_path):
+    paths = pictures(trajs, ["a", "b"], tmp_path, "case", title="t", style=STYLE)
+    assert [p.name for p in paths] == ["filmstrip_case.png", "animation_case.gif"]
+    only = pictures(trajs, ["a", "b"], tmp_path / "mpl", "case", renderer="matplotlib")
+    assert [p.name for p in only] == ["filmstrip_case.png"]
+
+
+def test_matplotlib_filmstrip_has_a_row_per_trajectory(trajs, tmp_path):
+    one = iio.imread(filmstrip(trajs[:1], ["a"], tmp_path / "one.png", frames=4, renderer="matplotlib"))
+    two = iio.imread(filmstrip(trajs, ["a", "b"], tmp_path / "two.png", frames=4, title="t", renderer="matplotlib"))
     assert two.shape[1] == one.shape[1] and two.shape[0] > 1.5 * one.shape[0]
-    assert two[..., :3].std() > 0.05  # something is drawn
+    assert two[..., :3].std() > 10  # something is drawn
 
 
 def test_filmstrip_refuses_mismatched_input(trajs, tmp_path):
@@ -49,10 +126,51 @@ def test_filmstrip_refuses_mismatched_input(trajs, tmp_path):
     short = make_synthetic_trajectories(meshes.box(0.1, 2), count=1, frames=3, seed=2)[0]
     with pytest.raises(ShapeError, match="one frame count"):
         filmstrip([trajs[0], short], ["a", "b"], tmp_path / "x.png")
-    assert not (tmp_path / "x.png").exists()
+    with pytest.raises(ConfigError, match="frames"):
+        filmstrip(trajs, ["a", "b"], tmp_path / "x.png", frames=0)
+    with pytest.raises(ConfigError, match="renderer"):
+        filmstrip(trajs, ["a", "b"], tmp_path / "x.png", renderer="povray")
+    with pytest.raises(ConfigError, match=r"\.gif"):
+        animation(trajs, ["a", "b"], tmp_path / "x.mp4")
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("field, value", [("color_by", "speed"), ("panel_size", (10, 10)), ("elevation", 95.0), ("colormap", "nope")])
+def test_render_style_refuses_bad_values(field, value):
+    with pytest.raises(ConfigError, match=f"RenderStyle.{field}"):
+        RenderStyle(**{field: value})
+
+
+def test_without_pyvista_the_error_names_the_extra(trajs, tmp_path, monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyvista" else find_spec(name, *a))
+    pyvista_unavailable.cache_clear()
+    try:
+        assert "licrom[render]" in pyvista_unavailable()
+        with pytest.raises(MissingDependencyError, match=r"pip install 'licrom\[render\]'"):
+            filmstrip(trajs, ["a", "b"], tmp_path / "x.png")
+    finally:
+        pyvista_unavailable.cache_clear()
+
+
+def test_a_pyvista_that_cannot_render_is_reported_not_fatal(monkeypatch):
+    import subprocess
+
+    from licrom import render
+
+    failed = subprocess.CompletedProcess([], 0, stdout="", stderr="vtkOSOpenGLRenderWindow: libOSMesa not found\n")
+    monkeypatch.setattr(render.subprocess, "run", lambda *a, **k: failed)  # VTK exits 0 without a picture
+    pyvista_unavailable.cache_clear()
+    try:
+        renderer, why = render.pick_renderer()
+        assert renderer == "matplotlib" and "cannot render off-screen" in why and "libOSMesa not found" in why
+    finally:
+        pyvista_unavailable.cache_clear()
 
 
 def test_error_plot(trajs, tmp_path):
     c = compare(trajs[0], trajs[0])
-    image = _png(plot_errors({"same": c}, tmp_path / "errors.png"))
+    image = iio.imread(plot_errors({"same": c}, tmp_path / "errors.png"))
     assert image.shape[1] > image.shape[0] > 100

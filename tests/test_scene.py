@@ -47,6 +47,18 @@ def test_plane_normalises_huge_and_tiny_normals(normal, offset, expected_normal,
 def test_plane_refuses_offsets_beyond_its_range(normal, offset):
     with pytest.raises(ConfigError, match=r"Plane\.offset / \|Plane\.normal\|.*\[-1e\+06, 1e\+06\] m"):
         Plane(normal=normal, offset=offset)
+def test_incline_azimuth_turns_the_downhill_direction_and_steep_angles_are_refused():
+    for azimuth in (0.0, 45.0, 90.0, -135.0):
+        p = Plane.incline(25.0, 0.3, azimuth_deg=azimuth)
+        assert p.slope_deg == pytest.approx(25.0) and p.azimuth_deg == pytest.approx(azimuth)
+        downhill = np.array([np.cos(np.radians(azimuth)), np.sin(np.radians(azimuth)), 0.0])
+        assert np.dot(p.normal, downhill) > 0  # the plane descends that way: its normal leans towards it
+    assert Plane.incline(25.0, 0.3) == Plane.incline(25.0, 0.3, azimuth_deg=0.0)
+    assert Plane().azimuth_deg == 0.0
+    # 95 deg used to give a plane facing down that reads as an 85 deg slope.
+    for angle in (95.0, 90.0, -5.0):
+        with pytest.raises(ConfigError, match=r"Plane.incline angle must be in \[0, 90\) degrees"):
+            Plane.incline(angle, 0.3)
 
 
 def test_scene_json_round_trip():
@@ -109,3 +121,11 @@ def test_unknown_scene_version():
     with pytest.raises(FileFormatError, match="not valid JSON"):
         Scene.from_json('{"format": "licrom.scene", ')
     assert math.isclose(Scene().dt, 0.01)
+
+
+def test_a_bool_is_not_a_count_and_deep_json_is_a_file_format_error():
+    with pytest.raises(ConfigError, match=r"SolverParams\.max_iterations must be an integer >= 1, got True"):
+        SolverParams(max_iterations=True)
+    deep = '{"format": "licrom.scene", "version": 1, "material": ' + "[" * 100_000 + "]" * 100_000 + "}"
+    with pytest.raises(FileFormatError, match="nested too deeply"):
+        Scene.from_json(deep)

@@ -158,7 +158,7 @@ def test_relative_error():
 @pytest.mark.parametrize(
     "kwargs",
     [{"epochs": 0}, {"lr": -1.0}, {"sample": "faces"}, {"device": "tpu"}, {"val_fraction": 1.0}, {"batch_frames": 1.5},
-     {"projection_weight": -1.0}, {"devices": 0}, {"objective": "vae"}],
+     {"projection_weight": -1.0}, {"devices": 0}, {"nodes": 0}, {"objective": "vae"}],
 )
 def test_train_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
@@ -373,3 +373,78 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     assert type(wsim.transfer(fine)) is ReducedSim
     with pytest.raises(ConfigError, match="newton"):
         ReducedSim(back, solver="prefactored")
+
+
+# --- checkpoints: weights only, the same run, atomic -------------------------------------
+def test_resume_never_runs_code_from_a_checkpoint(trajs, tmp_path):
+    out = tmp_path / "m.lcm"
+    marker = tmp_path / "code-ran"
+
+    class Planted:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    folder = output_paths(out)["checkpoints"]
+    folder.mkdir()
+    torch.save({"state_dict": {}, "epoch": 0, "planted": Planted()}, folder / "last.ckpt")
+    with pytest.raises(FileFormatError, match=r"not a licrom training checkpoint .*UnpicklingError.*without --resume"):
+        train(trajs, out, TrainConfig(**TINY, resume=True), ModelConfig(latent_dim=2))
+    assert not marker.exists()
+
+
+def test_resume_takes_the_same_run_and_names_what_differs(trajs, data_dir, tmp_path, capsys):
+    from licrom.cli import main
+    from licrom.training.checkpoints import RUN_KEY, read_checkpoint
+
+    out = tmp_path / "m.lcm"
+    folder = output_paths(out)["checkpoints"]
+    first = train(trajs, out, TrainConfig(**TINY, seed=1), ModelConfig(latent_dim=2))
+    first_ckpt = (folder / "last.ckpt").read_bytes()
+    # a second run without --resume writes its own last.ckpt (no last-v1.ckpt beside the first run's)
+    train(trajs, out, TrainConfig(**TINY, seed=1), ModelConfig(latent_dim=3))
+    assert [p.name for p in folder.iterdir()] == ["last.ckpt"]
+    assert read_checkpoint(folder / "last.ckpt")[RUN_KEY]["r"] == 3
+    with pytest.raises(ConfigError, match=r"another training run: r differs: 3 in the checkpoint, 2 now \(-r/--modes\)"):
+        train(trajs, out, TrainConfig(**{**TINY, "epochs": 3}, seed=1, resume=True), ModelConfig(latent_dim=2))
+    with pytest.raises(ConfigError, match=r"the network differs: field_width 256 in the checkpoint, 64 now \(--width\)"):
+        train(trajs, out, TrainConfig(**TINY, resume=True), ModelConfig(latent_dim=3, field_width=64))
+    with pytest.raises(ConfigError, match="the training data differ"):
+        train(trajs[:3], out, TrainConfig(**TINY, resume=True), ModelConfig(latent_dim=3))
+    # the CLI says the same in one line
+    assert main(["train", str(data_dir), "-o", str(out), "-r", "5", "--resume", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("licrom: error: cannot resume from") and "r differs: 3 in the checkpoint, 5 now (-r/--modes)" in err
+    assert err.count("\n") == 1
+    # with the first run's checkpoint beside the second's (as older versions left them), each run resumes its own
+    (folder / "last-v1.ckpt").write_bytes(first_ckpt)
+    resumed = train(trajs, out, TrainConfig(**{**TINY, "epochs": 3}, seed=1, resume=True), ModelConfig(latent_dim=2))
+    hist = resumed.metadata["history"]
+    assert [r["epoch"] for r in hist] == [1, 2, 3] and resumed.n_learned == 2
+    assert [r["train_loss"] for r in hist[:2]] == [r["train_loss"] for r in first.metadata["history"]]
+
+
+def test_checkpoint_writes_are_atomic_and_a_damaged_one_says_start_afresh(trajs, tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from licrom import OutputError
+
+    out = tmp_path / "m.lcm"
+    cfg = TrainConfig(**TINY, seed=4)
+    train(trajs, out, cfg, ModelConfig(latent_dim=2))
+    folder = output_paths(out)["checkpoints"]
+    good = (folder / "last.ckpt").read_bytes()
+
+    def full_disk(obj, f, *args, **kwargs):
+        with open(f, "wb") as fh:
+            fh.write(good[:100])
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(OutputError, match=r"last\.ckpt': no space left on the device"):
+        train(trajs, out, cfg, ModelConfig(latent_dim=2))
+    monkeypatch.undo()
+    assert [p.name for p in folder.iterdir()] == ["last.ckpt"] and (folder / "last.ckpt").read_bytes() == good
+    (folder / "last.ckpt").write_bytes(good[: len(good) // 2])  # cut short, as by a crash of an older version
+    with pytest.raises(FileFormatError, match=r"last\.ckpt' is truncated, corrupt .*start afresh: run again without --resume"):
+        train(trajs, out, TrainConfig(**TINY, seed=4, resume=True), ModelConfig(latent_dim=2))

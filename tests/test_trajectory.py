@@ -61,3 +61,28 @@ def test_save_writes_only_what_load_reads(tmp_path):
         t.save(tmp_path / "big.npz")
     assert not (tmp_path / "big.npz").exists()
     assert Trajectory.load(t.save(tmp_path / "big.npz", precision="float64")).displacements[1, 0, 0] == 1e39
+def test_loose_arrays_are_refused_not_truncated_or_reordered():
+    from licrom import ShapeError
+
+    t = _traj()
+    with pytest.raises(ShapeError, match="tets must be integer vertex indices, got dtype float64"):
+        Trajectory(t.rest_positions, t.tets + 0.5, t.displacements, t.velocities, t.times, t.scene)
+    for times in (t.times[::-1], np.array([0.0, 0.01, 0.01])):
+        with pytest.raises(ShapeError, match="times must be a 1-D array of strictly increasing times"):
+            Trajectory(t.rest_positions, t.tets, t.displacements, t.velocities, times, t.scene)
+
+
+def test_a_file_with_invalid_contents_is_a_file_format_error(tmp_path):
+    from licrom._io import load_npz, save_npz
+
+    header, arrays = load_npz(_traj().save(tmp_path / "t.npz"), "trajectory")
+    save_npz(tmp_path / "r.npz", {**arrays, "times": arrays["times"][::-1].copy()}, header)
+    with pytest.raises(FileFormatError, match=r"holds invalid data: Trajectory\.times must be"):
+        Trajectory.load(tmp_path / "r.npz")
+
+
+def test_repr_is_one_short_line_not_every_array():
+    t = _traj(frames=50)
+    text = repr(t)
+    assert text == str(t) and "\n" not in text and len(text) < 200
+    assert text.startswith("Trajectory(50 frames, t = 0..0.49 s, 27 vertices, 48 tets") and "slope 0 deg, mu 0.5" in text

@@ -102,3 +102,12 @@ def test_every_plane_is_checked():
     scene = Scene(planes=(Plane(), Plane((-1, 0, 0), 0.0, 0.5)), initial=InitialState(translation=(0.2, 0, 0.06)))
     with pytest.warns(PhysicsWarning, match="starts 0.25 m inside a plane"):
         ReducedSim(AffineBasis(), MESH, scene)
+
+
+def test_stepping_many_stops_a_diverging_simulation_even_when_recording_failures():
+    from licrom.reduced_sim import step_many
+
+    scene = Scene(initial=InitialState(translation=(0, 0, 0.06), velocity=(0, 0, -1e160)), solver=SolverParams(on_failure="record"))
+    sims = [SIMULATORS[name](scene) for name in ("reduced", "body_frame")]
+    with pytest.raises(SolverError, match=r"sims\[0\], at its step 1 of 2: .*non-finite"):
+        step_many(sims, 2)

@@ -15,30 +15,49 @@ from typing import TYPE_CHECKING, Any
 # so that importing ``licrom.compare`` (which sets the package attribute to the module) cannot
 # shadow it. The module is numpy-only, so this costs nothing.
 from .compare import compare
-from .errors import ConfigError, FileFormatError, LicromError, MeshError, ShapeError, SolverError
+from .errors import (
+    ConcurrencyError,
+    ConfigError,
+    FileFormatError,
+    LicromError,
+    MeshError,
+    MissingDependencyError,
+    OutputError,
+    ShapeError,
+    SolverError,
+)
 from .mesh import Mesh, MeshQuality
 from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
 from .trajectory import Trajectory
 
 __version__ = "0.1.0"
 
-# Public names that live in modules with heavy imports, loaded on first access.
-_LAZY = {
-    "meshes": ".meshes",
-    "FullSim": ".full_sim",
-    "generate_dataset": ".dataset",
-    "report_dataset_spec": ".dataset",
-    "AffineBasis": ".basis",
-    "MeshBasis": ".basis",
-    "StackedBasis": ".basis",
-    "Cubature": ".cubature",
-    "ReducedSim": ".reduced_sim",
-    "BodyFrameBasis": ".body_frame",
-    "BodyFrameSim": ".body_frame",
-    "Model": ".model",
-    "ModelConfig": ".model",
-    "train": ".training",
-    "TrainConfig": ".training",
+# Public names that live in modules with heavy imports, loaded on first access:
+# name -> (module, attribute), attribute None for a public module itself. Explicit, so that a
+# function named like its module (``compare``) can never resolve to the module.
+_LAZY: dict[str, tuple[str, str | None]] = {
+    "meshes": (".meshes", None),
+    "render": (".render", None),
+    "export": (".export", None),
+    "FullSim": (".full_sim", "FullSim"),
+    "generate_dataset": (".dataset", "generate_dataset"),
+    "report_dataset_spec": (".dataset", "report_dataset_spec"),
+    "load_scene": (".scene_file", "load_scene"),
+    "SceneFile": (".scene_file", "SceneFile"),
+    "Surface": (".surface", "Surface"),
+    "TetrahedralizeParams": (".surface", "TetrahedralizeParams"),
+    "tetrahedralize": (".surface", "tetrahedralize"),
+    "AffineBasis": (".basis", "AffineBasis"),
+    "MeshBasis": (".basis", "MeshBasis"),
+    "StackedBasis": (".basis", "StackedBasis"),
+    "Cubature": (".cubature", "Cubature"),
+    "ReducedSim": (".reduced_sim", "ReducedSim"),
+    "BodyFrameBasis": (".body_frame", "BodyFrameBasis"),
+    "BodyFrameSim": (".body_frame", "BodyFrameSim"),
+    "Model": (".model", "Model"),
+    "ModelConfig": (".model", "ModelConfig"),
+    "train": (".training", "train"),
+    "TrainConfig": (".training", "TrainConfig"),
 }
 
 __all__ = [
@@ -48,6 +67,9 @@ __all__ = [
     "ConfigError",
     "SolverError",
     "FileFormatError",
+    "OutputError",
+    "ConcurrencyError",
+    "MissingDependencyError",
     "Mesh",
     "MeshQuality",
     "Material",
@@ -63,11 +85,11 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
+    if name not in _LAZY:
         raise AttributeError(f"module 'licrom' has no attribute {name!r}")
+    module, attribute = _LAZY[name]
     mod = importlib.import_module(module, __name__)
-    value = mod if name == module.lstrip(".") else getattr(mod, name)
+    value = mod if attribute is None else getattr(mod, attribute)
     globals()[name] = value
     return value
 
@@ -77,7 +99,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover
-    from . import meshes
+    from . import export, meshes, render
     from .basis import AffineBasis, MeshBasis, StackedBasis
     from .body_frame import BodyFrameBasis, BodyFrameSim
     from .cubature import Cubature
@@ -85,4 +107,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .full_sim import FullSim
     from .model import Model, ModelConfig
     from .reduced_sim import ReducedSim
+    from .scene_file import SceneFile, load_scene
+    from .surface import Surface, TetrahedralizeParams, tetrahedralize
     from .training import TrainConfig, train

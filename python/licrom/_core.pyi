@@ -17,14 +17,14 @@ state (and every rotation) have zero energy. Valid for inverted F (J <= 0).
 ``mu / lam`` so large that ``alpha`` or ``Psi_0`` overflow is a ConfigError.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TypeAlias, final
 
 import numpy as np
 import numpy.typing as npt
 from typing_extensions import Self
 
-__all__ = ["LINE_SEARCH", "BodyFrameCore", "Reconstruction", "ReducedCore", "line_search", "snh_energy", "snh_hessian", "snh_pk1"]
+__all__ = ["LINE_SEARCH", "BodyFrameCore", "Reconstruction", "ReducedCore", "line_search", "snh_energy", "snh_hessian", "snh_pk1", "step_many"]
 
 _Float64Array: TypeAlias = npt.NDArray[np.float64]
 
@@ -250,6 +250,12 @@ class BodyFrameCore:
                 ``iterations`` and ``residual``) or non-finite values; the state is
                 left unchanged.
         """
+    def stats(self) -> dict[str, int]:
+        """Work counters since construction or :meth:`reset_stats`, as
+        :meth:`ReducedCore.stats` (the same solver machinery: contact model, stick
+        correction, lagged elastic Hessian)."""
+    def reset_stats(self) -> None:
+        """Zero the work counters."""
     def accept_last_iterate(self) -> None:
         """After a step that did not converge, take its last iterate as the new pose."""
     @property
@@ -278,6 +284,24 @@ class BodyFrameCore:
         """(6 + n,) gradient in ``(c, omega, q)`` at the pose (omega: left rotation increment)."""
     def hessian(self, center: _Float64Array, rotation: _Float64Array, q: _Float64Array, exact: bool = True) -> _Float64Array:
         """(6 + n, 6 + n) Hessian at the pose: exact, or the solver's positive definite one."""
+
+def step_many(
+    sims: Sequence[ReducedCore | BodyFrameCore], steps: int, threads: int | None, record_failures: Sequence[bool]
+) -> list[tuple[list[int], list[float], list[bool], BaseException | None]]:
+    """Step each simulation ``steps`` times, spread over ``threads`` threads (None: every core), the GIL released.
+
+    The simulations are independent (each owns its model and buffers); each takes its
+    steps exactly as a loop of ``step`` calls would, so the states do not depend on
+    ``threads``. A simulation whose ``record_failures`` flag is set takes the last iterate
+    of a step that fails (``accept_last_iterate``) and goes on; otherwise it stops at the
+    start of that step. Returns, per simulation, ``(iterations, residuals, converged,
+    error)``: one entry per step taken (a failed step: its iterations, its residual or NaN,
+    False) and the licrom exception that stopped it, or None.
+
+    Raises ConfigError for a simulation given twice, an object of another type,
+    ``steps < 0`` or ``threads < 1``; ConcurrencyError for a simulation busy in another
+    thread; ShapeError for ``record_failures`` of another length than ``sims``.
+    """
 
 @final
 class Reconstruction:

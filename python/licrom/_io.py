@@ -1,12 +1,24 @@
-"""File helpers shared by every format licrom writes: atomic writes and checked reads."""
+"""File helpers shared by every format licrom writes: atomic writes and checked reads.
+
+Every write goes to a hidden temporary file beside its destination (named
+``.<name>.licrom-tmp-<pid>-<random><suffix>``, a pattern only this module creates) and
+is moved onto the destination when complete. A process killed mid-write leaves that
+temporary file behind; the next write of any licrom process into the same folder removes
+the ones older than itself whose writing process is gone.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import json
+import math
 import os
+import re
+import struct
 import tempfile
+import time
 import zipfile
 import zlib
 from collections.abc import Iterator, Mapping
@@ -15,9 +27,81 @@ from typing import Any
 
 import numpy as np
 
-from .errors import FileFormatError
+from .errors import FileFormatError, LicromError, OutputError
 
-__all__ = ["atomic_path", "check_version", "load_npz", "save_npz"]
+__all__ = ["atomic_path", "check_version", "load_npz", "make_dir", "output_error", "remove_stale_temporaries", "save_npz"]
+
+_TMP_TAG = ".licrom-tmp-"
+_TMP_NAME = re.compile(r"^\..*" + re.escape(_TMP_TAG) + r"(\d+)-")
+# Temporary files created before this moment belong to an earlier process.
+_PROCESS_START = time.time()
+_SWEPT: set[Path] = set()
+
+# Deflate expands at most ~1032:1; a member claiming more than this is corrupt (or a zip bomb).
+_MAX_INFLATION = 1100
+
+
+def output_error(path: str | os.PathLike, exc: OSError) -> OutputError:
+    """The :class:`OutputError` for an ``OSError`` raised while writing ``path``, with the remedy."""
+    code = exc.errno
+    if code == errno.ENOSPC or code == errno.EDQUOT:
+        why = "no space left on the device (free some space or write elsewhere)"
+    elif code in (errno.EACCES, errno.EPERM, errno.EROFS):
+        why = "permission denied: the folder is read-only or not yours (choose another output path or fix its permissions)"
+    elif code == errno.EISDIR:
+        why = "it is a directory (give a file path)"
+    elif code in (errno.ENOTDIR, errno.EEXIST):
+        why = "a part of the path is a file, not a folder"
+    else:
+        why = exc.strerror or str(exc)
+    return OutputError(f"cannot write '{path}': {why}", errno=code)
+
+
+def make_dir(path: str | os.PathLike) -> Path:
+    """Create the folder ``path`` (and its parents) if needed.
+
+    Raises:
+        OutputError: it cannot be created (read-only parent, a file in the way, ...).
+    """
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(p, exc) from exc
+    return p
+
+
+def _writer_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False  # an older file with our pid was left by an earlier process
+    if os.name != "posix":
+        return True  # no cheap liveness test: never remove another process's file
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Remove this module's temporary files in ``folder`` left by killed writers; return them.
+
+    A file counts as stale when it is older than the current process and the process that
+    wrote it (its pid is in the name) is no longer running.
+    """
+    removed = []
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(folder):
+            m = _TMP_NAME.match(entry.name)
+            if m is None or not entry.is_file(follow_symlinks=False):
+                continue
+            with contextlib.suppress(OSError):
+                if entry.stat().st_mtime < _PROCESS_START and not _writer_alive(int(m.group(1))):
+                    os.unlink(entry.path)
+                    removed.append(Path(entry.path))
+    return removed
 
 
 @contextlib.contextmanager
@@ -25,12 +109,26 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only on success.
 
     A crash or exception while writing leaves ``path`` untouched (or absent) and
-    removes the temporary file, so readers never see a half-written file.
+    removes the temporary file, so readers never see a half-written file. The first
+    write into a folder also removes stale temporary files of killed writers there.
+
+    Raises:
+        OutputError: ``path`` is a directory, or writing failed for lack of space or
+            permission (any ``OSError`` of the write).
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix or target.suffix, dir=target.parent)
-    os.close(fd)
+    if target.is_dir():
+        raise OutputError(f"cannot write '{target}': it is a directory (give a file path)", errno=errno.EISDIR)
+    make_dir(target.parent)
+    folder = target.parent.resolve()
+    if folder not in _SWEPT:
+        remove_stale_temporaries(folder)
+        _SWEPT.add(folder)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}{_TMP_TAG}{os.getpid()}-", suffix=suffix or target.suffix, dir=target.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise output_error(target, exc) from exc
     tmp = Path(tmp_name)
     try:
         yield tmp
@@ -41,6 +139,10 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, target)
+    except LicromError:
+        raise
+    except OSError as exc:
+        raise output_error(target, exc) from exc
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -54,8 +156,39 @@ def save_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], header: 
             np.savez_compressed(fh, **payload)
 
 
+_READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, io.UnsupportedOperation,
+                NotImplementedError, RuntimeError, struct.error, OverflowError)
+
+
+def _check_members(p: Path, kind: str) -> None:
+    """Validate every ``.npy`` header of the archive against the bytes that hold it, before anything is allocated."""
+    size = p.stat().st_size
+    with zipfile.ZipFile(p) as zf:
+        for info in zf.infolist():
+            where = f"'{p}' (member {info.filename!r})"
+            if info.compress_size > size or info.file_size > _MAX_INFLATION * info.compress_size + 1024:
+                raise FileFormatError(f"{where} is not a licrom {kind} file: it declares {info.file_size} bytes "
+                                      f"stored in {info.compress_size} bytes of a {size}-byte file")
+            with zf.open(info) as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, _fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+                else:
+                    shape, _fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+                body = info.file_size - fh.tell()
+            if dtype.hasobject:
+                raise FileFormatError(f"{where} holds Python objects; licrom files hold plain numbers and text only")
+            declared = math.prod(int(d) for d in shape) * dtype.itemsize
+            if declared != body:
+                raise FileFormatError(f"{where} declares an array of shape {tuple(shape)} and dtype {dtype} "
+                                      f"({declared} bytes) but holds {body} bytes (truncated or corrupt)")
+
+
 def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Read a file written by :func:`save_npz`; return ``(header, arrays)``.
+
+    Array headers are checked against the bytes that hold them before any array is read,
+    so a corrupt or hostile file cannot make this allocate more than it stores.
 
     Raises:
         FileFormatError: the file is missing, truncated, not an ``.npz`` written by
@@ -64,20 +197,25 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
     p = Path(path)
     if not p.is_file():
         raise FileFormatError(f"{kind} file not found: '{p}'")
-    with open(p, "rb") as fh:
-        if fh.read(4) != b"PK\x03\x04":  # every .npz is a zip archive
-            raise FileFormatError(f"'{p}' is not a licrom {kind} file: it is not an .npz (zip) archive")
     try:
+        with open(p, "rb") as fh:
+            if fh.read(4) != b"PK\x03\x04":  # every .npz is a zip archive
+                raise FileFormatError(f"'{p}' is not a licrom {kind} file: it is not an .npz (zip) archive")
+        _check_members(p, kind)
         with np.load(p, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, io.UnsupportedOperation) as exc:
+    except FileFormatError:
+        raise
+    except _READ_ERRORS as exc:
         raise FileFormatError(f"'{p}' is not a readable licrom {kind} file (truncated or corrupt: {exc})") from exc
     if "header_json" not in arrays:
         raise FileFormatError(f"'{p}' is an .npz file but not a licrom {kind} file (it has no licrom header)")
     try:
         header = json.loads(str(arrays.pop("header_json")))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise FileFormatError(f"'{p}' has a corrupt licrom header: {exc}") from exc
+    if not isinstance(header, dict):
+        raise FileFormatError(f"'{p}' has a corrupt licrom header: a JSON {type(header).__name__}, expected an object")
     if header.get("kind") != kind:
         raise FileFormatError(f"'{p}' holds a licrom '{header.get('kind')}' file, expected a '{kind}' file")
     return header, arrays

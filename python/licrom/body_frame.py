@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from .basis import Basis, SubspaceProjector, check_basis, check_basis_output
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .reduced_sim import sampling, step_or_record
+from .reduced_sim import sampling, step_many, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import record_run
@@ -150,7 +150,7 @@ class BodyFrameSim:
 
     The user API is that of :class:`licrom.reduced_sim.ReducedSim`: ``step``, ``run``,
     ``positions``, ``velocities``, ``set_state``, ``contact_forces``, ``transfer``,
-    plus the pose ``center``, ``rotation`` and ``q``.
+    ``step_many``, plus the pose ``center``, ``rotation`` and ``q``; threads are used as there.
 
     Args:
         basis: body-frame modes (a :class:`BodyFrameBasis`, or any basis whose
@@ -159,11 +159,15 @@ class BodyFrameSim:
         scene: the scene (default: the learned model's default scene).
         cubature: cubature tets and weights (default: as ReducedSim).
         contact_points: where contact acts (default: every boundary vertex).
+        strain: ``"mesh"`` (default) or ``"field"``, as in ReducedSim
+            (:func:`licrom.basis.strain_jacobians`).
 
     Raises:
-        ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass.
+        ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass, unknown strain.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
+
+    step_many = staticmethod(step_many)
 
     def __init__(
         self,
@@ -172,6 +176,7 @@ class BodyFrameSim:
         scene: Scene | None = None,
         cubature: Cubature | None = None,
         contact_points: ContactPoints | None = None,
+        strain: str = "mesh",
     ) -> None:
         check_basis(basis)
         mesh = mesh if mesh is not None else getattr(basis, "mesh", None)
@@ -197,7 +202,8 @@ class BodyFrameSim:
                 "BodyFrameBasis(mesh, learned=basis) to orthogonalise it against the rigid modes"
             )
         self._projector = SubspaceProjector(self._values, self._masses) if k else None
-        jac = check_basis_output("jacobians", basis.jacobians(self.cubature.points), (self.cubature.count, 3, 3, k))
+        self.strain = strain
+        jac = check_basis_output("jacobians", strain_jacobians(basis, mesh, self.cubature.tets, strain, self._values), (self.cubature.count, 3, 3, k))
         self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
         a = self._values.reshape(n, 3 * k)
         products = (a.T @ (self._masses[:, None] * a)).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
@@ -381,7 +387,7 @@ class BodyFrameSim:
         if cubature is None:
             cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
         basis = self.basis.on(mesh) if isinstance(self.basis, BodyFrameBasis) else self.basis
-        other = BodyFrameSim(basis, mesh, self.scene, cubature=cubature, contact_points=contact_points)
+        other = BodyFrameSim(basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, strain=self.strain)
         other._core.set_state(self.center, self.rotation, self.q, self.velocity, self.angular_velocity, self.qdot)
         other.time = self.time
         return other

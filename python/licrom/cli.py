@@ -15,8 +15,13 @@ import click
 
 from .demo import DemoConfig
 from .errors import ConfigError, LicromError
+from .scene_file import builtin_scenes
 
 __all__ = ["cli", "main"]
+
+
+# An incline angle: steeper than 90 degrees would be a plane facing down (it read as 180 - angle).
+SLOPE = click.FloatRange(0, 90, max_open=True)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -48,19 +53,41 @@ def _print_mesh_summary(mesh, seconds: float | None = None) -> None:
 @click.option("--radius", type=float, default=None, help="Sphere radius in m.")
 @click.option("--holes", type=int, default=None, help="Cheese: number of holes.")
 @click.option("--seed", type=int, default=None, help="Cheese: hole layout seed.")
+@click.option("--edge-length", type=float, default=None,
+              help="Surfaces: target tet edge length as a fraction of the bounding-box diagonal, in (0, 1] [0.05].")
+@click.option("--epsilon", type=float, default=None,
+              help="Surfaces: largest distance of the tet boundary from the surface, fraction of the diagonal, in (0, 0.1] [1e-3].")
+@click.option("--stop-energy", type=float, default=None, help="Surfaces: tet shape target (AMIPS energy > 3; lower: better, slower) [10].")
+@click.option("--scale", type=float, default=None, help="Surfaces: multiply the coordinates by this first (0.001 for mm) [1].")
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the mesh here (.mesh, .msh, .vtu, ...).")
-def mesh_command(source, resolution, size, radius, holes, seed, output) -> None:
-    """Generate a procedural mesh (box, sphere, cheese) or inspect/convert a mesh file.
+def mesh_command(source, resolution, size, radius, holes, seed, edge_length, epsilon, stop_energy, scale, output) -> None:
+    """Make a tet mesh from a surface (.obj, .stl, .ply, .off) or a procedural shape (box, sphere, cheese), or inspect a tet mesh file.
 
-    SOURCE is 'box', 'sphere', 'cheese', or the path of a tet mesh file.
-    Prints counts and tet quality; with --output, writes the mesh.
+    SOURCE is a surface file (filled with tets by fTetWild), 'box', 'sphere', 'cheese',
+    or the path of a tet mesh file. Prints counts and tet quality; with --output, writes the mesh.
     """
     from . import meshes
     from .mesh import Mesh
+    from .surface import SURFACE_SUFFIXES, Surface, TetrahedralizeParams, tetrahedralize
 
+    surface = None
     start = time.perf_counter()
-    if source in meshes.PROCEDURAL:
+    is_surface = Path(source).suffix.lower() in SURFACE_SUFFIXES
+    given = [flag for flag, v in (("--edge-length", edge_length), ("--epsilon", epsilon), ("--stop-energy", stop_energy),
+                                  ("--scale", scale)) if v is not None]
+    if given and not is_surface:
+        raise ConfigError(f"{', '.join(given)}: only for surface files ({', '.join(SURFACE_SUFFIXES)}), not for {source!r}")
+    if is_surface:
+        tkw = {k: v for k, v in (("edge_length", edge_length), ("epsilon", epsilon), ("stop_energy", stop_energy), ("scale", scale))
+               if v is not None}
+        params = TetrahedralizeParams(**tkw)
+        surface = Surface.load(source)
+        click.echo(f"surface {source}: {len(surface.vertices)} vertices, {len(surface.faces)} triangles, "
+                   f"{'closed' if surface.is_closed else 'NOT closed (holes or open edges)'}")
+        click.echo(f"tetrahedralising (fTetWild, edge length {params.edge_length:g} x diagonal, epsilon {params.epsilon:g}) ...")
+        mesh = tetrahedralize(surface, params)
+    elif source in meshes.PROCEDURAL:
         kwargs: dict = {}
         if resolution is not None:
             kwargs["resolution"] = resolution
@@ -81,33 +108,83 @@ def mesh_command(source, resolution, size, radius, holes, seed, output) -> None:
         click.echo(f"mesh file {source}")
     elapsed = time.perf_counter() - start
     _print_mesh_summary(mesh, elapsed)
+    if surface is not None and surface.is_closed:
+        enclosed = surface.enclosed_volume * params.scale**3
+        click.echo(f"surface volume    {enclosed:.6g} m^3 (tets {100 * (mesh.volume / enclosed - 1):+.2f} %)")
     if output is not None:
         mesh.save(output)
         click.echo(f"wrote {output}")
 
 
+@cli.command("scene")
+@click.argument("source")
+@click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Copy the scene file here (a template to edit).")
+def scene_command(source, output) -> None:
+    """Check a scene file (or a built-in scene: cheese, sphere, demo) and print what it describes.
+
+    With --output, copy it there: `licrom scene cheese -o my-scene.toml` starts a scene of your own.
+    """
+    from ._io import atomic_path
+    from .scene_file import builtin_scene_text, load_scene
+
+    scene = load_scene(source)
+    click.echo(scene.summary())
+    if output is not None:
+        text = Path(source).read_text(encoding="utf-8") if Path(source).is_file() else builtin_scene_text(source)
+        with atomic_path(output) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+        click.echo(f"wrote {output}")
+
+
 @cli.command("generate")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--preset", type=click.Choice(["cheese", "sphere"]), default="cheese", show_default=True,
-              help="The report's set: 'cheese' (5 mu x 3 inclines, dropped) or 'sphere' (bouncing down a slope, mu 0.5).")
-@click.option("--resolution", "-r", type=int, default=None, help="Mesh resolution (cells along the longest side).")
-@click.option("--steps", type=int, default=None, help="Time steps per trajectory (preset default if omitted).")
-@click.option("--record-every", type=int, default=None, help="Record every n-th step (preset default if omitted).")
-@click.option("--device", default="cpu", show_default=True, help="Simulation device: cpu, cuda or cuda:N.")
+@click.option("--scene", "scene_source", default=None,
+              help="Scene file (.toml) or built-in scene (cheese, sphere, demo): object, material, planes, sweep, time [cheese].")
+@click.option("--preset", type=click.Choice(builtin_scenes()), default=None,
+              help="A built-in scene (the same as --scene NAME).")
+@click.option("--mesh", "mesh_source", default=None, help="Object: a tet mesh file, or box / sphere / cheese[:RES] [the scene's].")
+@click.option("--resolution", "-r", type=click.IntRange(min=1), default=None, help="Procedural mesh resolution (cells along the longest side).")
+@click.option("--youngs-modulus", "-E", type=click.FloatRange(min=0, min_open=True), default=None, help="Young's modulus in Pa [the scene's].")
+@click.option("--poisson-ratio", type=click.FloatRange(-1, 0.5, min_open=True, max_open=True), default=None, help="Poisson ratio in (-1, 0.5) [the scene's].")
+@click.option("--density", type=click.FloatRange(min=0, min_open=True), default=None, help="Density in kg/m^3 [the scene's].")
+@click.option("--friction", "-mu", type=click.FloatRange(min=0), multiple=True, help="Friction sweep: Coulomb coefficient (repeatable) [the scene's].")
+@click.option("--slope", type=SLOPE, multiple=True, help="Slope sweep: first plane's incline in degrees, [0, 90) (repeatable) [the scene's].")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, help="Time step in s [the scene's].")
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps per trajectory [the scene's].")
+@click.option("--record-every", type=click.IntRange(min=1), default=None, help="Record every n-th step [the scene's].")
+@click.option("--device", default="auto", show_default=True, help="Simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local: this machine (--jobs processes); ray: one task per run on a Ray cluster (RAY_ADDRESS, else a local one).")
+@click.option("--jobs", "-j", type=int, default=None, help="Processes of the local executor [1].")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-def generate_command(out_dir, preset, resolution, steps, record_every, device, quiet) -> None:
+def generate_command(out_dir, scene_source, preset, mesh_source, resolution, youngs_modulus, poisson_ratio, density, friction, slope,
+                     dt, steps, record_every, device, executor, jobs, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
-    Writes one traj_XXX_*.npz per run, mesh.vtu and manifest.json, and prints what it wrote.
+    The runs are the scene file's sweep (friction x slope x initial state); the options
+    replace the scene's values. Writes one traj_XXX_*.npz per run, mesh.vtu and
+    manifest.json, and prints what it wrote.
     """
-    from .dataset import report_dataset_spec
+    from .executors import check_executor
+    from .full_sim import check_device_name, resolve_device
+    from .scene_file import load_scene
 
+    if scene_source is not None and preset is not None:
+        raise ConfigError("give --scene or --preset, not both")
     start = time.perf_counter()
-    spec = report_dataset_spec(preset, resolution=resolution, steps=steps, record_every=record_every)
-    click.echo(f"preset {spec.name}: {spec.description}")
-    click.echo(f"mesh {spec.mesh.n_vertices} vertices, {spec.mesh.n_tets} tets; {spec.n_trajectories} trajectories x "
-               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}")
-    manifest_path = spec.generate(out_dir, device=device, progress=not quiet)
+    executor, n_jobs = check_executor(executor, jobs)
+    device = resolve_device(device) if executor == "local" else check_device_name(device)
+    where = f"{n_jobs} process{'es' if n_jobs > 1 else ''}" if executor == "local" else "Ray"
+    scene = load_scene(scene_source or preset or "cheese").overridden(
+        mesh=mesh_source, resolution=resolution, youngs_modulus=youngs_modulus, poisson_ratio=poisson_ratio, density=density,
+        frictions=friction or None, slopes=slope or None, dt=dt, steps=steps, record_every=record_every,
+    )
+    spec = scene.dataset_spec()
+    click.echo(f"scene {spec.name} ({scene.source}): {spec.description}".rstrip(": "))
+    click.echo(f"mesh {scene.object.describe()}: {spec.mesh.n_vertices} vertices, {spec.mesh.n_tets} tets; {spec.n_trajectories} trajectories x "
+               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}, {where}")
+    manifest_path = spec.generate(out_dir, device=device, progress=not quiet, executor=executor, jobs=jobs)
     import json
 
     manifest = json.loads(manifest_path.read_text())
@@ -117,7 +194,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
         total += size
         state = "skipped (exists)" if t.get("skipped") else t["status"]
         seconds = "" if t.get("seconds") is None else f"{t['seconds']:.1f} s"
-        click.echo(f"  {t['file']:<36} {state:<17} {seconds:>9} {size / 1e6:8.2f} MB")
+        click.echo(f"  {t['file']:<36} {state:<17} {seconds:>9} {size / 1e6:8.2f} MB  {t.get('device') or ''}")
     mesh_file = Path(out_dir) / manifest["mesh"]
     total += mesh_file.stat().st_size + manifest_path.stat().st_size
     done = sum(t["status"] == "done" for t in manifest["trajectories"])
@@ -133,17 +210,19 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
 @click.argument("data", type=click.Path(exists=True, path_type=Path))
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Model file to write (.lcm); the loss CSV/PNG and checkpoints go beside it.")
-@click.option("--modes", "-r", type=int, default=20, show_default=True, help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame).")
+@click.option("--modes", "-r", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame).")
 @click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
               help="pod: regress the field onto the POD modes of the training frames; autoencoder: LiCROM's training [pod].")
-@click.option("--epochs", type=int, default=None, help="Passes over the training frames [TrainConfig default].")
+@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Passes over the training frames [TrainConfig default].")
 @click.option("--lr", type=float, default=None, help="Initial Adam learning rate [3e-3].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Training device (auto: CUDA when available).")
 @click.option("--gpus", type=int, default=None, help="GPUs to use (default all visible; >1 trains with DDP).")
+@click.option("--nodes", type=int, default=None, help="Machines of a multi-node DDP run, each with --gpus GPUs [1] (see docs/scaling.md).")
 @click.option("--batch-frames", type=int, default=None, help="Frames per step [16].")
 @click.option("--points", type=int, default=None, help="Points sampled per step, shared by its frames [2048].")
 @click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
@@ -153,7 +232,7 @@ def generate_command(out_dir, preset, resolution, steps, record_every, device, q
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, batch_frames, points, val_fraction, width,
+def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, nodes, batch_frames, points, val_fraction, width,
                   layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -166,7 +245,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
-                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus)):
+                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}
@@ -203,70 +282,95 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
 
 @cli.command("compare")
 @click.argument("model_path", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--slope", type=float, multiple=True, help="Incline angle in degrees (repeatable) [the model's scene].")
-@click.option("--friction", "-mu", type=float, multiple=True, help="Coulomb coefficient (repeatable) [the model's scene].")
+@click.option("--scene", "scene_source", default=None,
+              help="Scene file (.toml) or built-in scene: its held-out scenes (or its sweep), object and time [the model's scene].")
+@click.option("--slope", type=SLOPE, multiple=True, help="Incline angle in degrees, [0, 90) (repeatable) [the scene's].")
+@click.option("--friction", "-mu", type=click.FloatRange(min=0), multiple=True, help="Coulomb coefficient (repeatable) [the scene's].")
 @click.option("--mesh", "mesh_source", default=None,
-              help="Mesh to run on: a file, or cheese:RES / sphere:RES / box:RES [the model's mesh].")
-@click.option("--steps", type=int, default=150, show_default=True, help="Time steps.")
-@click.option("--cubature", type=int, default=1000, show_default=True, help="Cubature tets (naive scheme).")
+              help="Mesh to run on: a tet mesh file, or cheese:RES / sphere:RES / box:RES [the scene's, else the model's].")
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps [the scene's; 150 without --scene].")
+@click.option("--cubature", type=click.IntRange(min=1), default=1000, show_default=True, help="Cubature tets (naive scheme).")
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
-@click.option("--device", default="cpu", show_default=True, help="Full simulation device: cpu, cuda or cuda:N.")
+@click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Write filmstrips, error plot and summary.json here.")
-def compare_command(model_path, slope, friction, mesh_source, steps, cubature, solver, device, out) -> None:
+              help="Write filmstrips, animations, error plot, summary.json and the runs (.npz, for licrom export) here.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
+def compare_command(model_path, scene_source, slope, friction, mesh_source, steps, cubature, solver, device, out, quiet) -> None:
     """Run full and reduced side by side on scenes, and report how they differ.
 
-    Every (slope, friction) pair is one scene: the model's scene with that incline, the
-    object placed on it as in the model's scene. Prints per-scene error, non-rigid
-    deformation error, peak deformation and total rotation of both, centre-of-mass
-    error, stick/slip agreement, penetration and per-step time of both.
+    With --scene, the scenes are the scene file's held-out scenes (else every run of its
+    sweep), on its object. Without, every (slope, friction) pair is one scene: the model's
+    scene with that incline, the object placed on it as in the model's scene. Prints
+    per-scene error, non-rigid deformation error, peak deformation and total rotation of
+    both, centre-of-mass error, stick/slip agreement, penetration and per-step time of both.
     """
     import json
 
-    from . import meshes
+    from ._io import make_dir
     from .compare import run_comparison
     from .cubature import Cubature
-    from .mesh import Mesh
     from .model import Model
     from .placement import initial_state_between_planes
     from .scene import Plane
+    from .scene_file import ObjectSpec, load_scene
 
+    scene_file = None if scene_source is None else load_scene(scene_source)
     model = Model.load(model_path)
-    base = model.default_scene
-    mesh = model.mesh
     if mesh_source:
-        kind, _, res = mesh_source.partition(":")
-        if kind in meshes.PROCEDURAL and res:
-            if not res.isdigit():
-                raise ConfigError(f"--mesh {kind}:RES needs an integer resolution RES, got {mesh_source!r}")
-            mesh = meshes.PROCEDURAL[kind](resolution=int(res))
-        else:
-            mesh = Mesh.load(mesh_source)
-    planes = [base.planes[0]] if base.planes else []
-    if slope or friction:
-        default_mu = base.planes[0].friction if base.planes else 0.5
-        default_slope = base.planes[0].slope_deg if base.planes else 0.0
-        planes = [Plane.incline(s, m) for s in (slope or (default_slope,)) for m in (friction or (default_mu,))]
+        mesh = ObjectSpec.parse(mesh_source).build()
+    else:
+        mesh = model.mesh if scene_file is None else scene_file.object.build()
+    if scene_file is not None:
+        cases = scene_file.cases(mesh, slope, friction)
+        steps = steps or scene_file.steps
+    else:
+        base = model.default_scene
+        steps = steps or 150
+        planes = [base.planes[0]] if base.planes else []
+        if slope or friction:
+            default_mu = base.planes[0].friction if base.planes else 0.5
+            default_slope = base.planes[0].slope_deg if base.planes else 0.0
+            planes = [Plane.incline(s, m) for s in (slope or (default_slope,)) for m in (friction or (default_mu,))]
+        cases = []
+        for plane in planes:
+            # Keep the model scene's placement relative to its plane.
+            initial = base.initial
+            if base.planes:
+                initial = initial_state_between_planes(initial, base.planes[0], plane, mesh, base.material.density)
+            cases.append((f"slope {plane.slope_deg:.1f} deg, mu {plane.friction:g}", base.replace(planes=(plane,), initial=initial)))
     if out is not None:
-        Path(out).mkdir(parents=True, exist_ok=True)
+        make_dir(out)
     results = {}
     comparisons = {}
-    for plane in planes:
-        # Keep the model scene's placement relative to its plane.
-        initial = base.initial
-        if base.planes:
-            initial = initial_state_between_planes(initial, base.planes[0], plane, mesh, base.material.density)
-        scene = base.replace(planes=(plane,), initial=initial)
-        label = f"slope {plane.slope_deg:.1f} deg, mu {plane.friction:g}"
-        cmp, full, reduced = run_comparison(model, scene, mesh, steps=steps, device=device, solver=solver,
-                                            cubature=Cubature.naive(mesh, cubature))
-        click.echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} + 12)\n{cmp.table()}")
-        results[label] = cmp.summary()
-        comparisons[label] = cmp
-        if out is not None:
-            from .render import filmstrip
+    bar = None
+    if not quiet:
+        from tqdm import tqdm
 
-            filmstrip([full, reduced], ["full", "reduced"], Path(out) / f"filmstrip_{len(results)}.png", title=label)
+        bar = tqdm(total=len(cases), desc="compare", unit="scene")
+    echo = click.echo if bar is None else bar.write  # tables above the bar, not through it
+    try:
+        for label, scene in cases:
+            if bar is not None:
+                bar.set_postfix_str(label)
+            cmp, full, reduced = run_comparison(model, scene, mesh, steps=steps, device=device, solver=solver,
+                                                cubature=Cubature.naive(mesh, cubature), progress=not quiet)
+            echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} learned modes, {model.frame} frame)\n{cmp.table()}")
+            results[label] = cmp.summary()
+            comparisons[label] = cmp
+            if out is not None:
+                from .render import pick_renderer, pictures
+
+                renderer, why_not = pick_renderer()
+                if why_not and len(results) == 1:
+                    echo(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
+                pictures([full, reduced], ["full", "reduced"], out, str(len(results)), title=label, renderer=renderer)
+                full.save(Path(out) / f"full_{len(results)}.npz")
+                reduced.save(Path(out) / f"reduced_{len(results)}.npz")
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
     if out is not None:
         from ._io import atomic_path
         from .render import plot_errors
@@ -274,35 +378,89 @@ def compare_command(model_path, slope, friction, mesh_source, steps, cubature, s
         plot_errors(comparisons, Path(out) / "errors.png")
         with atomic_path(Path(out) / "summary.json") as tmp:
             tmp.write_text(json.dumps(results, indent=2))
-        click.echo(f"\nwrote {out}/summary.json, errors.png and filmstrips")
+        click.echo(f"\nwrote {out}/summary.json, errors.png, filmstrips, animations and the runs (full_N.npz, reduced_N.npz)")
+
+
+@cli.command("export")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(["vtu", "usd", "png", "gif"]), required=True,
+              help="vtu: ParaView series (forces, deformation, planes); usd: time-sampled stage; png: filmstrip; gif: animation.")
+@click.option("--output", "-o", type=click.Path(path_type=Path), required=True,
+              help="vtu: a folder; usd: a .usd/.usda/.usdc file; png/gif: the picture file.")
+@click.option("--label", "labels", multiple=True, help="Name of each run, in order (repeatable) [file names].")
+@click.option("--color-by", type=click.Choice(["deformation", "error"]), default="deformation", show_default=True,
+              help="png/gif: colour by non-rigid deformation, or by distance from the first run.")
+@click.option("--frames", type=int, default=6, show_default=True, help="png: snapshots per run.")
+@click.option("--fps", type=float, default=20.0, show_default=True, help="gif: frames per second.")
+@click.option("--max-frames", type=int, default=60, show_default=True, help="gif: at most this many frames.")
+@click.option("--title", default=None, help="png/gif: text above the views.")
+@click.option("--renderer", type=click.Choice(["pyvista", "matplotlib"]), default="pyvista", show_default=True,
+              help="png: matplotlib draws without PyVista (grey, no colours).")
+def export_command(runs, fmt, output, labels, color_by, frames, fps, max_frames, title, renderer) -> None:
+    """Export recorded runs (.npz trajectories from generate, demo or compare) for other tools.
+
+    Several runs of one scene (e.g. full and reduced) go into one picture side by side, one
+    USD stage, or one VTU folder (a series per run).
+    """
+    import re
+
+    from .trajectory import Trajectory
+
+    start = time.perf_counter()
+    trajectories = [Trajectory.load(p) for p in runs]
+    names = list(labels) or [Path(p).stem for p in runs]
+    if len(names) != len(trajectories) or len(set(names)) != len(names):
+        raise ConfigError(f"--label must be given once per run with distinct names: {len(trajectories)} runs, labels {list(labels)}")
+    if fmt == "vtu":
+        from .export import write_vtu_series
+
+        written = [write_vtu_series(t, output, re.sub(r"[^A-Za-z0-9_.-]", "_", n)) for t, n in zip(trajectories, names)]
+    elif fmt == "usd":
+        from .export import write_usd
+
+        written = [write_usd(trajectories, output, names)]
+    else:
+        from .render import RenderStyle, animation, filmstrip
+
+        style = RenderStyle(color_by=color_by)
+        if fmt == "png":
+            written = [filmstrip(trajectories, names, output, frames=frames, title=title, style=style, renderer=renderer)]
+        else:
+            written = [animation(trajectories, names, output, fps=fps, max_frames=max_frames, title=title, style=style)]
+    frames_in = trajectories[0].n_frames
+    for p in written:
+        click.echo(f"wrote {p} ({p.stat().st_size / 1e6:.2f} MB)")
+    click.echo(f"{len(trajectories)} run(s) of {frames_in} frames, wall time {time.perf_counter() - start:.1f} s")
 
 
 DEMO_DEFAULTS = DemoConfig()
 
 
 @cli.command("demo")
+@click.option("--scene", "scene_source", default=DEMO_DEFAULTS.scene, show_default=True,
+              help="Scene file (.toml) or built-in scene with [[held_out]] scenes: training sweep and held-out scenes.")
 @click.option("--out", type=click.Path(file_okay=False), default=DEMO_DEFAULTS.out_dir, show_default=True,
               help="Output folder.")
-@click.option("--resolution", type=int, default=DEMO_DEFAULTS.resolution, show_default=True, help="Cheese resolution.")
-@click.option("--epochs", type=int, default=DEMO_DEFAULTS.epochs, show_default=True, help="Training epochs.")
-@click.option("--modes", "-r", type=int, default=DEMO_DEFAULTS.modes, show_default=True, help="Learned modes r.")
+@click.option("--resolution", type=click.IntRange(min=4), default=None, help="Procedural mesh resolution [the scene's].")
+@click.option("--epochs", type=click.IntRange(min=1), default=DEMO_DEFAULTS.epochs, show_default=True, help="Training epochs.")
+@click.option("--modes", "-r", type=click.IntRange(min=1), default=DEMO_DEFAULTS.modes, show_default=True, help="Learned modes r.")
 @click.option("--frame", type=click.Choice(["body", "world"]), default=DEMO_DEFAULTS.frame, show_default=True,
               help="Frame of the learned modes (world: LiCROM's model, for comparison).")
-@click.option("--steps", type=int, default=DEMO_DEFAULTS.steps, show_default=True, help="Time steps per run.")
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps per run [the scene's].")
 @click.option("--quiet", "-q", is_flag=True, help="No progress display.")
-def demo_command(out, resolution, epochs, modes, frame, steps, quiet) -> None:
-    """The whole pipeline at small scale on the built-in cheese scene.
+def demo_command(scene_source, out, resolution, epochs, modes, frame, steps, quiet) -> None:
+    """The whole pipeline at small scale on a scene file (default: the built-in cheese scene).
 
-    Full-space runs, training, and the reduced model on held-out slopes and friction
-    coefficients next to the full simulation; summary, filmstrips, error plot and VTU
-    series go to the output folder.
+    Full-space runs of the scene's sweep, training, and the reduced model on the scene's
+    held-out scenes next to the full simulation; summary, filmstrips, animations, error plot,
+    the runs (runs/*.npz) and VTU series go to the output folder.
     """
     from dataclasses import replace
 
     from .demo import run_demo
 
-    run_demo(replace(DEMO_DEFAULTS, out_dir=out, resolution=resolution, epochs=epochs, modes=modes, frame=frame, steps=steps),
-             progress=not quiet)
+    run_demo(replace(DEMO_DEFAULTS, scene=scene_source, out_dir=out, resolution=resolution, epochs=epochs, modes=modes, frame=frame,
+                     steps=steps), progress=not quiet)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -310,6 +468,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cli.main(args=argv, prog_name="licrom", standalone_mode=False)
     except LicromError as exc:
+        click.echo(f"licrom: error: {exc}", err=True)
+        return 2
+    except OSError as exc:  # an I/O failure outside licrom's own checks: still one line
         click.echo(f"licrom: error: {exc}", err=True)
         return 2
     except click.exceptions.Abort:

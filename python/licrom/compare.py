@@ -19,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from ._repr import concise_repr
 from .errors import ConfigError, ShapeError
+from .mesh import Mesh
 from .rigid import body_frame_displacements, rigid_fit, rotation_angle
 from .scene import Scene
 from .training_data import relative_error
@@ -232,6 +234,8 @@ class Comparison:
     reduced_iterations: float
     object_size: float
 
+    __repr__ = concise_repr
+
     @property
     def stick_slip_agree(self) -> bool:
         return self.slid_full == self.slid_reduced
@@ -320,10 +324,10 @@ def compare(full: Trajectory, reduced: Trajectory) -> Comparison:
 def run_comparison(
     basis: Any,
     scene: Scene,
-    mesh=None,
+    mesh: Mesh | None = None,
     steps: int = 100,
     record_every: int = 1,
-    device: str = "cpu",
+    device: str | None = None,
     progress: bool = False,
     **reduced_options: Any,
 ) -> tuple[Comparison, Trajectory, Trajectory]:
@@ -335,7 +339,7 @@ def run_comparison(
         mesh: the mesh (default: the model's mesh).
         steps: time steps to run.
         record_every: record every n-th step.
-        device: warp device of the full simulation.
+        device: warp device of the full simulation (default: CUDA when visible, else the CPU).
         progress: show progress bars.
         **reduced_options: passed to :class:`~licrom.ReducedSim` (cubature, solver, ...).
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._repr import concise_repr
+from .basis import Basis, strain_jacobians
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .scene import Material
@@ -43,6 +45,8 @@ class Cubature:
     points: np.ndarray
     scheme: str
     fit_error: float | None = field(default=None)
+
+    __repr__ = concise_repr
 
     def __post_init__(self) -> None:
         if len(self.tets) != len(self.weights) or len(self.tets) != len(self.points):
@@ -80,13 +84,14 @@ class Cubature:
     def optimized(
         cls,
         mesh: Mesh,
-        basis,
+        basis: Basis,
         material: Material,
         samples: np.ndarray,
         count: int = 1000,
         candidates: int = 20000,
         tolerance: float = 1e-3,
         seed: int = 0,
+        strain: str = "mesh",
     ) -> Cubature:
         """Non-negative weights fitted to reduced elastic forces (An et al. 2008).
 
@@ -103,6 +108,8 @@ class Cubature:
             candidates: tets considered (a random subset on large meshes).
             tolerance: stop when the relative force residual falls below this.
             seed: random seed for the candidate subset.
+            strain: ``"mesh"`` or ``"field"``: the deformation gradients of the simulation
+                that will use the weights (:func:`licrom.basis.strain_jacobians`).
         """
         from scipy.optimize import nnls
 
@@ -117,7 +124,7 @@ class Cubature:
             pool = np.sort(np.random.default_rng(seed).choice(mesh.n_tets, size=candidates, replace=False))
         mu, lam = material.snh_parameters
         # Per-tet reduced forces per unit volume for every sample: columns of A.
-        g = basis.jacobians(mesh.centroids[pool]).reshape(len(pool), 9, -1)  # (P, 9, n)
+        g = strain_jacobians(basis, mesh, pool, strain).reshape(len(pool), 9, -1)  # (P, 9, n)
         eye = np.eye(3).reshape(9)
         cols = np.empty((len(q), basis.n_modes, len(pool)))
         for s, qs in enumerate(q):
@@ -171,6 +178,8 @@ class ContactPoints:
 
     indices: np.ndarray
     areas: np.ndarray
+
+    __repr__ = concise_repr
 
     def __post_init__(self) -> None:
         if len(self.indices) != len(self.areas):

@@ -7,9 +7,15 @@ listing every run with its parameters, status and timing. It is resumable: a run
 file exists and is valid (readable archive, licrom trajectory header, the same scene and
 frame count) is skipped, so an interrupted sweep continues where it stopped.
 
-:func:`report_dataset_spec` gives the report's sets as named presets ("cheese": 5 friction
-coefficients x 3 inclines with a cheese dropped from a short height; "sphere": a sphere
-bouncing down a 20 degree slope with mu 0.5).
+Each run is one task (:func:`simulate_run`, the same code for every executor) that writes
+its own file atomically; the runs go one after the other in this process, to a pool of
+local processes (``jobs``) or to a Ray cluster (``executor="ray"``), see
+:mod:`licrom.executors`. The manifest is written here as runs finish.
+
+:func:`report_dataset_spec` gives the built-in scene files (``licrom/scenes/*.toml``) as
+dataset specs: the report's sets ("cheese": 5 friction coefficients x 3 inclines with a
+cheese dropped from a short height; "sphere": a sphere bouncing down a 20 degree slope with
+mu 0.5) and the demo's training set ("demo").
 """
 
 from __future__ import annotations
@@ -17,8 +23,6 @@ from __future__ import annotations
 import json
 import math
 import time
-import zipfile
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
@@ -27,11 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_path
-from .errors import ConfigError, FileFormatError, LicromError
+from ._io import atomic_path, load_npz, make_dir
+from .errors import ConfigError, FileFormatError, LicromError, OutputError
 from .mesh import Mesh
-from .placement import drop_state, initial_state_on_plane
+from .placement import initial_state_on_plane
 from .scene import InitialState, Plane, Scene
+from .scene_file import builtin_scenes, load_scene
 from .trajectory import TRAJECTORY_FORMAT_VERSION
 
 __all__ = [
@@ -42,13 +47,16 @@ __all__ = [
     "DatasetSpec",
     "generate_dataset",
     "load_manifest",
+    "local_devices",
     "report_dataset_spec",
+    "simulate_run",
+    "sweep_runs",
 ]
 
 DATASET_FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"
 MESH_NAME = "mesh.vtu"
-PRESETS = ("cheese", "sphere")
+PRESETS = builtin_scenes()
 INITIAL_FRAMES = ("world", "plane")
 
 
@@ -86,19 +94,10 @@ def _valid_trajectory_file(path: Path, scene: Scene, frames: int) -> bool:
     if not path.is_file():
         return False
     try:
-        with zipfile.ZipFile(path) as zf:
-            if zf.testzip() is not None:  # CRC of every member
-                return False
-        with np.load(path, allow_pickle=False) as data:
-            if "header_json" not in data.files or "times" not in data.files or "displacements" not in data.files:
-                return False
-            header = json.loads(str(data["header_json"]))
-            if header.get("kind") != "trajectory" or header.get("version") != TRAJECTORY_FORMAT_VERSION:
-                return False
-            if Scene.from_dict(header["scene"]) != scene:
-                return False
-            return len(data["times"]) == frames
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, zlib.error, EOFError, json.JSONDecodeError, LicromError):
+        header, arrays = load_npz(path, "trajectory")  # reads every member: their CRCs are checked
+        return (header.get("version") == TRAJECTORY_FORMAT_VERSION and "displacements" in arrays
+                and Scene.from_dict(header["scene"]) == scene and len(arrays.get("times", ())) == frames)
+    except (LicromError, KeyError, TypeError, ValueError):
         return False
 
 
@@ -113,18 +112,127 @@ def load_manifest(out_dir: str | Path) -> dict[str, Any]:
         raise FileFormatError(f"dataset manifest not found: '{p}'")
     try:
         d = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:
         raise FileFormatError(f"dataset manifest '{p}' is not readable JSON: {exc}") from exc
+    except RecursionError:
+        raise FileFormatError(f"dataset manifest '{p}' is nested too deeply to be a licrom manifest") from None
     if not isinstance(d, dict) or d.get("format") != "licrom.dataset":
         raise FileFormatError(f"'{p}' is not a licrom dataset manifest")
     if d.get("version") != DATASET_FORMAT_VERSION:
         raise FileFormatError(f"dataset manifest '{p}' has format version {d.get('version')!r}; this licrom reads version {DATASET_FORMAT_VERSION} only")
+    entries = d.get("trajectories")
+    if not isinstance(entries, list) or not all(isinstance(t, dict) and isinstance(t.get("file"), str) for t in entries):
+        raise FileFormatError(f"dataset manifest '{p}' is corrupt: 'trajectories' must be a list of objects with a 'file' name")
     return d
 
 
 def _write_manifest(path: Path, manifest: dict[str, Any]) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(manifest, indent=2))
+
+
+def sweep_runs(
+    mesh: Mesh,
+    base_scene: Scene,
+    frictions: Sequence[float] | None = None,
+    planes: Sequence[Any] | None = None,
+    initial_states: Sequence[InitialState] | None = None,
+    initial_frame: str = "world",
+) -> list[tuple[float | None, tuple[Plane, ...], int, InitialState, Scene]]:
+    """The runs of a sweep, in file order: ``(friction, planes, initial index, initial state, scene)`` each.
+
+    Arguments as in :func:`generate_dataset`; ``scene`` is what the run simulates.
+
+    Raises:
+        ConfigError: bad arguments.
+    """
+    mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
+    for m in mus:
+        if m is not None and (not math.isfinite(m) or m < 0):
+            raise ConfigError(f"friction coefficients must be finite and >= 0, got {m}")
+    plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
+    states = [base_scene.initial] if initial_states is None else list(initial_states)
+    for s in states:
+        if not isinstance(s, InitialState):
+            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
+    if not mus or not plane_items or not states:
+        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
+    if initial_frame not in INITIAL_FRAMES:
+        raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
+    runs = []
+    for mu in mus:
+        for p_item in plane_items:
+            run_planes = _as_planes(p_item, mu)
+            for k, state in enumerate(states):
+                initial = state
+                if initial_frame == "plane":
+                    if not run_planes:
+                        raise ConfigError("initial_frame='plane' needs at least one plane in every run")
+                    initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
+                runs.append((mu, run_planes, k, state, base_scene.replace(planes=run_planes, initial=initial)))
+    return runs
+
+
+def local_devices(device: str, jobs: int) -> list[str]:
+    """The devices the local executor's runs take in turn: every CUDA device of the machine when
+    ``device`` is ``"cuda"`` (as ``"auto"`` resolves on a GPU machine) and several processes run,
+    else ``device`` alone."""
+    if device != "cuda" or jobs < 2:
+        return [device]
+    from .full_sim.device import warp_ready
+
+    count = warp_ready().get_cuda_device_count()
+    return [f"cuda:{i}" for i in range(count)] if count > 1 else [device]
+
+
+def simulate_run(
+    out_dir: str,
+    mesh: Mesh,
+    scene: Scene,
+    file: str,
+    steps: int,
+    record_every: int,
+    device: str | None,
+    precision: str,
+    info: dict[str, Any],
+    progress: bool = False,
+) -> dict[str, Any]:
+    """One run of a sweep, wherever it runs: simulate, write ``out_dir/file`` atomically, report.
+
+    The same code for every executor of :func:`generate_dataset`. The dataset's mesh file
+    must be visible in ``out_dir`` (written by the caller), which on a cluster means a
+    shared file system.
+
+    Returns:
+        The manifest entry's fields: ``status`` ("done" or "failed"), ``seconds``,
+        ``device``, and ``bytes``, ``newton_mean``, ``unconverged_steps`` or ``error``.
+    """
+    from .full_sim import FullSim
+
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    try:
+        if not (out / MESH_NAME).is_file():
+            import socket
+
+            raise ConfigError(f"dataset directory '{out}' (with its {MESH_NAME}) is not visible on host {socket.gethostname()}; "
+                              "the tasks of a cluster need a file system shared with the caller")
+        sim = FullSim(mesh, scene, device=device)
+        traj = sim.run(int(steps), record_every=int(record_every), progress=progress)
+        traj.info.update(info)
+        path = traj.save(out / file, precision=precision)
+        return {
+            "status": "done",
+            "seconds": round(time.perf_counter() - t0, 3),
+            "device": sim.device,
+            "bytes": path.stat().st_size,
+            "newton_mean": round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
+            "unconverged_steps": int((~traj.converged).sum()),
+        }
+    except OutputError:
+        raise  # a full or read-only disk fails every later run too
+    except LicromError as exc:
+        return {"status": "failed", "seconds": round(time.perf_counter() - t0, 3), "device": device, "error": f"{type(exc).__name__}: {exc}"}
 
 
 def generate_dataset(
@@ -136,11 +244,13 @@ def generate_dataset(
     initial_states: Sequence[InitialState] | None = None,
     steps: int = 200,
     record_every: int = 1,
-    device: str = "cpu",
+    device: str | None = None,
     progress: bool = True,
     initial_frame: str = "world",
     precision: str = "float32",
     name: str | None = None,
+    executor: str = "local",
+    jobs: int | None = None,
 ) -> Path:
     """Simulate the cartesian product of frictions x planes x initial states; return the manifest path.
 
@@ -156,22 +266,36 @@ def generate_dataset(
         initial_states: initial placements and velocities. ``None``: the base scene's.
         steps: time steps per run.
         record_every: record every n-th step (frame 0 is the initial state).
-        device: warp device of the simulations.
-        progress: show progress bars (runs, and steps of the current run).
+        device: warp device of the simulations: ``None``/``"auto"`` (CUDA where a task sees
+            a GPU, else the CPU), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``. Several local
+            processes on a machine of several GPUs take the GPUs in turn (see
+            :func:`local_devices`); Ray gives each task its own. Each manifest entry records
+            the device its run used.
+        progress: show progress bars (runs as they finish; with the serial local executor
+            also the steps of the current run).
         initial_frame: ``"world"``: initial states as given; ``"plane"``: initial states
             are given over a horizontal ground ``z = 0`` and carried onto the first plane
             of each run (see :func:`initial_state_on_plane`), so a drop height means the
             same on every slope.
         precision: storage precision of the frames (``"float32"`` or ``"float64"``).
         name: a name recorded in the manifest.
+        executor: ``"local"`` (this machine) or ``"ray"`` (one Ray task per run, a GPU per
+            task where the cluster has GPUs; ``out_dir`` must then be on a file system the
+            tasks share). See :mod:`licrom.executors`.
+        jobs: processes of the local executor (default 1: the runs in this process, one
+            after the other); not for Ray.
 
-    Existing valid files are skipped; runs that fail (SolverError with
-    ``on_failure="raise"``) are recorded as failed and retried on the next call.
+    Every run is :func:`simulate_run`, which writes its file atomically; this process
+    writes the manifest as runs finish. The files do not depend on the executor. Existing
+    valid files are skipped, whatever executor wrote them; runs that fail (SolverError
+    with ``on_failure="raise"``) are recorded as failed and retried on the next call.
 
     Raises:
-        ConfigError: bad arguments, or ``out_dir`` holds a dataset of another mesh.
+        ConfigError: bad arguments, Ray missing for ``executor="ray"``, or ``out_dir``
+            holds a dataset of another mesh.
     """
-    from .full_sim import FullSim, resolve_device
+    from .executors import check_executor, run_tasks
+    from .full_sim import check_device_name, resolve_device
 
     if not isinstance(mesh, Mesh):
         raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
@@ -181,38 +305,17 @@ def generate_dataset(
         raise ConfigError(f"steps must be an integer >= 1, got {steps!r}")
     if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
         raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
-    if initial_frame not in INITIAL_FRAMES:
-        raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
     if precision not in ("float32", "float64"):
         raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
-    device = resolve_device(device)
+    runs = sweep_runs(mesh, base_scene, frictions, planes, initial_states, initial_frame)
+    executor, jobs = check_executor(executor, jobs)
+    # Local runs use this machine's devices; Ray tasks choose on the node that runs them.
+    device = resolve_device(device) if executor == "local" else check_device_name(device)
     mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
-    for m in mus:
-        if m is not None and (not math.isfinite(m) or m < 0):
-            raise ConfigError(f"friction coefficients must be finite and >= 0, got {m}")
     plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
     states = [base_scene.initial] if initial_states is None else list(initial_states)
-    for s in states:
-        if not isinstance(s, InitialState):
-            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
-    if not mus or not plane_items or not states:
-        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
 
-    runs = []
-    for mu in mus:
-        for p_item in plane_items:
-            run_planes = _as_planes(p_item, mu)
-            for k, state in enumerate(states):
-                initial = state
-                if initial_frame == "plane":
-                    if not run_planes:
-                        raise ConfigError("initial_frame='plane' needs at least one plane in every run")
-                    initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
-                scene = base_scene.replace(planes=run_planes, initial=initial)
-                runs.append((mu, run_planes, k, state, scene))
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_dir(out_dir)
     mesh_path = out / MESH_NAME
     existing = None
     if mesh_path.exists():
@@ -247,6 +350,8 @@ def generate_dataset(
         "record_every": int(record_every),
         "frames": frames,
         "device": device,
+        "executor": executor,
+        "jobs": jobs if executor == "local" else None,
         "precision": precision,
         "trajectories": [],
     }
@@ -258,70 +363,61 @@ def generate_dataset(
         except (FileFormatError, KeyError, TypeError):
             previous = {}
 
+    # Entries in sweep order; a run still to simulate has its entry filled when its task finishes.
+    entries: list[dict[str, Any]] = []
+    todo: list[int] = []
+    task_args: list[tuple[Any, ...]] = []
+    step_bars = progress and executor == "local" and jobs == 1  # one run at a time: its steps can be shown
+    run_devices = local_devices(device, jobs) if executor == "local" else [device]
+    for index, (mu, run_planes, k, state, scene) in enumerate(runs):
+        fname = _file_name(index, mu, run_planes, k)
+        entry: dict[str, Any] = {
+            "index": index,
+            "file": fname,
+            "friction": mu if mu is not None else [p.friction for p in run_planes],
+            "slope_deg": [p.slope_deg for p in run_planes],
+            "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
+            "initial_index": k,
+            "initial": state.__dict__,
+            "scene_initial": scene.initial.__dict__,
+        }
+        entries.append(entry)
+        if _valid_trajectory_file(out / fname, scene, frames):
+            old = previous.get(fname, {})
+            entry.update(status="done", skipped=True, seconds=old.get("seconds"), device=old.get("device"),
+                         bytes=(out / fname).stat().st_size, newton_mean=old.get("newton_mean"),
+                         unconverged_steps=old.get("unconverged_steps"))
+        else:
+            info = {"dataset": name, "index": index, "friction": mu, "slope_deg": entry["slope_deg"], "initial_index": k, "mesh": MESH_NAME}
+            todo.append(index)
+            run_device = run_devices[len(task_args) % len(run_devices)]
+            task_args.append((str(out), mesh, scene, fname, int(steps), int(record_every), run_device, precision, info, step_bars))
+
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj")
+        bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj", initial=len(runs) - len(todo))
     start_all = time.perf_counter()
-    entries = manifest["trajectories"]
+
+    def write(complete: bool) -> None:
+        manifest["trajectories"] = [e for e in entries if "status" in e]
+        manifest["seconds"] = round(time.perf_counter() - start_all, 3)
+        manifest["complete"] = complete
+        _write_manifest(manifest_path, manifest)
+
     try:
-        for index, (mu, run_planes, k, state, scene) in enumerate(runs):
-            fname = _file_name(index, mu, run_planes, k)
-            path = out / fname
-            entry: dict[str, Any] = {
-                "index": index,
-                "file": fname,
-                "friction": mu if mu is not None else [p.friction for p in run_planes],
-                "slope_deg": [p.slope_deg for p in run_planes],
-                "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
-                "initial_index": k,
-                "initial": state.__dict__,
-                "scene_initial": scene.initial.__dict__,
-            }
-            if _valid_trajectory_file(path, scene, frames):
-                old = previous.get(fname, {})
-                entry.update(
-                    status="done",
-                    skipped=True,
-                    seconds=old.get("seconds"),
-                    bytes=path.stat().st_size,
-                    newton_mean=old.get("newton_mean"),
-                    unconverged_steps=old.get("unconverged_steps"),
-                )
-            else:
-                t0 = time.perf_counter()
-                try:
-                    sim = FullSim(mesh, scene, device=device)
-                    traj = sim.run(int(steps), record_every=int(record_every), progress=progress)
-                    traj.info.update(
-                        dataset=name, index=index, friction=mu, slope_deg=entry["slope_deg"], initial_index=k,
-                        mesh=MESH_NAME,
-                    )
-                    traj.save(path, precision=precision)
-                    entry.update(
-                        status="done",
-                        skipped=False,
-                        seconds=round(time.perf_counter() - t0, 3),
-                        bytes=path.stat().st_size,
-                        newton_mean=round(float(np.mean(traj.iterations)), 3) if len(traj.iterations) else 0.0,
-                        unconverged_steps=int((~traj.converged).sum()),
-                    )
-                except LicromError as exc:
-                    entry.update(status="failed", skipped=False, seconds=round(time.perf_counter() - t0, 3),
-                                 error=f"{type(exc).__name__}: {exc}")
-            entries.append(entry)
-            manifest["seconds"] = round(time.perf_counter() - start_all, 3)
-            _write_manifest(manifest_path, {**manifest, "complete": False})
+        for i, result in run_tasks(simulate_run, task_args, executor, jobs if executor == "local" else None):
+            entry = entries[todo[i]]
+            entry.update(skipped=False, **result)
+            write(False)
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(last=entry["status"] + (" (skipped)" if entry.get("skipped") else ""), refresh=False)
+                bar.set_postfix(last=f"{entry['file']} {entry['status']}", refresh=False)
     finally:
         if bar is not None:
             bar.close()
-    manifest["seconds"] = round(time.perf_counter() - start_all, 3)
-    manifest["complete"] = all(e["status"] == "done" for e in entries)
-    _write_manifest(manifest_path, manifest)
+    write(all(e["status"] == "done" for e in entries))
     return manifest_path
 
 
@@ -346,7 +442,12 @@ class DatasetSpec:
     def n_trajectories(self) -> int:
         return len(self.frictions or (None,)) * len(self.planes or (None,)) * len(self.initial_states)
 
-    def generate(self, out_dir: str | Path, device: str = "cpu", progress: bool = True) -> Path:
+    def scenes(self) -> list[Scene]:
+        """The scene of every run, in file order."""
+        return [run[-1] for run in sweep_runs(self.mesh, self.base_scene, self.frictions, self.planes, self.initial_states, self.initial_frame)]
+
+    def generate(self, out_dir: str | Path, device: str | None = None, progress: bool = True, executor: str = "local",
+                 jobs: int | None = None) -> Path:
         """Run :func:`generate_dataset` on this spec; return the manifest path."""
         return generate_dataset(
             out_dir,
@@ -361,64 +462,33 @@ class DatasetSpec:
             progress=progress,
             initial_frame=self.initial_frame,
             name=self.name,
+            executor=executor,
+            jobs=jobs,
         )
 
 
 def report_dataset_spec(preset: str = "cheese", resolution: int | None = None, steps: int | None = None,
                         record_every: int | None = None) -> DatasetSpec:
-    """The report's training/test sets as named presets.
+    """A built-in scene file (``licrom/scenes/NAME.toml``) as a dataset spec.
 
-    - ``"cheese"``: the cheese block (default resolution 12, ~2.5k tets; E = 100 kPa,
-      nu = 0.3, 1000 kg/m^3) dropped from 2 cm, slightly tilted, onto an incline: 5 friction
-      coefficients (0.1, 0.3, 0.5, 0.7, 0.9) x 3 slopes (10, 20, 30 deg) = 15 runs of 2 s
-      (h = 10 ms). tan(10, 20, 30 deg) = 0.18, 0.36, 0.58, so the set holds sliding
-      (mu < tan) and sticking (mu > tan) runs on every slope but the steepest-with-0.9.
+    - ``"cheese"``: the report's training set: the cheese block (default resolution 12,
+      ~2.5k tets; E = 100 kPa, nu = 0.3, 1000 kg/m^3) dropped from 2 cm, slightly tilted,
+      onto an incline: 5 friction coefficients (0.1, 0.3, 0.5, 0.7, 0.9) x 3 slopes (10, 20,
+      30 deg) = 15 runs of 2 s (h = 10 ms). tan(10, 20, 30 deg) = 0.18, 0.36, 0.58, so the
+      set holds sliding (mu < tan) and sticking (mu > tan) runs on every slope but the
+      steepest-with-0.9.
     - ``"sphere"``: a ball (radius 5 cm, default resolution 8, E = 100 kPa) thrown down a
       20 deg slope with mu 0.5 from 20 cm, moving downhill at 0.5 m/s and into the plane
       at 1 m/s; h = 2 ms so that backward Euler keeps the bounces (at h = 10 ms its
-      numerical damping absorbs them), 1.5 s.
+      numerical damping absorbs them), 1.5 s (750 steps, every 5th recorded).
+    - ``"demo"``: the training set of ``licrom demo`` (a small cheese, 2 slopes x 3 mu).
 
     Args:
-        preset: ``"cheese"`` or ``"sphere"``.
-        resolution: mesh resolution (cells along the longest side).
-        steps: time steps per run (default 200 for the cheese, 750 for the sphere).
-        record_every: record every n-th step (default 1 for the cheese, 5 for the sphere).
+        preset: the name of a built-in scene (:data:`PRESETS`).
+        resolution: mesh resolution (cells along the longest side) [the scene's].
+        steps: time steps per run [the scene's].
+        record_every: record every n-th step [the scene's].
     """
-    from . import meshes
-    from .scene import ContactParams, Material
-
     if preset not in PRESETS:
         raise ConfigError(f"unknown dataset preset {preset!r}; accepted: {', '.join(PRESETS)}")
-    contact = ContactParams(normal_stiffness=1.0e7, normal_damping=0.0, friction_stiffness=1.0e7)
-    material = Material(youngs_modulus=1.0e5, poisson_ratio=0.3, density=1000.0)
-    if preset == "cheese":
-        mesh = meshes.cheese(resolution=12 if resolution is None else resolution)
-        scene = Scene(material=material, contact=contact, dt=0.01)
-        state = drop_state(mesh, material.density, height=0.02, rotation=(0.15, 0.1, 0.0))
-        return DatasetSpec(
-            name="cheese",
-            mesh=mesh,
-            base_scene=scene,
-            frictions=(0.1, 0.3, 0.5, 0.7, 0.9),
-            planes=(10.0, 20.0, 30.0),
-            initial_states=(state,),
-            steps=200 if steps is None else steps,
-            record_every=1 if record_every is None else record_every,
-            initial_frame="plane",
-            description="cheese dropped from 2 cm onto inclines: mu 0.1..0.9 x slopes 10, 20, 30 deg",
-        )
-    mesh = meshes.sphere(radius=0.05, resolution=8 if resolution is None else resolution)
-    scene = Scene(material=material, contact=contact, dt=0.002)
-    state = drop_state(mesh, material.density, height=0.2, velocity=(0.5, 0.0, -1.0))
-    return DatasetSpec(
-        name="sphere",
-        mesh=mesh,
-        base_scene=scene,
-        frictions=(0.5,),
-        planes=(20.0,),
-        initial_states=(state,),
-        steps=750 if steps is None else steps,
-        record_every=5 if record_every is None else record_every,
-        initial_frame="plane",
-        description="sphere bouncing down a 20 deg slope, mu 0.5",
-    )
+    return load_scene(preset).overridden(resolution=resolution, steps=steps, record_every=record_every).dataset_spec()

@@ -1,11 +1,14 @@
-"""The whole pipeline at small scale on the built-in scene (``licrom demo``).
+"""The whole pipeline at small scale on a scene file (``licrom demo``, ``licrom demo --scene my.toml``).
 
-A cheese block is dropped onto inclines: full-space runs over a few friction
-coefficients and slopes, a LiCROM subspace trained on them (in the body frame by
-default: rigid motion exact, the learned modes hold the deformation), then the reduced model
-run on slopes and friction coefficients it has not seen, next to the full
-simulation of the same scenes. Everything lands in one folder: a summary table,
-filmstrips, an error plot, loss curves and VTU series for ParaView.
+The built-in scene (``licrom/scenes/demo.toml``) drops a cheese block onto inclines:
+full-space runs over the scene's sweep of friction coefficients and slopes, a LiCROM
+subspace trained on them (in the body frame by default: rigid motion exact, the learned
+modes hold the deformation), then the reduced model run on the scene's held-out slopes and
+friction coefficients, next to the full simulation of the same scenes. Everything lands in
+one folder: a summary table, filmstrips and animations from a fixed camera (PyVista; a
+matplotlib filmstrip without it), an error plot, loss curves, the full and reduced runs
+(``runs/*.npz``, for ``licrom export``) and VTU series for ParaView with contact forces,
+non-rigid deformation and the planes.
 """
 
 from __future__ import annotations
@@ -18,9 +21,10 @@ from pathlib import Path
 
 import click
 
-from ._io import atomic_path
+from ._io import atomic_path, make_dir
 from .errors import ConfigError
 from .rigid import check_frame
+from .scene_file import SceneFile, load_scene
 
 __all__ = ["DemoConfig", "run_demo"]
 
@@ -31,12 +35,12 @@ class DemoConfig:
 
     Attributes:
         out_dir: output folder.
-        resolution: cheese mesh cells along its longest side (8 -> ~900 tets).
-        train_slopes: incline angles of the training runs, degrees.
-        train_frictions: Coulomb coefficients of the training runs.
-        test_cases: held-out ``(slope deg, friction)`` pairs run full and reduced.
-        drop_height: height of the lowest point above the incline at t = 0, m.
-        steps: time steps per run (h = 10 ms).
+        scene: a built-in scene name or the path of a scene file: the object, material,
+            training sweep, initial state, time step and the held-out scenes (``[[held_out]]``)
+            run full and reduced (see :mod:`licrom.scene_file`).
+        resolution: mesh resolution of a procedural object, overriding the scene's
+            (None: the scene's; the built-in scene's cheese at 8 has ~900 tets).
+        steps: time steps per run, overriding the scene's (None: the scene's).
         modes: learned modes r (12 affine modes are added in the world frame; 6 affine
             modes and the exact rigid motion in the body frame).
         frame: ``"body"`` or ``"world"`` (LiCROM's world-frame model, for comparison).
@@ -47,12 +51,9 @@ class DemoConfig:
     """
 
     out_dir: str = "licrom-out/demo"
-    resolution: int = 8
-    train_slopes: tuple[float, ...] = (10.0, 30.0)
-    train_frictions: tuple[float, ...] = (0.1, 0.4, 0.7)
-    test_cases: tuple[tuple[float, float], ...] = ((20.0, 0.25), (20.0, 0.55))
-    drop_height: float = 0.01
-    steps: int = 150
+    scene: str = "demo"
+    resolution: int | None = None
+    steps: int | None = None
     modes: int = 8
     frame: str = "body"
     epochs: int = 30
@@ -63,23 +64,31 @@ class DemoConfig:
         # Checked here, not where each is used, so a bad value fails before minutes of simulation.
         for name in ("resolution", "steps", "modes", "epochs", "cubature_points"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < (4 if name == "resolution" else 1):
+            if name in ("resolution", "steps") and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < (4 if name == "resolution" else 1):
                 raise ConfigError(f"DemoConfig.{name} must be an integer >= {4 if name == 'resolution' else 1}, got {value!r}")
         check_frame(self.frame, "DemoConfig.frame")
-        if not self.drop_height >= 0.0:
-            raise ConfigError(f"DemoConfig.drop_height (m) must be >= 0, got {self.drop_height!r}")
-        if not self.train_slopes or not self.train_frictions or not self.test_cases:
-            raise ConfigError("DemoConfig needs at least one training slope, training friction and test case")
-        for slope, mu in self.test_cases:
-            if slope in self.train_slopes and mu in self.train_frictions:
-                raise ConfigError(f"test case (slope {slope}, mu {mu}) is in the training set; pick a held-out pair")
 
 
-def _scene(config: DemoConfig):
-    from .dataset import report_dataset_spec
+def demo_scene(config: DemoConfig) -> SceneFile:
+    """The scene file of the demo with the config's overrides, checked for a held-out scene outside the training sweep.
 
-    # The report's cheese material and contact stiffnesses.
-    return report_dataset_spec("cheese", resolution=config.resolution).base_scene
+    Raises:
+        ConfigError: no held-out scene, or one that is a training run.
+    """
+    scene = load_scene(config.scene).overridden(resolution=config.resolution, steps=config.steps)
+    if not scene.held_out:
+        raise ConfigError(f"the demo needs held-out scenes: add [[held_out]] tables (slope, friction) to scene '{scene.name}'")
+    first = scene.scene.planes[0]
+    train_slopes = scene.slopes or (first.slope_deg,)
+    train_frictions = scene.frictions or tuple(dict.fromkeys(p.friction for p in scene.scene.planes))
+    for h in scene.held_out:
+        slope = first.slope_deg if h.slope is None else h.slope
+        mu = first.friction if h.friction is None else h.friction
+        if any(math.isclose(slope, s) for s in train_slopes) and any(math.isclose(mu, m) for m in train_frictions):
+            raise ConfigError(f"held-out scene (slope {slope:g}, mu {mu:g}) is in the training sweep of scene '{scene.name}'; pick a held-out pair")
+    return scene
 
 
 def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
@@ -87,34 +96,27 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
 
     ``progress=False`` hides the progress bars; the stage lines and the summary are printed.
     """
-    from . import meshes
     from .compare import run_comparison
     from .cubature import Cubature
-    from .dataset import generate_dataset
+    from .export import write_vtu_series
     from .model import ModelConfig
-    from .placement import drop_state, initial_state_on_plane
-    from .render import filmstrip, plot_errors, write_vtu_series
-    from .scene import Plane
+    from .render import pick_renderer, pictures, plot_errors
     from .training import TrainConfig, train
 
-    out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    scene_file = demo_scene(config)
+    out = make_dir(config.out_dir)
     t0 = time.perf_counter()
     say = click.echo
 
-    mesh = meshes.cheese(resolution=config.resolution)
-    mesh.save(out / "cheese.vtu")
-    base = _scene(config)
-    rest_state = drop_state(mesh, base.material.density, height=config.drop_height)
-    say(f"[1/4] cheese mesh: {mesh.n_vertices} vertices, {mesh.n_tets} tets")
+    mesh = scene_file.object.build()
+    object_name = Path(scene_file.object.mesh).stem
+    mesh.save(out / f"{object_name}.vtu")
+    say(f"[1/4] {scene_file.object.describe()} mesh: {mesh.n_vertices} vertices, {mesh.n_tets} tets (scene {scene_file.name})")
 
-    say(f"[2/4] full-space training runs: slopes {config.train_slopes} deg x mu {config.train_frictions}")
+    spec = scene_file.dataset_spec(mesh)
+    say(f"[2/4] full-space training runs: {spec.n_trajectories} runs, slopes {list(scene_file.slopes or ())} deg x mu {list(scene_file.frictions or ())}")
     t = time.perf_counter()
-    generate_dataset(
-        out / "data", mesh, base, frictions=config.train_frictions, planes=config.train_slopes,
-        initial_states=[rest_state], steps=config.steps, device=config.device, progress=progress,
-        initial_frame="plane", name="demo",
-    )
+    spec.generate(out / "data", device=config.device, progress=progress)
     t_data = time.perf_counter() - t
 
     say(f"[3/4] training r = {config.modes} learned modes in the {config.frame} frame, {config.epochs} epochs")
@@ -126,19 +128,23 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     )
     t_train = time.perf_counter() - t
 
-    say(f"[4/4] held-out scenes, full vs reduced: {list(config.test_cases)}")
+    cases = scene_file.cases(mesh)
+    say(f"[4/4] held-out scenes, full vs reduced: {[label for label, _ in cases]}")
+    renderer, why_not = pick_renderer()
+    if why_not:
+        say(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
     comparisons = {}
     rows = []
     cubature = Cubature.naive(mesh, config.cubature_points)
-    for slope, mu in config.test_cases:
-        plane = Plane.incline(slope, mu)
-        scene = base.replace(planes=(plane,), initial=initial_state_on_plane(rest_state, plane, mesh, base.material.density))
-        label = f"slope {slope:g} deg, mu {mu:g}"
-        cmp, full, reduced = run_comparison(model, scene, mesh, steps=config.steps, device=config.device,
+    for label, scene in cases:
+        slope, mu = scene.planes[0].slope_deg, scene.planes[0].friction
+        cmp, full, reduced = run_comparison(model, scene, mesh, steps=scene_file.steps, device=config.device,
                                             progress=progress, cubature=cubature)
         tag = f"slope{slope:g}_mu{mu:g}"
         comparisons[label] = cmp
-        filmstrip([full, reduced], ["full", "reduced"], out / f"filmstrip_{tag}.png", title=label)
+        pictures([full, reduced], ["full", "reduced"], out, tag, title=label, renderer=renderer)
+        full.save(out / "runs" / f"full_{tag}.npz")
+        reduced.save(out / "runs" / f"reduced_{tag}.npz")
         write_vtu_series(full, out / f"vtu_{tag}" / "full", "full")
         write_vtu_series(reduced, out / f"vtu_{tag}" / "reduced", "reduced")
         rows.append({"scene": label, "tan(slope)": math.tan(math.radians(slope)), **cmp.summary()})
@@ -146,8 +152,8 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     plot_errors(comparisons, out / "errors.png")
 
     summary = {
-        "mesh": {"vertices": mesh.n_vertices, "tets": mesh.n_tets},
-        "config": asdict(config),
+        "mesh": {"object": scene_file.object.describe(), "vertices": mesh.n_vertices, "tets": mesh.n_tets},
+        "config": {**asdict(config), "scene": scene_file.source},
         "seconds": {"full_runs": t_data, "training": t_train, "total": time.perf_counter() - t0},
         "model": {"learned_modes": config.modes, "frame": config.frame, "cubature_points": cubature.count},
         "cases": rows,
@@ -178,7 +184,7 @@ def _markdown(summary: dict) -> str:
     model = summary["model"]
     extra = "+12 affine" if model["frame"] == "world" else "+6 symmetric affine, rigid motion exact"
     return (
-        f"# licrom demo\n\ncheese: {summary['mesh']['tets']} tets; {model['frame']}-frame model, r = {model['learned_modes']} ({extra}), "
+        f"# licrom demo\n\n{summary['mesh']['object']}: {summary['mesh']['tets']} tets; {model['frame']}-frame model, r = {model['learned_modes']} ({extra}), "
         f"{model['cubature_points']} cubature tets\n\n{head}\n"
         f"full runs {s['full_runs']:.0f} s, training {s['training']:.0f} s, total {s['total']:.0f} s\n"
     )

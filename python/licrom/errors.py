@@ -8,15 +8,22 @@ keeps working for code that does not know licrom. Every warning it issues is a
 
 from __future__ import annotations
 
+import importlib
+from types import ModuleType
+
 __all__ = [
+    "ConcurrencyError",
     "ConfigError",
     "FileFormatError",
     "LicromError",
     "LicromWarning",
     "MeshError",
+    "MissingDependencyError",
+    "OutputError",
     "PhysicsWarning",
     "ShapeError",
     "SolverError",
+    "require_optional",
 ]
 
 
@@ -66,3 +73,36 @@ class PhysicsWarning(LicromWarning):
     """A simulation left the range where its physics holds: inverted elements, contact
     penetration deeper than ``licrom.validity.PENETRATION_LIMIT`` of the object's size,
     or a start inside a plane (see :mod:`licrom.validity`)."""
+class OutputError(LicromError, OSError):
+    """An output cannot be written: the disk is full, the folder is read-only, or the path is a directory.
+
+    Nothing half-written is left behind: the destination keeps its previous contents (or stays absent).
+
+    Attributes:
+        errno: the operating system's error number (``errno.ENOSPC``, ``errno.EACCES``, ...; None when not known).
+    """
+
+    def __init__(self, message: str, *, errno: int | None = None) -> None:
+        super().__init__(message)
+        self.errno = errno
+
+
+class ConcurrencyError(LicromError, RuntimeError):
+    """One simulation was used from two threads at once (a step or evaluation was running in another thread).
+
+    A simulation serves one thread at a time; give each thread its own simulation (they run in
+    parallel), or guard a shared one with a ``threading.Lock``.
+    """
+
+
+class MissingDependencyError(LicromError, ImportError):
+    """An optional package that the asked-for output needs is not installed (the message names the pip extra)."""
+
+
+def require_optional(module: str, extra: str, what: str) -> ModuleType:
+    """Import ``module``, or raise MissingDependencyError naming the ``licrom[extra]`` that installs it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise MissingDependencyError(f"{what} needs the optional package '{module.split('.')[0]}' ({exc}); "
+                                     f"install it with: pip install 'licrom[{extra}]'") from exc

@@ -343,12 +343,18 @@ class Mesh:
         from ._io import atomic_path
 
         p = Path(path)
+        formats = meshio.extension_to_filetypes.get(p.suffix.lower())
+        if not formats:
+            raise FileFormatError(f"cannot write a mesh to '{p}': unknown file extension '{p.suffix}'. Accepted formats: {_TET_FORMATS}")
+        # .msh is Gmsh's format to most people (meshio would pick ANSYS, its first match).
+        file_format = "gmsh" if "gmsh" in formats else formats[0]
         mesh = meshio.Mesh(self._vertices, [("tetra", self._tets)])
-        with atomic_path(p) as tmp:  # same suffix as ``p``, so meshio picks the format from it
+        with atomic_path(p) as tmp:
             try:
-                meshio.write(tmp, mesh)
+                meshio.write(tmp, mesh, file_format=file_format)
             except (KeyError, ValueError, meshio.ReadError, meshio.WriteError) as exc:
-                raise FileFormatError(f"cannot write a mesh to '{p}': {exc}. Accepted formats: {_TET_FORMATS}") from exc
+                detail = str(exc).replace(str(tmp), str(p))  # the user's path, not the temporary one beside it
+                raise FileFormatError(f"cannot write a mesh to '{p}': {detail}. Accepted formats: {_TET_FORMATS}") from exc
 
     # --- comparison --------------------------------------------------------------------
     def same_as(self, other: Mesh) -> bool:

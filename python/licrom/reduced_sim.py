@@ -10,28 +10,85 @@ incremental potential without the GIL.
 the body-frame simulation :class:`licrom.body_frame.BodyFrameSim` of
 ``BodyFrameBasis(mesh, learned=model)`` instead, with the same user API, so one
 call runs either kind of model.
+
+:func:`step_many` (also ``ReducedSim.step_many``) steps many independent simulations of
+either kind in one call, spread over Rust threads without the GIL.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from . import _core
-from .basis import Basis, SubspaceProjector, check_basis, check_basis_output
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError, SolverError
 from .mesh import Mesh
 from .scene import Scene
-from .stepping import record_run
+from .stepping import check_run_arguments, record_run
 from .trajectory import Trajectory
 from .validity import check_start, cubature_min_det, penetration, warn_frames
 
-__all__ = ["SOLVERS", "ReducedSim"]
+__all__ = ["SOLVERS", "ReducedSim", "step_many"]
 
 SOLVERS = ("newton", "prefactored")
 _DEFAULT_CUBATURE_POINTS = 1000
+
+
+def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step many independent reduced simulations at once, spread over cores (Rust threads, no GIL).
+
+    Each simulation (a :class:`ReducedSim` or a :class:`~licrom.body_frame.BodyFrameSim`,
+    of any models, both kinds in one call if need be) takes ``steps`` steps exactly as a loop
+    of ``step_or_record`` would: the states are the same, bit for bit, for any ``threads``.
+    A failed step follows the simulation's ``scene.solver.on_failure``: ``"record"`` goes on
+    from the last iterate; ``"raise"`` stops that simulation at the start of the failed step,
+    the others take all their steps, and then the first failure is raised.
+
+    Args:
+        sims: the simulations, each at most once.
+        steps: steps of each simulation, an integer >= 0.
+        threads: threads to spread the simulations over (default: every core).
+
+    Returns:
+        ``(iterations, residuals, converged)``, each of shape ``(len(sims), steps)``.
+
+    Raises:
+        ConfigError: a simulation given twice or not a reduced simulation, bad ``steps`` or ``threads``.
+        ConcurrencyError: a simulation is busy in another thread (named ``sims[i]``).
+        SolverError: a step failed in a simulation with ``on_failure == "raise"``; the message
+            names it (``sims[i]``) and its step.
+    """
+    steps, _ = check_run_arguments(steps, 1)
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1):
+        raise ConfigError(f"threads must be None (every core) or an integer >= 1, got {threads!r}")
+    try:
+        sims = list(sims)
+    except TypeError:
+        raise ConfigError(f"sims must be a sequence of ReducedSim or BodyFrameSim objects, got {type(sims).__name__}") from None
+    for i, sim in enumerate(sims):
+        if not isinstance(getattr(sim, "_core", None), (_core.ReducedCore, _core.BodyFrameCore)):
+            raise ConfigError(f"sims[{i}] must be a ReducedSim or BodyFrameSim, got {type(sim).__name__}")
+    outcomes = _core.step_many([sim._core for sim in sims], steps, None if threads is None else int(threads),
+                               [sim.scene.solver.on_failure == "record" for sim in sims])
+    failure = None
+    for i, (sim, (iterations, _, _, err)) in enumerate(zip(sims, outcomes)):
+        for _ in iterations:  # one addition per step, as step() does
+            sim.time += sim.scene.dt
+        if err is not None and failure is None:
+            failure = (i, len(iterations), err)
+    if failure is not None:
+        i, k, err = failure
+        message = f"sims[{i}], at its step {k + 1} of {steps}: {err}"
+        if isinstance(err, SolverError):
+            raise SolverError(message, iterations=err.iterations, residual=err.residual, step_index=k) from err
+        raise type(err)(message) from err
+    return (np.array([o[0] for o in outcomes], dtype=np.int64).reshape(len(sims), steps),
+            np.array([o[1] for o in outcomes], dtype=np.float64).reshape(len(sims), steps),
+            np.array([o[2] for o in outcomes], dtype=bool).reshape(len(sims), steps))
 
 
 class ReducedSim:
@@ -41,6 +98,12 @@ class ReducedSim:
     in it; ``ReducedSim(basis, mesh, scene)`` runs any basis on any mesh of the object.
     A body-frame model gives a :class:`~licrom.body_frame.BodyFrameSim` (see the
     module docstring); only the ``"newton"`` solver exists there.
+
+    Threads: a step runs without the GIL, so separate simulations step in parallel in
+    separate threads. One simulation serves one thread at a time: a call (step, state,
+    probe) while another thread's call on it runs raises
+    :class:`~licrom.errors.ConcurrencyError` at once rather than waiting (guard a shared
+    simulation with a ``threading.Lock`` to serialise it on purpose).
 
     Args:
         basis: a basis (``n_modes``, ``values``, ``jacobians``) or a trained ``licrom.Model``.
@@ -54,11 +117,18 @@ class ReducedSim:
             factored once and again only when contact terms change; a step that needs more
             than ``licrom_core``'s ``PREFACTORED_BUDGET`` (25) directions finishes with Newton,
             counted as ``fallbacks`` in the solver stats).
+        strain: how the deformation gradient at the cubature tets follows q: ``"mesh"``
+            (the linear-tet gradient of the basis' vertex values, as in the FEM) or
+            ``"field"`` (the basis' own gradient, LiCROM as published); see
+            :func:`licrom.basis.strain_jacobians`.
 
     Raises:
         ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
+        ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
+
+    step_many = staticmethod(step_many)
 
     def __new__(cls, basis: Basis | None = None, *args: Any, **kwargs: Any) -> Any:
         if cls is ReducedSim and getattr(basis, "frame", "world") == "body":
@@ -73,6 +143,7 @@ class ReducedSim:
         cubature: Cubature | None = None,
         contact_points: ContactPoints | None = None,
         solver: str = "newton",
+        strain: str = "mesh",
     ) -> None:
         if mesh is None:
             mesh = getattr(basis, "mesh", None)
@@ -94,7 +165,8 @@ class ReducedSim:
         k = int(basis.n_modes)
         n = mesh.n_vertices
         self._values = check_basis_output("values", basis.values(mesh.vertices), (n, 3, k))
-        jac = check_basis_output("jacobians", basis.jacobians(self.cubature.points), (self.cubature.count, 3, 3, k))
+        self.strain = strain
+        jac = check_basis_output("jacobians", strain_jacobians(basis, mesh, self.cubature.tets, strain, self._values), (self.cubature.count, 3, 3, k))
         self._masses = mesh.vertex_masses(scene.material.density)
         self._projector = SubspaceProjector(self._values, self._masses)
         gravity_force = self._projector.reduce(self._masses[:, None] * np.asarray(scene.gravity))
@@ -252,7 +324,7 @@ class ReducedSim:
         """
         if cubature is None:
             cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
-        other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver)
+        other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver, strain=self.strain)
         other._core.set_state(self.q, self.qdot)
         other.time = self.time
         return other
@@ -294,6 +366,7 @@ def _body_frame_sim(
     cubature: Cubature | None = None,
     contact_points: ContactPoints | None = None,
     solver: str = "newton",
+    strain: str = "mesh",
 ) -> Any:
     """The body-frame simulation of a body-frame model, with ReducedSim's defaults."""
     from .body_frame import BodyFrameBasis, BodyFrameSim
@@ -303,4 +376,4 @@ def _body_frame_sim(
     mesh = model.mesh if mesh is None else mesh
     scene = model.default_scene if scene is None else scene
     basis = BodyFrameBasis(mesh, learned=model, density=scene.material.density)
-    return BodyFrameSim(basis, mesh=mesh, scene=scene, cubature=cubature, contact_points=contact_points)
+    return BodyFrameSim(basis, mesh=mesh, scene=scene, cubature=cubature, contact_points=contact_points, strain=strain)

@@ -139,15 +139,26 @@ class Plane:
         object.__setattr__(self, "friction", _finite("Plane.friction", self.friction, nonnegative=True))
 
     @classmethod
-    def incline(cls, angle_deg: float, friction: float, axis: str = "x", offset: float = 0.0) -> Plane:
-        """A plane through the origin (shifted by ``offset``) tilted by ``angle_deg`` about the y axis.
+    def incline(cls, angle_deg: float, friction: float, axis: str = "x", offset: float = 0.0, azimuth_deg: float = 0.0) -> Plane:
+        """A plane through the origin (shifted by ``offset``) sloping by ``angle_deg`` in [0, 90) degrees.
 
-        With z up, the downhill direction is +x for ``axis="x"``.
+        With z up, the downhill direction is +x for ``azimuth_deg = 0`` (a tilt about the y axis),
+        turned towards +y by ``azimuth_deg``.
         """
         if axis != "x":
             raise ConfigError(f"Plane.incline axis must be 'x', got {axis!r}")
-        t = math.radians(_finite("Plane.incline angle (deg)", angle_deg))
-        return cls(normal=(math.sin(t), 0.0, math.cos(t)), offset=offset, friction=friction)
+        angle = _finite("Plane.incline angle (deg)", angle_deg)
+        if not 0.0 <= angle < 90.0:
+            raise ConfigError(f"Plane.incline angle must be in [0, 90) degrees (a slope; azimuth_deg sets the downhill direction), got {angle:g}")
+        t = math.radians(angle)
+        a = math.radians(_finite("Plane.incline azimuth (deg)", azimuth_deg))
+        return cls(normal=(math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)), offset=offset, friction=friction)
+
+    @property
+    def azimuth_deg(self) -> float:
+        """Downhill direction in degrees from +x towards +y (0 for a horizontal plane)."""
+        nx, ny = self.normal[0], self.normal[1]
+        return math.degrees(math.atan2(ny, nx)) if math.hypot(nx, ny) > 1e-12 else 0.0
 
     @property
     def slope_deg(self) -> float:
@@ -203,7 +214,7 @@ class SolverParams:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tolerance", _finite("SolverParams.tolerance (m/s)", self.tolerance, positive=True))
-        if not isinstance(self.max_iterations, (int, np.integer)) or self.max_iterations < 1:
+        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, (int, np.integer)) or self.max_iterations < 1:
             raise ConfigError(f"SolverParams.max_iterations must be an integer >= 1, got {self.max_iterations!r}")
         object.__setattr__(self, "max_iterations", int(self.max_iterations))
         if self.on_failure not in ("raise", "record"):
@@ -328,12 +339,16 @@ class Scene:
             )
         except (KeyError, TypeError) as exc:
             raise FileFormatError(f"scene JSON is missing or has unexpected fields: {exc}") from exc
+        except RecursionError:
+            raise FileFormatError("scene JSON is nested too deeply to be a licrom scene") from None
 
     @classmethod
     def from_json(cls, text: str) -> Scene:
         """Parse JSON text written by :meth:`to_json`."""
         try:
             d = json.loads(text)
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, TypeError) as exc:
             raise FileFormatError(f"scene JSON is not valid JSON: {exc}") from exc
+        except RecursionError:
+            raise FileFormatError("scene JSON is nested too deeply to be a licrom scene") from None
         return cls.from_dict(d)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ._repr import concise_repr
 from .errors import ConfigError
 
 __all__ = ["RunRecord", "check_run_arguments", "record_run"]
@@ -53,6 +54,8 @@ class RunRecord:
     residuals: list[float] = field(default_factory=list)
     converged: list[bool] = field(default_factory=list)
     seconds: list[float] = field(default_factory=list)
+
+    __repr__ = concise_repr
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The per-step lists as the arrays :class:`~licrom.trajectory.Trajectory` takes."""

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from ._repr import concise_repr
 from .affine import apply_affine, fit_affine
 from .errors import ConfigError, FileFormatError
 from .mesh import Mesh
@@ -147,6 +148,8 @@ class FrameSet:
     norm2_full: np.ndarray
     norm2_residual: np.ndarray
     names: list[str]
+
+    __repr__ = concise_repr
 
     def __len__(self) -> int:
         return len(self.residuals)

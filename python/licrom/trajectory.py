@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ._io import check_version, load_npz, save_npz
-from .errors import FileFormatError, ShapeError, SolverError
+from .errors import FileFormatError, LicromError, ShapeError, SolverError
 from .mesh import Mesh
 from .rigid import center_of_mass
 from .scene import Scene
@@ -61,7 +61,10 @@ class Trajectory:
 
     def __post_init__(self) -> None:
         self.rest_positions = np.asarray(self.rest_positions, dtype=np.float64)
-        self.tets = np.asarray(self.tets, dtype=np.int64)
+        tets = np.asarray(self.tets)
+        if tets.size and not np.issubdtype(tets.dtype, np.integer):
+            raise ShapeError(f"Trajectory.tets must be integer vertex indices, got dtype {tets.dtype}")
+        self.tets = tets.astype(np.int64)
         self.displacements = np.asarray(self.displacements, dtype=np.float64)
         self.velocities = np.asarray(self.velocities, dtype=np.float64)
         self.times = np.asarray(self.times, dtype=np.float64)
@@ -74,6 +77,8 @@ class Trajectory:
         for name in ("displacements", "velocities", "times"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise SolverError(f"Trajectory.{name} holds NaN or inf; refusing to keep a diverged simulation")
+        if self.times.ndim != 1 or np.any(np.diff(self.times) <= 0):
+            raise ShapeError("Trajectory.times must be a 1-D array of strictly increasing times in s")
         self.iterations = np.asarray(self.iterations, dtype=np.int32)
         self.residuals = np.asarray(self.residuals, dtype=np.float64)
         self.converged = np.asarray(self.converged, dtype=bool)
@@ -87,6 +92,12 @@ class Trajectory:
     @property
     def n_frames(self) -> int:
         return len(self.times)
+
+    def __repr__(self) -> str:
+        span = f"t = {self.times[0]:.4g}..{self.times[-1]:.4g} s" if self.n_frames else "no frames"
+        planes = "; ".join(f"slope {p.slope_deg:.3g} deg, mu {p.friction:g}" for p in self.scene.planes) or "none"
+        return (f"Trajectory({self.n_frames} frames, {span}, {len(self.rest_positions)} vertices, {len(self.tets)} tets, "
+                f"{len(self.iterations)} steps ({int((~self.converged).sum())} unconverged), planes: {planes})")
 
     @cached_property
     def mesh(self) -> Mesh:
@@ -162,11 +173,18 @@ class Trajectory:
         """Read a file written by :meth:`save`.
 
         Raises:
-            FileFormatError: missing, truncated or foreign file, or unknown format version.
+            FileFormatError: missing, truncated or foreign file, unknown format version, or
+                contents a trajectory cannot hold (wrong shapes, NaN, an invalid scene).
         """
         header, arrays = load_npz(path, "trajectory")
         check_version(header.get("version"), TRAJECTORY_FORMAT_VERSION, f"trajectory '{path}'")
+        if not isinstance(header.get("info", {}), dict):
+            raise FileFormatError(f"trajectory '{path}' has a corrupt header: 'info' must be a JSON object")
         try:
             return cls(scene=Scene.from_dict(header["scene"]), info=header.get("info", {}), **arrays)
+        except FileFormatError:
+            raise
         except (KeyError, TypeError) as exc:
             raise FileFormatError(f"trajectory '{path}' is missing data: {exc}") from exc
+        except (LicromError, ValueError) as exc:
+            raise FileFormatError(f"trajectory '{path}' holds invalid data: {exc}") from exc

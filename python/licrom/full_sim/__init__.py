@@ -30,7 +30,9 @@ The minimiser is found by Newton's method:
 A step has converged when the mass-weighted RMS length of the Newton step divided by ``h``,
 ``sqrt(dx^T M dx / m_total) / h``, is below ``scene.solver.tolerance`` (m/s): the measure the
 reduced solver uses, invariant under a change of basis. All kernels run in float64, on the
-CPU or on a CUDA device, with the same code.
+CPU or on a CUDA device, with the same code; by default on the first CUDA device when warp sees
+one, else on the CPU (``FullSim.device`` says which, and the ``licrom.full_sim`` logger tells it at
+INFO level).
 
 Where things live: :mod:`.elastic` (stable Neo-Hookean per tet), :mod:`.contact` (penalty,
 damping and friction per contact point: the warp twin of ``rust/core/src/contact.rs``),
@@ -39,7 +41,7 @@ solve), :mod:`.line_search`, :mod:`.device` (devices and evaluation modes) and :
 (:class:`FullSim`, the Newton iteration).
 """
 
-from .device import ACCEPTED_DEVICES, resolve_device
+from .device import ACCEPTED_DEVICES, check_device_name, resolve_device
 from .sim import ENERGY_TERMS, FullSim, StepStats
 
-__all__ = ["ACCEPTED_DEVICES", "ENERGY_TERMS", "FullSim", "StepStats", "resolve_device"]
+__all__ = ["ACCEPTED_DEVICES", "ENERGY_TERMS", "FullSim", "StepStats", "check_device_name", "resolve_device"]

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
+import sys
+import tempfile
+from collections.abc import Iterator
 from typing import Any
 
 import warp as wp
 
 from ..errors import ConfigError
 
-__all__ = ["ACCEPTED_DEVICES", "resolve_device", "warp_ready"]
+__all__ = ["ACCEPTED_DEVICES", "check_device_name", "resolve_device", "warp_ready"]
 
-ACCEPTED_DEVICES = ("cpu", "cuda", "cuda:N")
-"""Device names :class:`~licrom.full_sim.FullSim` accepts (``cuda:N`` is the N-th CUDA device)."""
+ACCEPTED_DEVICES = ("auto", "cpu", "cuda", "cuda:N")
+"""Device names :class:`~licrom.full_sim.FullSim` accepts (``cuda:N`` is the N-th CUDA device; ``"auto"``,
+or ``None``, is the first CUDA device when warp sees one, else the CPU)."""
 
 if wp.config.log_level <= wp.LOG_INFO:  # no banner or module-load chatter on stdout
     wp.config.log_level = wp.LOG_WARNING
@@ -31,27 +37,71 @@ MODE_RAW_HESSIAN = wp.constant(3)
 MODE_FORCES = wp.constant(4)
 
 _initialised = False
+# warp's native library prints this at initialisation on every machine without an NVIDIA driver.
+# A CPU run needs no driver, and a CUDA device asked for without one is refused by resolve_device.
+_NO_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
+
+
+@contextlib.contextmanager
+def _native_stderr_without(text: str) -> Iterator[None]:
+    """Capture what native code writes to file descriptor 2 and pass on every line but those holding ``text``."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            kept = [line for line in capture.read().decode(errors="replace").splitlines(keepends=True) if text not in line]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
 
 
 def warp_ready() -> Any:
-    """Initialise warp once and return it."""
+    """Initialise warp once (without its missing-driver warning on CPU-only machines) and return it."""
     global _initialised
     if not _initialised:
-        wp.init()
+        with _native_stderr_without(_NO_DRIVER_WARNING):
+            wp.init()
         _initialised = True
     return wp
 
 
+def check_device_name(device: Any) -> str:
+    """``device`` as an accepted name (``None`` -> ``"auto"``), without looking at the devices present.
+
+    Raises:
+        ConfigError: anything but ``None`` and the :data:`ACCEPTED_DEVICES`.
+    """
+    if device is None:
+        return "auto"
+    if not isinstance(device, str) or not re.fullmatch(r"auto|cpu|cuda|cuda:\d+", device):
+        raise ConfigError(f"device must be one of {', '.join(ACCEPTED_DEVICES)} (N = 0, 1, ...) or None (auto), got {device!r}")
+    return device
+
+
 def resolve_device(device: Any) -> str:
-    """Check a device name against the accepted ones and the devices present."""
-    if not isinstance(device, str) or not re.fullmatch(r"cpu|cuda|cuda:\d+", device):
-        raise ConfigError(f"device must be one of {', '.join(ACCEPTED_DEVICES)} (N = 0, 1, ...), got {device!r}")
+    """The warp device to run on: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
+
+    ``None`` or ``"auto"`` pick ``"cuda"`` when warp sees a CUDA device, else ``"cpu"``;
+    an explicit name is checked against the devices present.
+
+    Raises:
+        ConfigError: a name outside :data:`ACCEPTED_DEVICES`, or a CUDA device that is not there.
+    """
+    device = check_device_name(device)
     if device == "cpu":
         return device
     wp = warp_ready()
     count = wp.get_cuda_device_count()
+    if device == "auto":
+        return "cuda" if count > 0 else "cpu"
     if count == 0:
-        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; use device='cpu'")
+        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; accepted here: auto, cpu")
     if device != "cuda" and int(device.split(":")[1]) >= count:
         raise ConfigError(f"device {device!r} does not exist: {count} CUDA device(s) available (cuda:0..cuda:{count - 1})")
     return device

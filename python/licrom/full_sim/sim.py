@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Iterable
@@ -30,6 +31,8 @@ from .device import (
 from .line_search import line_search, sufficient_decrease
 
 __all__ = ["ENERGY_TERMS", "FullSim", "StepStats"]
+
+_log = logging.getLogger("licrom.full_sim")
 
 ENERGY_TERMS = ("inertia", "elastic", "penalty", "damping", "friction")
 """Terms of the incremental potential, for :meth:`FullSim.energy` and friends."""
@@ -69,7 +72,8 @@ class FullSim:
         mesh: the tet mesh (rest shape).
         scene: material, planes, contact stiffnesses, time step, gravity, solver settings
             and initial state (applied on construction).
-        device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
+        device: ``None`` or ``"auto"`` (default: CUDA when warp sees a GPU, else the CPU),
+            ``"cpu"``, ``"cuda"`` or ``"cuda:N"``. :attr:`device` holds the one chosen.
         contact_points: where contact acts: ``None`` for every boundary vertex with its share
             of the boundary area, or ``(indices, areas)`` (or an object with ``indices`` and
             ``areas`` attributes, such as ``licrom.cubature.ContactPoints``).
@@ -79,12 +83,14 @@ class FullSim:
         ShapeError: contact-point arrays of the wrong shape.
     """
 
-    def __init__(self, mesh: Mesh, scene: Scene, device: str = "cpu", contact_points: Any = None) -> None:
+    def __init__(self, mesh: Mesh, scene: Scene, device: str | None = None, contact_points: Any = None) -> None:
         if not isinstance(mesh, Mesh):
             raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
         if not isinstance(scene, Scene):
             raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
         self.device = resolve_device(device)
+        """The warp device the simulation runs on: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``."""
+        _log.info("full simulation of %d vertices, %d tets on %s", mesh.n_vertices, mesh.n_tets, self.device)
         self.mesh = mesh
         self.scene = scene
         idx, areas = self._check_contact_points(contact_points)
@@ -492,7 +498,7 @@ class FullSim:
             linear += self.last_stats.linear_iterations
             return its, res, self.last_stats.converged
 
-        rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress, "full")
+        rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress, f"full ({self.device})")
         converged = rec.converged
         displacements = np.array([d for d, _ in rec.frames])
         dm_inv, tets = self.mesh.shape_matrix_inverses, self.mesh.tets

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .._repr import concise_repr
 from ..affine import N_AFFINE, remove_affine_part
 from ..mesh import Mesh
 from .config import _CHUNK
@@ -25,6 +26,8 @@ class _Finalization:
     transform: np.ndarray  # (r, r) T
     transform_inv: np.ndarray  # (r, r) T^-1
     mode_variance: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (r,) variance per final mode over training frames
+
+    __repr__ = concise_repr
 
 
 def finalize_basis(net: LicromNet, mesh: Mesh, residuals: np.ndarray | None = None, *, chunk_frames: int = 256) -> _Finalization:

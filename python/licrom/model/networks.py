@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
@@ -12,7 +13,7 @@ from torch import nn
 from ..affine import N_AFFINE, affine_values
 from .config import ModelConfig
 
-__all__ = ["LicromNet", "NeuralField", "PointNetEncoder"]
+__all__ = ["LicromNet", "NeuralField", "PointNetEncoder", "state_size"]
 
 
 def _xavier(module: nn.Module) -> None:
@@ -20,6 +21,18 @@ def _xavier(module: nn.Module) -> None:
         if isinstance(m, nn.Linear):
             nn.init.xavier_uniform_(m.weight)
             nn.init.zeros_(m.bias)
+
+
+def _mlp_size(dims: Sequence[int]) -> int:
+    return sum(a * b + b for a, b in itertools.pairwise(dims))
+
+
+def state_size(config: ModelConfig) -> int:
+    """Numbers in ``LicromNet(config).state_dict()``, computed without building (allocating) the networks."""
+    f, r = config.fourier_features, config.latent_dim
+    field = _mlp_size([3 + 2 * f] + [config.field_width] * (config.field_layers - 1) + [3 * r]) + 3 * f
+    encoder = _mlp_size([6, *config.encoder_point_widths, *config.encoder_fc_widths, r])
+    return field + encoder + 5  # + x_center (3), x_scale, u_scale
 
 
 class NeuralField(nn.Module):

@@ -15,12 +15,12 @@ import torch
 
 from .._io import load_npz, save_npz
 from ..affine import AFFINE_JACOBIAN, N_AFFINE, affine_values, apply_affine, fit_affine
-from ..errors import ConfigError, FileFormatError, ShapeError
+from ..errors import ConfigError, FileFormatError, LicromError, ShapeError
 from ..mesh import Mesh
 from ..scene import Scene
 from .config import _CHUNK, ModelConfig
 from .finalize import _Finalization
-from .networks import LicromNet
+from .networks import LicromNet, state_size
 
 __all__ = ["MODEL_FORMAT_VERSION", "Model"]
 
@@ -36,6 +36,22 @@ def _as_points(points: Any, name: str = "points") -> np.ndarray:
     if not np.all(np.isfinite(x)):
         raise ShapeError(f"{name} holds NaN or inf")
     return x
+
+
+def _check_weights(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]) -> None:
+    """Refuse a header whose network sizes do not match the stored weights, before the network is built.
+
+    The networks the header describes must hold exactly as many numbers as the file stores, so
+    an absurd header (r = 10^6) is refused without allocating anything.
+    """
+    stored = sum(a.size for k, a in arrays.items() if k.startswith("net/"))
+    needed = state_size(config)
+    if needed != stored:
+        raise FileFormatError(
+            f"model '{path}' header does not match its weights: its model_config (latent_dim={config.latent_dim}, "
+            f"field_width={config.field_width}, field_layers={config.field_layers}, fourier_features={config.fourier_features}) "
+            f"needs {needed} weights, the file holds {stored}"
+        )
 
 
 class Model:
@@ -390,8 +406,9 @@ class Model:
             if (int(header["n_learned"]) != config.latent_dim or bool(header["affine"]) != config.affine
                     or header.get("frame", "world") != config.frame):
                 raise FileFormatError(f"model '{path}' header is inconsistent (n_learned/affine/frame vs model_config)")
-            net = LicromNet(config)
             keys = header["state_keys"]
+            _check_weights(path, config, arrays)
+            net = LicromNet(config)
             state = {}
             for k in keys:
                 state[k] = torch.from_numpy(np.ascontiguousarray(arrays[f"net/{k}"]))
@@ -408,5 +425,5 @@ class Model:
             return cls(net, mesh, scenes, finalization=fin, default_scene_index=int(header.get("default_scene", 0)), metadata=header.get("metadata", {}))
         except FileFormatError:
             raise
-        except (KeyError, TypeError, ValueError, RuntimeError, ConfigError) as exc:
+        except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError, LicromError) as exc:
             raise FileFormatError(f"model '{path}' is incomplete or inconsistent: {type(exc).__name__}: {exc}") from exc

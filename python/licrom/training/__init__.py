@@ -39,7 +39,8 @@ call it from a script or the ``licrom train`` command, once per process.
 
 Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.sampling` (points drawn uniformly
 in volume), :mod:`.objectives` (the POD objective), :mod:`.evaluation` (:func:`evaluate`,
-:func:`subspace_report`), :mod:`.lightning` (the Lightning module) and :mod:`.run` (:func:`train`).
+:func:`subspace_report`), :mod:`.lightning` (the Lightning module), :mod:`.checkpoints` (weights-only,
+atomic checkpoints resumed only into their own run) and :mod:`.run` (:func:`train`).
 """
 
 from .config import OBJECTIVES, TrainConfig, output_paths

@@ -55,10 +55,15 @@ class TrainConfig:
         seed: seed of the weights, the split and the point sampling.
         device: ``"auto"`` (CUDA if available), ``"cpu"`` or ``"cuda"``.
         devices: GPUs to use (``"auto"``: all visible); more than one trains with DDP.
+        nodes: machines of a multi-node DDP run (Lightning's ``num_nodes``), each with
+            ``devices`` GPUs; the launcher (torchrun, SLURM, or ``MASTER_ADDR``,
+            ``MASTER_PORT``, ``NODE_RANK`` set on each machine) places the processes.
         precision: Lightning precision string (``"32-true"``; ``"bf16-mixed"`` on GPUs).
         checkpoint_dir: Lightning checkpoints; default ``<model>.checkpoints`` beside the model.
         checkpoint_every: epochs between checkpoints (``last.ckpt`` is overwritten).
-        resume: continue from ``last.ckpt`` in the checkpoint directory when it exists.
+        resume: continue from the most recently written checkpoint of the same run (data, r,
+            network) in the checkpoint directory; another run's is refused by name
+            (:mod:`licrom.training.checkpoints`).
         progress: show Lightning's progress bar.
         num_threads: CPU threads for torch (None: leave torch's setting).
         max_time_s: stop (gracefully, after the current step) when training has run this
@@ -84,6 +89,7 @@ class TrainConfig:
     seed: int = 0
     device: str = "auto"
     devices: int | str = "auto"
+    nodes: int = 1
     precision: str = "32-true"
     checkpoint_dir: str | None = None
     checkpoint_every: int = 1
@@ -93,7 +99,7 @@ class TrainConfig:
     max_time_s: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every"):
+        for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"TrainConfig.{name} must be an integer >= 1, got {v!r}")

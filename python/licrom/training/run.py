@@ -20,6 +20,7 @@ from ..model.finalize import finalize_basis
 from ..render import pyplot, save_png
 from ..rigid import check_frame
 from ..training_data import TrainingData, TrajectorySource
+from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, output_paths, write_csv
 from .evaluation import _evaluate_tensors
 from .lightning import _lightning_classes
@@ -120,6 +121,13 @@ def train(
     pl = L["pl"]
     paths = output_paths(out_path) if out_path is not None else None
     ckpt_dir = Path(cfg.checkpoint_dir) if cfg.checkpoint_dir else (paths["checkpoints"] if paths else None)
+    fingerprint = run_fingerprint(tdata, mcfg) if ckpt_dir is not None else None
+    ckpt_path = None
+    if cfg.resume:
+        found = resume_checkpoint(ckpt_dir, fingerprint) if ckpt_dir is not None and fingerprint is not None else None
+        if found is None:
+            warnings.warn(f"resume requested but no checkpoint found in '{ckpt_dir}'; training from scratch", stacklevel=2)
+        ckpt_path = None if found is None else str(found)
 
     pl.seed_everything(cfg.seed, workers=True, verbose=False)
     module = L["LicromModule"](mcfg.to_dict(), cfg.to_dict())
@@ -129,11 +137,15 @@ def train(
     accelerator, devices = _accelerator(cfg)
     history = L["History"](paths["csv"] if paths else None)
     callbacks: list[Any] = [history]
-    if ckpt_dir is not None:
+    plugins: list[Any] = []
+    if ckpt_dir is not None and fingerprint is not None:
         from lightning.pytorch.callbacks import ModelCheckpoint
 
+        # No version counter: every run writes last.ckpt itself (never last-v1.ckpt beside an older run's).
         callbacks.append(ModelCheckpoint(dirpath=ckpt_dir, filename="epoch{epoch:04d}", auto_insert_metric_name=False,
-                                         save_last=True, save_top_k=0, every_n_epochs=cfg.checkpoint_every))
+                                         save_last=True, save_top_k=0, every_n_epochs=cfg.checkpoint_every,
+                                         enable_version_counter=False))
+        plugins.append(checkpoint_io(fingerprint))
     import logging
 
     quiet_loggers = [logging.getLogger(n) for n in ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.accelerators.cuda")]
@@ -151,10 +163,12 @@ def train(
         trainer = pl.Trainer(
             accelerator=accelerator,
             devices=devices,
+            num_nodes=cfg.nodes,
             strategy="auto",
             precision=cfg.precision,
             max_epochs=cfg.epochs,
             callbacks=callbacks,
+            plugins=plugins,
             logger=False,
             enable_checkpointing=ckpt_dir is not None,
             enable_progress_bar=cfg.progress,
@@ -173,14 +187,9 @@ def train(
         else:
             train_loader = DataLoader(L["Indices"](n_train), batch_size=batch, sampler=L["EpochShuffle"](n_train, cfg.seed))
         val_loader = DataLoader(L["Indices"](1), batch_size=1) if len(tdata.val) else None
-        ckpt_path = None
-        if cfg.resume and ckpt_dir is not None and (ckpt_dir / "last.ckpt").is_file():
-            ckpt_path = str(ckpt_dir / "last.ckpt")
-        elif cfg.resume:
-            warnings.warn(f"resume requested but no checkpoint found in '{ckpt_dir}'; training from scratch", stacklevel=2)
         t_fit = time.perf_counter()
         try:
-            trainer.fit(module, train_dataloaders=train_loader, val_dataloaders=val_loader, ckpt_path=ckpt_path, weights_only=False)
+            trainer.fit(module, train_dataloaders=train_loader, val_dataloaders=val_loader, ckpt_path=ckpt_path, weights_only=True)
         finally:
             torch.set_float32_matmul_precision(old_matmul)
             for lg, level in zip(quiet_loggers, old_levels):

@@ -20,10 +20,11 @@
 //! All three Hessians are PSD; they are returned as at most three weighted
 //! rank-one terms so that assembly can stack their square-root factors.
 //!
-//! This is the friction law. Its sum over the contact points of the reduced
-//! model, with the stick switch that corrects Newton directions crossing the
-//! stick region, is in `reduced/contact.rs`; the solver's use of that switch
-//! in `solver/contact_model.rs`.
+//! This is the friction law, with its stick switch ([`ContactModel::stick_switch`]),
+//! the correction of a Newton direction that would carry a slipping point
+//! through the stick region. Their sums over the contact points are in
+//! `reduced/contact.rs` (world frame) and `body_frame/contact.rs`; the
+//! solvers' use of the switch in `solver/contact_model.rs`.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -107,6 +108,13 @@ pub struct RankOneTerms {
     pub len: usize,
 }
 
+/// Relative change of a contact curvature below which a lagged contact Hessian
+/// keeps the old term (see [`RankOneTerms::close_to`]).
+pub const CURVATURE_SLACK: f64 = 1.1;
+/// Cosine of the turn of a curvature direction above which a lagged contact
+/// Hessian keeps the old term (about 6 degrees).
+pub const DIRECTION_COS: f64 = 0.995;
+
 impl RankOneTerms {
     #[inline]
     fn push(&mut self, coef: f64, dir: Vector3<f64>) {
@@ -121,6 +129,49 @@ impl RankOneTerms {
     pub fn matrix(&self) -> Matrix3<f64> {
         (0..self.len).map(|i| self.dir[i] * self.dir[i].transpose() * self.coef[i]).sum()
     }
+
+    /// Whether these terms may stand in for `other`: as many terms, curvatures
+    /// within a ratio `slack` and directions with cosine at least `cos` (1, 1
+    /// for equality).
+    #[inline]
+    pub fn close_to(&self, other: &RankOneTerms, slack: f64, cos: f64) -> bool {
+        self.len == other.len
+            && (0..self.len).all(|t| {
+                let (ca, cb) = (self.coef[t], other.coef[t]);
+                ca <= slack * cb && cb <= slack * ca && self.dir[t].dot(&other.dir[t]) >= cos
+            })
+    }
+
+    /// The same terms with every direction mapped by `m` (a rotation).
+    #[inline]
+    pub fn rotated(&self, m: &Matrix3<f64>) -> RankOneTerms {
+        let mut out = *self;
+        for t in 0..self.len {
+            out.dir[t] = m * self.dir[t];
+        }
+        out
+    }
+
+    /// Writes the square-root factors `sqrt(coef_t) dir_t` into `out` from
+    /// index `at` on; returns the index after them.
+    #[inline(always)]
+    pub fn write_factors(&self, out: &mut [[f64; 3]], at: usize) -> usize {
+        for t in 0..self.len {
+            let d = self.dir[t] * self.coef[t].sqrt();
+            out[at + t] = [d.x, d.y, d.z];
+        }
+        at + self.len
+    }
+}
+
+/// Friction's stick switch of one slipping point against one plane
+/// ([`ContactModel::stick_switch`]).
+#[derive(Debug, Clone, Copy)]
+pub struct StickSwitch {
+    /// Square-root factors of the Hessian change from slip to stick (N/m when squared).
+    pub factors: [Vector3<f64>; 2],
+    /// Stick force minus slip force (as gradients), N.
+    pub force: Vector3<f64>,
 }
 
 /// Energy (J), gradient (N, = minus the force) and PSD Hessian of one point
@@ -199,6 +250,46 @@ impl ContactModel {
             }
         }
         out
+    }
+
+    /// Whether a point that moved by `dx` (m) since the start of the step
+    /// slips against `plane` (its friction force at the Coulomb limit).
+    #[inline]
+    pub fn slips(&self, plane: &Plane, area: f64, normal_force: f64, dx: &Vector3<f64>) -> bool {
+        let limit = plane.friction * normal_force;
+        let c = area * self.friction_stiffness / self.dt;
+        limit > 0.0 && c > 0.0 && c * (dx - plane.normal * plane.normal.dot(dx)).norm() > limit
+    }
+
+    /// Friction's correction of a step for a point that moved by `dx` (m) and
+    /// slips: when the step, which moves the point by `motion` (m), would
+    /// reverse its slip or bring it into the stick region, the point is
+    /// modelled as sticking. The Hessian change `c T - (mu f_n / s)(T - t t^T)`
+    /// (slip direction t, slip s, PSD since `c > mu f_n / s` while slipping)
+    /// comes as the square-root factors `sqrt(c) t` and
+    /// `sqrt(c - mu f_n / s) (n x t)`, with the change of the gradient
+    /// `t (c s - mu f_n)`. None where the point does not slip or the step
+    /// carries it on slipping.
+    #[inline]
+    pub fn stick_switch(&self, plane: &Plane, area: f64, normal_force: f64, dx: &Vector3<f64>, motion: &Vector3<f64>) -> Option<StickSwitch> {
+        let limit = plane.friction * normal_force;
+        let c = area * self.friction_stiffness / self.dt;
+        if limit <= 0.0 {
+            return None;
+        }
+        let n = plane.normal;
+        let delta = dx - n * n.dot(dx);
+        let slip = delta.norm();
+        if c * slip <= limit {
+            return None;
+        }
+        let t = delta / slip;
+        let moved = delta + motion - n * n.dot(motion);
+        if t.dot(&moved) >= limit / c {
+            return None;
+        }
+        let (st, sb) = (c.sqrt(), (c - limit / slip).max(0.0).sqrt());
+        Some(StickSwitch { factors: [t * st, n.cross(&t) * sb], force: t * (c * slip - limit) })
     }
 }
 

@@ -1,7 +1,8 @@
 //! Dense kernels: vector kernels on contiguous slices, written in independent
 //! 8-wide lanes so that the compiler vectorises them at the level chosen by
 //! [`crate::simd`], and the symmetric products `B^T B` of the Hessian
-//! assembly (faer's blocked kernels).
+//! assembly (faer's blocked kernels), formed whole or kept up to date row by
+//! row ([`IncrementalGram`]).
 
 use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
 use faer::{Accum, MatMut, MatRef, Par};
@@ -155,6 +156,70 @@ pub fn add_gram(dst: &mut [f64], n: usize, rows: &[f64], count: usize) {
     }
     syrk_rows(dst, n, rows, count, Accum::Add);
     mirror_lower(dst, n);
+}
+
+/// A symmetric matrix `B^T B` (n x n) kept up to date as rows of B are put in
+/// and taken out, so that rows that do not change cost nothing. It is formed
+/// from scratch when invalid or once the rows taken out outnumber four times
+/// those in it, which bounds the round-off of the updates.
+#[derive(Debug, Clone)]
+pub struct IncrementalGram {
+    n: usize,
+    /// n x n, full symmetric.
+    matrix: Vec<f64>,
+    /// Rows in the matrix, and rows taken out since it was last formed from scratch.
+    rows: usize,
+    removed: usize,
+    /// Whether `matrix` holds the rows put in (else the next update forms it from scratch).
+    valid: bool,
+}
+
+impl IncrementalGram {
+    /// An empty matrix of size n, formed from scratch at the first update.
+    pub fn new(n: usize) -> Self {
+        Self { n, matrix: vec![0.0; n * n], rows: 0, removed: 0, valid: false }
+    }
+
+    /// The matrix (n x n, full symmetric, PSD up to round-off).
+    pub fn matrix(&self) -> &[f64] {
+        &self.matrix
+    }
+
+    /// Forms the matrix from scratch at the next update.
+    pub fn invalidate(&mut self) {
+        self.valid = false;
+    }
+
+    /// Whether the next update must form the matrix from scratch: then every
+    /// row must be put in again and none taken out.
+    pub fn needs_rebuild(&self) -> bool {
+        !self.valid || self.removed > 4 * self.rows.max(64)
+    }
+
+    /// Puts in the first `plus` rows of `rows_in` and takes out the first
+    /// `minus` rows of `rows_out` (both row-major, n wide); after
+    /// [`Self::needs_rebuild`], the matrix is formed from the rows put in.
+    /// `total`: the rows in the matrix afterwards.
+    pub fn update(&mut self, rows_in: &[f64], plus: usize, rows_out: &[f64], minus: usize, total: usize) {
+        let n = self.n;
+        if self.needs_rebuild() {
+            debug_assert!(minus == 0, "a rebuild takes no rows out");
+            syrk_rows(&mut self.matrix, n, rows_in, plus, Accum::Replace);
+            self.removed = 0;
+        } else {
+            if plus > 0 {
+                syrk_rows(&mut self.matrix, n, rows_in, plus, Accum::Add);
+            }
+            if minus > 0 {
+                let b = MatRef::from_row_major_slice(&rows_out[..minus * n], minus, n);
+                syrk_lower(&mut self.matrix, n, Some(b), Accum::Add, -1.0);
+            }
+            self.removed += minus;
+        }
+        mirror_lower(&mut self.matrix, n);
+        self.rows = total;
+        self.valid = true;
+    }
 }
 
 #[cfg(test)]

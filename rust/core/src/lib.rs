@@ -26,6 +26,7 @@
 // vectoriser handles best in the hot kernels; iterator chains would hide it.
 #![allow(clippy::needless_range_loop)]
 
+pub mod batch;
 pub mod body_frame;
 pub mod cholesky;
 pub mod contact;

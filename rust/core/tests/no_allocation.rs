@@ -65,15 +65,25 @@ fn body_frame_steps_do_not_allocate() {
     let (center, rotation) = model.resting_pose();
     let pose = Pose { center, rotation, q: vec![0.0; model.n] };
     let qdot = vec![0.0; model.n];
-    solver.set_state(&pose, &[0.3, 0.0, 0.0], &[0.0; 3], &qdot).unwrap();
-    // The first step may fill lazily created buffers (matrix-product packing).
-    solver.step().unwrap();
+    // Sliding on, and coming to rest within a step (friction's stick switch).
+    let states = [([0.3, 0.0, 0.0], [0.0, 0.5, 0.0]), ([0.02, 0.0, 0.0], [0.0; 3])];
+    // The first steps may fill lazily created buffers (matrix-product packing).
+    for (v, w) in &states {
+        solver.set_state(&pose, v, w, &qdot).unwrap();
+        solver.step().unwrap();
+    }
+    solver.reset_stats();
     let mut forces = vec![0.0; 3 * 30];
     let before = ALLOCATIONS.load(Ordering::Relaxed);
-    for _ in 0..5 {
-        solver.set_state(&pose, &[0.3, 0.0, 0.0], &[0.0, 0.5, 0.0], &qdot).unwrap();
-        solver.step().unwrap();
+    for _ in 0..3 {
+        for (v, w) in &states {
+            solver.set_state(&pose, v, w, &qdot).unwrap();
+            solver.step().unwrap();
+        }
     }
     solver.contact_forces(&mut forces).unwrap();
     assert_eq!(ALLOCATIONS.load(Ordering::Relaxed) - before, 0, "the body-frame solver allocated while stepping");
+    // Those steps went through the contact model and the stick correction.
+    let stats = solver.stats();
+    assert!(stats.model_evaluations > 0 && stats.stick_solves > 0, "{stats:?}");
 }

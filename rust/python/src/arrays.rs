@@ -2,6 +2,7 @@
 
 use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::prelude::*;
+use pyo3::types::PyBool;
 
 use crate::errors::{error, Kind};
 
@@ -83,4 +84,16 @@ pub fn read(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Array>
 /// A new numpy array of `shape` owning `data` (C order).
 pub fn write<'py>(py: Python<'py>, data: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     numpy::PyArray1::from_vec(py, data).reshape(shape.to_vec())
+}
+
+/// A count given from Python: an integer >= 1 (`True` is refused, not taken as 1).
+pub fn count(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<usize> {
+    let value = if obj.is_instance_of::<PyBool>() { None } else { obj.extract::<i64>().ok().filter(|v| *v >= 1) };
+    match value {
+        Some(v) => Ok(v as usize),
+        None => {
+            let text = obj.repr().map(|r| r.to_string()).unwrap_or_else(|_| "?".into());
+            Err(error(obj.py(), Kind::Config, format!("{name} must be an integer >= 1, got {text}")))
+        }
+    }
 }

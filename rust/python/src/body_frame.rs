@@ -1,5 +1,7 @@
 //! The body-frame simulation state and its solver.
 
+use std::collections::HashMap;
+
 use licrom_core::body_frame::rotation::is_rotation;
 use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver, ROTATION_TOLERANCE};
 use licrom_core::body_frame::{BodyFrameInputs, BodyFrameSystem, Pose};
@@ -8,14 +10,20 @@ use licrom_core::StableNeoHookean;
 use nalgebra::{Matrix3, Vector3};
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
+use std::sync::Mutex;
 
-use crate::arrays::{read, write, Dim};
-use crate::errors::{error, CoreResultExt, Kind};
+use crate::arrays::{count, read, write, Dim};
+use crate::errors::{error, exclusive, CoreResultExt, Kind};
+use crate::reduced::stats_dict;
 
 /// Body-frame model, pose history and solver of one simulation.
-#[pyclass(module = "licrom._core")]
+///
+/// One thread at a time: a call while another thread's call runs (a step releases the
+/// GIL) raises `ConcurrencyError` instead of waiting.
+#[pyclass(module = "licrom._core", frozen)]
 pub struct BodyFrameCore {
-    inner: BodyFrameSolver,
+    pub(crate) inner: Mutex<BodyFrameSolver>,
+    n: usize,
 }
 
 /// Row-major values of a 3x3 matrix.
@@ -24,19 +32,22 @@ fn row_major(m: &Matrix3<f64>) -> Vec<f64> {
 }
 
 impl BodyFrameCore {
-    fn n(&self) -> usize {
-        self.inner.system().n_modes()
-    }
-
     /// A validated pose from numpy arrays.
-    fn pose(&self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<Pose> {
+    fn pose(
+        &self,
+        py: Python<'_>,
+        solver: &BodyFrameSolver,
+        center: &Bound<'_, PyAny>,
+        rotation: &Bound<'_, PyAny>,
+        q: &Bound<'_, PyAny>,
+    ) -> PyResult<Pose> {
         let center = read(center, "center", &[Dim::Is(3)])?;
         let rotation = read(rotation, "rotation", &[Dim::Is(3), Dim::Is(3)])?;
-        let q = read(q, "q", &[Dim::Is(self.n())])?;
+        let q = read(q, "q", &[Dim::Is(self.n)])?;
         if !is_rotation(&Matrix3::from_row_slice(&rotation.data), ROTATION_TOLERANCE) {
             return Err(error(py, Kind::Shape, format!("rotation must be a rotation matrix (orthonormal, determinant +1, to {ROTATION_TOLERANCE})")));
         }
-        self.inner.make_pose(&center.data, &rotation.data, &q.data).py_err(py)
+        solver.make_pose(&center.data, &rotation.data, &q.data).py_err(py)
     }
 }
 
@@ -69,11 +80,9 @@ impl BodyFrameCore {
         friction_stiffness: f64,
         dt: f64,
         tolerance: f64,
-        max_iterations: i64,
+        max_iterations: &Bound<'_, PyAny>,
     ) -> PyResult<Self> {
-        if max_iterations < 1 {
-            return Err(error(py, Kind::Config, format!("max_iterations must be an integer >= 1, got {max_iterations}")));
-        }
+        let max_iterations = count(max_iterations, "max_iterations")?;
         let material = StableNeoHookean::new(mu, lam).py_err(py)?;
         let j = read(inertia_moments, "inertia_moments", &[Dim::Is(3), Dim::Is(3)])?;
         let p = read(mode_moments, "mode_moments", &[Dim::Any("n"), Dim::Is(3), Dim::Is(3)])?;
@@ -108,22 +117,22 @@ impl BodyFrameCore {
             friction_stiffness,
             dt,
         };
-        let settings = BodyFrameSettings { tolerance, max_iterations: max_iterations as usize };
+        let settings = BodyFrameSettings { tolerance, max_iterations };
         let inner = py.detach(|| BodyFrameSystem::new(&inputs).and_then(|system| BodyFrameSolver::new(system, settings))).py_err(py)?;
-        Ok(Self { inner })
+        Ok(Self { n: inner.system().n_modes(), inner: Mutex::new(inner) })
     }
 
     /// Number of modes n.
     #[getter]
     fn n_dofs(&self) -> usize {
-        self.n()
+        self.n
     }
 
     /// Replaces the state: pose, velocity of the centre of mass (m/s), angular
     /// velocity in the world frame (rad/s) and modal velocities (per second).
     #[allow(clippy::too_many_arguments)]
     fn set_state(
-        &mut self,
+        &self,
         py: Python<'_>,
         center: &Bound<'_, PyAny>,
         rotation: &Bound<'_, PyAny>,
@@ -132,106 +141,129 @@ impl BodyFrameCore {
         angular_velocity: &Bound<'_, PyAny>,
         qdot: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
-        let pose = self.pose(py, center, rotation, q)?;
+        let mut solver = exclusive(py, &self.inner)?;
+        let pose = self.pose(py, &solver, center, rotation, q)?;
         let v = read(velocity, "velocity", &[Dim::Is(3)])?;
         let w = read(angular_velocity, "angular_velocity", &[Dim::Is(3)])?;
-        let qdot = read(qdot, "qdot", &[Dim::Is(self.n())])?;
-        self.inner.set_state(&pose, &v.data, &w.data, &qdot.data).py_err(py)
+        let qdot = read(qdot, "qdot", &[Dim::Is(self.n)])?;
+        solver.set_state(&pose, &v.data, &w.data, &qdot.data).py_err(py)
     }
 
     /// Advances one step; returns (iterations, residual in m/s).
-    fn step(&mut self, py: Python<'_>) -> PyResult<(usize, f64)> {
-        let solver = &mut self.inner;
+    fn step(&self, py: Python<'_>) -> PyResult<(usize, f64)> {
+        let mut guard = exclusive(py, &self.inner)?;
+        let solver = &mut *guard;
         let report = py.detach(|| solver.step()).py_err(py)?;
         Ok((report.iterations, report.residual))
     }
 
+    /// Work counters since construction (or the last `reset_stats`), as
+    /// `ReducedCore.stats`.
+    fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
+        Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
+    }
+
+    /// Zeroes the work counters.
+    fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
+        exclusive(py, &self.inner)?.reset_stats();
+        Ok(())
+    }
+
     /// Takes the last iterate of a step that just failed to converge as the state.
-    fn accept_last_iterate(&mut self, py: Python<'_>) -> PyResult<()> {
-        self.inner.accept_last_iterate().py_err(py)
+    fn accept_last_iterate(&self, py: Python<'_>) -> PyResult<()> {
+        exclusive(py, &self.inner)?.accept_last_iterate().py_err(py)
     }
 
     /// Centre of mass (3,), m.
     #[getter]
     fn center<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, self.inner.pose().center.as_slice().to_vec(), &[3])
+        let center = exclusive(py, &self.inner)?.pose().center.as_slice().to_vec();
+        write(py, center, &[3])
     }
 
     /// Rotation (3, 3) from the body frame to the world.
     #[getter]
     fn rotation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, row_major(&self.inner.pose().rotation), &[3, 3])
+        let rotation = row_major(&exclusive(py, &self.inner)?.pose().rotation);
+        write(py, rotation, &[3, 3])
     }
 
     /// Modal coordinates (n,).
     #[getter]
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, self.inner.pose().q.clone(), &[self.n()])
+        let q = exclusive(py, &self.inner)?.pose().q.clone();
+        write(py, q, &[self.n])
     }
 
     /// Velocity of the centre of mass (3,), m/s.
     #[getter]
     fn velocity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, self.inner.velocity().as_slice().to_vec(), &[3])
+        let velocity = exclusive(py, &self.inner)?.velocity().as_slice().to_vec();
+        write(py, velocity, &[3])
     }
 
     /// Angular velocity in the world frame (3,), rad/s.
     #[getter]
     fn angular_velocity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, self.inner.angular_velocity().as_slice().to_vec(), &[3])
+        let angular_velocity = exclusive(py, &self.inner)?.angular_velocity().as_slice().to_vec();
+        write(py, angular_velocity, &[3])
     }
 
     /// Modal velocities (n,), per second.
     #[getter]
     fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let mut out = vec![0.0; self.n()];
-        self.inner.qdot(&mut out);
-        write(py, out, &[self.n()])
+        let mut out = vec![0.0; self.n];
+        exclusive(py, &self.inner)?.qdot(&mut out);
+        write(py, out, &[self.n])
     }
 
     /// Contact forces (C, 3) in N at the current state over the last step.
     fn contact_forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let c = self.inner.system().n_contacts();
+        let solver = exclusive(py, &self.inner)?;
+        let c = solver.system().n_contacts();
         let mut out = vec![0.0; 3 * c];
-        self.inner.contact_forces(&mut out).py_err(py)?;
+        solver.contact_forces(&mut out).py_err(py)?;
         write(py, out, &[c, 3])
     }
 
     /// Energy (J) at the pose of a step from the current state, up to the
     /// step's constant.
-    fn energy(&mut self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
-        let pose = self.pose(py, center, rotation, q)?;
-        let solver = &mut self.inner;
+    fn energy(&self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
+        let mut guard = exclusive(py, &self.inner)?;
+        let pose = self.pose(py, &guard, center, rotation, q)?;
+        let solver = &mut *guard;
         py.detach(|| solver.energy(&pose)).py_err(py)
     }
 
     /// Gradient (6 + n,) in (c, omega, q) at the pose, omega the left rotation increment.
     fn gradient<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         center: &Bound<'py, PyAny>,
         rotation: &Bound<'py, PyAny>,
         q: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let pose = self.pose(py, center, rotation, q)?;
-        let solver = &mut self.inner;
+        let mut guard = exclusive(py, &self.inner)?;
+        let pose = self.pose(py, &guard, center, rotation, q)?;
+        let solver = &mut *guard;
         let grad = py.detach(|| solver.gradient(&pose).map(<[f64]>::to_vec)).py_err(py)?;
-        write(py, grad, &[6 + self.n()])
+        write(py, grad, &[6 + self.n])
     }
 
     /// Hessian (6 + n, 6 + n) at the pose: exact, or the solver's positive definite one.
     #[pyo3(signature = (center, rotation, q, exact = true))]
     fn hessian<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         center: &Bound<'py, PyAny>,
         rotation: &Bound<'py, PyAny>,
         q: &Bound<'py, PyAny>,
         exact: bool,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let pose = self.pose(py, center, rotation, q)?;
-        let big = 6 + self.n();
-        let solver = &mut self.inner;
+        let mut guard = exclusive(py, &self.inner)?;
+        let pose = self.pose(py, &guard, center, rotation, q)?;
+        let big = 6 + self.n;
+        let solver = &mut *guard;
         let hess = py.detach(|| solver.hessian(&pose, exact).map(<[f64]>::to_vec)).py_err(py)?;
         write(py, hess, &[big, big])
     }

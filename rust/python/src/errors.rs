@@ -4,6 +4,7 @@ use licrom_core::LicromError;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::{Mutex, MutexGuard, TryLockError};
 
 /// Exception families of `licrom.errors`.
 #[derive(Debug, Clone, Copy)]
@@ -14,6 +15,8 @@ pub enum Kind {
     Config,
     /// `SolverError`: no convergence or non-finite values during a solve.
     Solver,
+    /// `ConcurrencyError`: one simulation used from two threads at once.
+    Concurrency,
 }
 
 impl Kind {
@@ -22,6 +25,7 @@ impl Kind {
             Kind::Shape => "ShapeError",
             Kind::Config => "ConfigError",
             Kind::Solver => "SolverError",
+            Kind::Concurrency => "ConcurrencyError",
         }
     }
 }
@@ -39,7 +43,7 @@ fn error_with(py: Python<'_>, kind: Kind, message: String, kwargs: Option<&Bound
     match class.and_then(|c| c.call((message.clone(),), kwargs)) {
         Ok(instance) => PyErr::from_value(instance),
         Err(_) => match kind {
-            Kind::Solver => PyRuntimeError::new_err(message),
+            Kind::Solver | Kind::Concurrency => PyRuntimeError::new_err(message),
             _ => PyValueError::new_err(message),
         },
     }
@@ -71,5 +75,21 @@ pub trait CoreResultExt<T> {
 impl<T> CoreResultExt<T> for licrom_core::Result<T> {
     fn py_err(self, py: Python<'_>) -> PyResult<T> {
         self.map_err(|e| from_core(py, e))
+    }
+}
+
+/// Exclusive use of a simulation's solver, or a `ConcurrencyError` when another thread
+/// holds it: a step runs without the GIL, so a second thread can call in meanwhile.
+pub fn exclusive<'a, T>(py: Python<'_>, lock: &'a Mutex<T>) -> PyResult<MutexGuard<'a, T>> {
+    match lock.try_lock() {
+        Ok(guard) => Ok(guard),
+        // A panic in an earlier call already reached its caller as an exception.
+        Err(TryLockError::Poisoned(poisoned)) => Ok(poisoned.into_inner()),
+        Err(TryLockError::WouldBlock) => Err(error(
+            py,
+            Kind::Concurrency,
+            "this simulation is busy in another thread (a step or evaluation is running there); a simulation serves one \
+             thread at a time: give each thread its own simulation, or guard a shared one with a threading.Lock",
+        )),
     }
 }

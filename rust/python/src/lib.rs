@@ -2,6 +2,7 @@
 //! conversions and GIL release; every numerical decision lives in the core.
 
 mod arrays;
+mod batch;
 mod body_frame;
 mod errors;
 mod line_search;
@@ -19,6 +20,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<reduced::ReducedCore>()?;
     m.add_class::<body_frame::BodyFrameCore>()?;
     m.add_class::<reconstruction::Reconstruction>()?;
+    m.add_function(wrap_pyfunction!(batch::step_many, m)?)?;
     m.add_function(wrap_pyfunction!(line_search::line_search, m)?)?;
     m.add("LINE_SEARCH", line_search::constants(m.py())?)?;
     Ok(())

@@ -1,20 +1,27 @@
 //! The reduced simulation state and its solvers.
 
+use std::collections::HashMap;
+
 use licrom_core::contact::Plane;
 use licrom_core::reduced::{ReducedInputs, ReducedSystem};
-use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings};
+use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings, SolverStats};
 use licrom_core::StableNeoHookean;
 use nalgebra::Vector3;
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
+use std::sync::Mutex;
 
-use crate::arrays::{read, write, Dim};
-use crate::errors::{error, CoreResultExt, Kind};
+use crate::arrays::{count, read, write, Dim};
+use crate::errors::{error, exclusive, CoreResultExt, Kind};
 
 /// Reduced model, state `(q, qdot)` and solver of one simulation.
-#[pyclass(module = "licrom._core")]
+///
+/// One thread at a time: a call while another thread's call runs (a step releases the
+/// GIL) raises `ConcurrencyError` instead of waiting.
+#[pyclass(module = "licrom._core", frozen)]
 pub struct ReducedCore {
-    inner: ReducedSolver,
+    pub(crate) inner: Mutex<ReducedSolver>,
+    n: usize,
 }
 
 #[pymethods]
@@ -44,15 +51,13 @@ impl ReducedCore {
         dt: f64,
         total_mass: f64,
         tolerance: f64,
-        max_iterations: i64,
+        max_iterations: &Bound<'_, PyAny>,
         solver: &str,
         elastic_hessian: &str,
     ) -> PyResult<Self> {
         let kind: SolverKind = solver.parse().py_err(py)?;
         let elastic_hessian: ElasticHessian = elastic_hessian.parse().py_err(py)?;
-        if max_iterations < 1 {
-            return Err(error(py, Kind::Config, format!("max_iterations must be an integer >= 1, got {max_iterations}")));
-        }
+        let max_iterations = count(max_iterations, "max_iterations")?;
         let material = StableNeoHookean::new(mu, lam).py_err(py)?;
         let mass = read(mass, "mass", &[Dim::Any("n"), Dim::Any("n")])?;
         let n = mass.shape[0];
@@ -85,40 +90,42 @@ impl ReducedCore {
             friction_stiffness,
             dt,
         };
-        let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(total_mass, tolerance, max_iterations as usize, kind) };
+        let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(total_mass, tolerance, max_iterations, kind) };
         let inner = py.detach(|| ReducedSystem::new(&inputs).and_then(|system| ReducedSolver::new(system, settings))).py_err(py)?;
-        Ok(Self { inner })
+        Ok(Self { n: inner.system().n_dofs(), inner: Mutex::new(inner) })
     }
 
     /// Number of reduced coordinates n.
     #[getter]
     fn n_dofs(&self) -> usize {
-        self.inner.system().n_dofs()
+        self.n
     }
 
     /// Reduced coordinates (n,), a copy.
     #[getter]
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, self.inner.q().to_vec(), &[self.n_dofs()])
+        let q = exclusive(py, &self.inner)?.q().to_vec();
+        write(py, q, &[self.n])
     }
 
     /// Reduced velocities (n,) per second, a copy.
     #[getter]
     fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        write(py, self.inner.qdot().to_vec(), &[self.n_dofs()])
+        let qdot = exclusive(py, &self.inner)?.qdot().to_vec();
+        write(py, qdot, &[self.n])
     }
 
     /// Replaces the state; contact forces read zero until the next step.
-    fn set_state(&mut self, py: Python<'_>, q: &Bound<'_, PyAny>, qdot: &Bound<'_, PyAny>) -> PyResult<()> {
-        let n = self.n_dofs();
-        let q = read(q, "q", &[Dim::Is(n)])?;
-        let qdot = read(qdot, "qdot", &[Dim::Is(n)])?;
-        self.inner.set_state(&q.data, &qdot.data).py_err(py)
+    fn set_state(&self, py: Python<'_>, q: &Bound<'_, PyAny>, qdot: &Bound<'_, PyAny>) -> PyResult<()> {
+        let q = read(q, "q", &[Dim::Is(self.n)])?;
+        let qdot = read(qdot, "qdot", &[Dim::Is(self.n)])?;
+        exclusive(py, &self.inner)?.set_state(&q.data, &qdot.data).py_err(py)
     }
 
     /// Advances one step; returns (iterations, residual in m/s).
-    fn step(&mut self, py: Python<'_>) -> PyResult<(usize, f64)> {
-        let solver = &mut self.inner;
+    fn step(&self, py: Python<'_>) -> PyResult<(usize, f64)> {
+        let mut guard = exclusive(py, &self.inner)?;
+        let solver = &mut *guard;
         let report = py.detach(|| solver.step()).py_err(py)?;
         Ok((report.iterations, report.residual))
     }
@@ -126,46 +133,35 @@ impl ReducedCore {
     /// Work counters since construction (or the last `reset_stats`): steps,
     /// iterations, evaluations, model_iterations, model_evaluations,
     /// elastic_hessians, factorizations, fallbacks, stick_solves, stick_steps.
-    fn stats(&self) -> std::collections::HashMap<&'static str, usize> {
-        let s = self.inner.stats();
-        [
-            ("steps", s.steps),
-            ("iterations", s.iterations),
-            ("evaluations", s.evaluations),
-            ("model_iterations", s.model_iterations),
-            ("model_evaluations", s.model_evaluations),
-            ("elastic_hessians", s.elastic_hessians),
-            ("factorizations", s.factorizations),
-            ("fallbacks", s.fallbacks),
-            ("stick_solves", s.stick_solves),
-            ("stick_steps", s.stick_steps),
-        ]
-        .into_iter()
-        .collect()
+    fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
+        Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
     }
 
     /// Zeroes the work counters.
-    fn reset_stats(&mut self) {
-        self.inner.reset_stats();
+    fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
+        exclusive(py, &self.inner)?.reset_stats();
+        Ok(())
     }
 
     /// Takes the last iterate of a step that just failed to converge as the state.
-    fn accept_last_iterate(&mut self, py: Python<'_>) -> PyResult<()> {
-        self.inner.accept_last_iterate().py_err(py)
+    fn accept_last_iterate(&self, py: Python<'_>) -> PyResult<()> {
+        exclusive(py, &self.inner)?.accept_last_iterate().py_err(py)
     }
 
     /// Incremental potential E(q) in J of a step from the current state.
-    fn energy(&mut self, py: Python<'_>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
-        let q = read(q, "q", &[Dim::Is(self.n_dofs())])?;
-        let solver = &mut self.inner;
+    fn energy(&self, py: Python<'_>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
+        let q = read(q, "q", &[Dim::Is(self.n)])?;
+        let mut guard = exclusive(py, &self.inner)?;
+        let solver = &mut *guard;
         py.detach(|| solver.energy(&q.data)).py_err(py)
     }
 
     /// Gradient (n,) of E at q for a step from the current state.
-    fn gradient<'py>(&mut self, py: Python<'py>, q: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let n = self.n_dofs();
+    fn gradient<'py>(&self, py: Python<'py>, q: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let n = self.n;
         let q = read(q, "q", &[Dim::Is(n)])?;
-        let solver = &mut self.inner;
+        let mut guard = exclusive(py, &self.inner)?;
+        let solver = &mut *guard;
         let grad = py.detach(|| solver.gradient(&q.data).map(<[f64]>::to_vec)).py_err(py)?;
         write(py, grad, &[n])
     }
@@ -173,20 +169,40 @@ impl ReducedCore {
     /// Hessian (n, n) of E at q for a step from the current state; elastic parts
     /// PSD-projected when `project`.
     #[pyo3(signature = (q, project = true))]
-    fn hessian<'py>(&mut self, py: Python<'py>, q: &Bound<'py, PyAny>, project: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let n = self.n_dofs();
+    fn hessian<'py>(&self, py: Python<'py>, q: &Bound<'py, PyAny>, project: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let n = self.n;
         let q = read(q, "q", &[Dim::Is(n)])?;
-        let solver = &mut self.inner;
+        let mut guard = exclusive(py, &self.inner)?;
+        let solver = &mut *guard;
         let hess = py.detach(|| solver.hessian(&q.data, project).map(<[f64]>::to_vec)).py_err(py)?;
         write(py, hess, &[n, n])
     }
 
     /// Contact forces (C, 3) in N at the current state over the last step.
     fn contact_forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let c = self.inner.system().n_contacts();
+        let guard = exclusive(py, &self.inner)?;
+        let solver = &*guard;
+        let c = solver.system().n_contacts();
         let mut out = vec![0.0; 3 * c];
-        let solver = &self.inner;
         py.detach(|| solver.contact_forces(&mut out)).py_err(py)?;
         write(py, out, &[c, 3])
     }
+}
+
+/// The solvers' work counters by name (as `stats()` returns them).
+pub(crate) fn stats_dict(s: SolverStats) -> HashMap<&'static str, usize> {
+    [
+        ("steps", s.steps),
+        ("iterations", s.iterations),
+        ("evaluations", s.evaluations),
+        ("model_iterations", s.model_iterations),
+        ("model_evaluations", s.model_evaluations),
+        ("elastic_hessians", s.elastic_hessians),
+        ("factorizations", s.factorizations),
+        ("fallbacks", s.fallbacks),
+        ("stick_solves", s.stick_solves),
+        ("stick_steps", s.stick_steps),
+    ]
+    .into_iter()
+    .collect()
 }

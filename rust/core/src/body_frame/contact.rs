@@ -8,14 +8,35 @@
 //! geometric terms `sym(f p^T) - (f.p) I` (omega-omega) and `(R W_j^k) x f`
 //! (omega-q_k). Points that cannot touch a plane and carry no lagged normal
 //! force are culled by a bound on their gap: `|W_j q| <= |W_j|_F |q|`.
+//!
+//! **Incremental Hessian.** `Jc = R A_j T^T` with `A_j = [I, -[y_j]x, W_j]`
+//! and `T = diag(R, R, I)`, so the Gauss-Newton contact Hessian is
+//! `T S T^T` with `S = sum_j A_j^T (R^T H_x R) A_j`: the rotation of the body
+//! moves out of the sum into the cheap congruence by T, and S depends on the
+//! pose only through the points' terms seen from the body (`R^T d`) and their
+//! body positions `y_j`. [`BodyContactHessian`] keeps S up to date as the
+//! world-frame solver keeps its contact Hessian: the rows of the points whose
+//! terms changed by more than the lag of [`crate::contact::RankOneTerms::close_to`],
+//! or whose `y_j` moved by more than [`LEVER_SLACK`] of its length, are taken
+//! out and put in again; the others cost nothing.
+//!
+//! **Stick switch**: friction's correction of a Newton direction
+//! ([`crate::contact::ContactModel::stick_switch`]) with the points' motion
+//! `Jc (dc, omega, dq)` and its rows `sqrt(c) d^T Jc`.
 
-use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
-use faer::{Accum, MatMut, MatRef, Par};
 use nalgebra::{Matrix3, Vector3};
 
 use super::Pose;
-use crate::contact::{ContactModel, Plane};
+use crate::contact::{ContactModel, Plane, RankOneTerms, CURVATURE_SLACK, DIRECTION_COS};
+use crate::dense::{add_gram, rows_dot, IncrementalGram};
 use crate::error::{check_finite, LicromError, Result};
+use crate::simd::{dispatch, Madd, Separate, WithMadd};
+
+/// The incremental contact Hessian keeps a point's rows while its body
+/// position `y_j` has moved by less than this share of its length since they
+/// were formed: the rows' rotational part `y_j x d` is then off by at most as
+/// much, the lag the world-frame solver allows its terms.
+pub const LEVER_SLACK: f64 = 0.1;
 
 /// The contact points with non-zero area, their basis rows and the planes.
 #[derive(Debug, Clone)]
@@ -42,11 +63,50 @@ pub struct ContactStart {
     pub(super) normal_force: Vec<f64>,
 }
 
-/// Scratch for the Gauss-Newton rows `sqrt(coef) d^T Jc`, N wide, row-major.
+/// Scratch for rows of the Hessian (N = 6 + n wide, row-major): the
+/// Gauss-Newton rows `sqrt(coef) d^T Jc` of an evaluation, the rows put in
+/// (`rows`) and taken out (`out`) by an incremental update, the stick switch's.
 #[derive(Debug, Clone)]
 pub struct ContactRows {
     rows: Vec<f64>,
-    count: usize,
+    out: Vec<f64>,
+    /// Rows of the last evaluation that asked for them.
+    pub(super) count: usize,
+}
+
+/// What an evaluation with gradient leaves for the Hessian and the stick
+/// switch: the Hessian terms of each kept point and plane with their
+/// directions seen from the body (`R^T d`; none where the point was culled),
+/// and, for the points evaluated, their body position `y_j` and displacement
+/// `x_j - x_prev` (m).
+#[derive(Debug, Clone)]
+pub struct ContactTerms {
+    terms: Vec<RankOneTerms>,
+    y: Vec<Vector3<f64>>,
+    dx: Vec<Vector3<f64>>,
+}
+
+/// The contact part `T S T^T` of the Newton matrix (see the module
+/// documentation), S kept up to date incrementally.
+#[derive(Debug, Clone)]
+pub struct BodyContactHessian {
+    /// The terms (seen from the body) and body positions in S, per kept point and plane / point.
+    used: Vec<RankOneTerms>,
+    used_y: Vec<Vector3<f64>>,
+    gram: IncrementalGram,
+}
+
+impl BodyContactHessian {
+    /// S, N x N full symmetric.
+    pub fn body_matrix(&self) -> &[f64] {
+        self.gram.matrix()
+    }
+
+    /// Forms S from scratch at the next update (after a new state, so that the
+    /// steps after it depend on the state alone).
+    pub fn invalidate(&mut self) {
+        self.gram.invalidate();
+    }
 }
 
 /// What an evaluation computes besides the energy.
@@ -57,6 +117,34 @@ pub(super) struct ContactOut<'a> {
     /// the geometric terms (exact Hessian only).
     pub rows: Option<&'a mut ContactRows>,
     pub geometric: Option<&'a mut [f64]>,
+    /// The points' terms, for the incremental Hessian and the stick switch.
+    pub terms: Option<&'a mut ContactTerms>,
+}
+
+/// `out += T S T^T` for `T = diag(R, R, I)` (N x N, full symmetric).
+pub fn add_rotated(s: &[f64], r: &Matrix3<f64>, big: usize, out: &mut [f64]) {
+    for i in 6..big {
+        for j in 6..big {
+            out[i * big + j] += s[i * big + j];
+        }
+    }
+    for a in [0, 3] {
+        for j in 6..big {
+            let v = r * Vector3::new(s[a * big + j], s[(a + 1) * big + j], s[(a + 2) * big + j]);
+            for k in 0..3 {
+                out[(a + k) * big + j] += v[k];
+                out[j * big + a + k] += v[k];
+            }
+        }
+        for b in [0, 3] {
+            let m = r * Matrix3::from_fn(|i, j| s[(a + i) * big + b + j]) * r.transpose();
+            for i in 0..3 {
+                for j in 0..3 {
+                    out[(a + i) * big + b + j] += m[(i, j)];
+                }
+            }
+        }
+    }
 }
 
 impl BodyContacts {
@@ -106,41 +194,84 @@ impl BodyContacts {
         ContactStart { x_prev: vec![Vector3::zeros(); self.rest.len()], normal_force: vec![0.0; self.rest.len() * self.planes.len()] }
     }
 
+    /// Whether any contact term can be non-zero (points with area and planes).
+    pub fn any(&self) -> bool {
+        !self.rest.is_empty() && !self.planes.is_empty()
+    }
+
     /// Row scratch for the Hessian (up to three rows per point and plane).
     pub fn rows(&self) -> ContactRows {
-        ContactRows { rows: vec![0.0; 3 * self.rest.len() * self.planes.len() * (6 + self.n)], count: 0 }
+        let len = 3 * self.rest.len() * self.planes.len() * (6 + self.n);
+        ContactRows { rows: vec![0.0; len], out: vec![0.0; len], count: 0 }
     }
 
-    /// `y_j = Xbar_j + W_j q` of kept point `s`.
-    #[inline]
-    fn body_point(&self, s: usize, q: &[f64]) -> Vector3<f64> {
-        let n = self.n;
-        let w = &self.basis[3 * n * s..3 * n * (s + 1)];
-        let mut y = self.rest[s];
-        for c in 0..3 {
-            y[c] += w[c * n..(c + 1) * n].iter().zip(q).map(|(a, b)| a * b).sum::<f64>();
+    /// Buffers for the terms of an evaluation.
+    pub fn terms(&self) -> ContactTerms {
+        let c = self.rest.len();
+        ContactTerms { terms: vec![RankOneTerms::default(); c * self.planes.len()], y: vec![Vector3::zeros(); c], dx: vec![Vector3::zeros(); c] }
+    }
+
+    /// An empty incremental contact Hessian, formed at its first update.
+    pub fn hessian_state(&self) -> BodyContactHessian {
+        let c = self.rest.len();
+        BodyContactHessian {
+            used: vec![RankOneTerms::default(); c * self.planes.len()],
+            used_y: vec![Vector3::zeros(); c],
+            gram: IncrementalGram::new(6 + self.n),
         }
-        y
     }
 
-    /// Positions of the points at `pose` and their lagged normal forces.
+    /// `W_s v` of kept point `s` (v: n).
+    #[inline(always)]
+    fn mode_motion<M: Madd>(&self, s: usize, v: &[f64]) -> Vector3<f64> {
+        let n = self.n;
+        Vector3::from(rows_dot::<M, 3>(&self.basis[3 * n * s..3 * n * (s + 1)], v))
+    }
+
+    /// The lagged normal forces of the points at `pose` and the positions of
+    /// those that carry one (the only ones that use their start position).
     pub fn begin(&self, pose: &Pose, start: &mut ContactStart) {
+        dispatch(BeginKernel { contacts: self, pose, start })
+    }
+
+    #[inline(always)]
+    fn begin_impl<M: Madd>(&self, pose: &Pose, start: &mut ContactStart) {
         let n_planes = self.planes.len();
+        let rt = pose.rotation.transpose();
+        let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
         for s in 0..self.rest.len() {
-            let x = pose.center + pose.rotation * self.body_point(s, &pose.q);
+            let forces = &mut start.normal_force[s * n_planes..(s + 1) * n_planes];
+            forces.fill(0.0);
+            if !self.planes.iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm)) {
+                continue;
+            }
+            let x = pose.center + pose.rotation * (self.rest[s] + self.mode_motion::<M>(s, &pose.q));
             start.x_prev[s] = x;
-            for (p, plane) in self.planes.iter().enumerate() {
-                start.normal_force[s * n_planes + p] = self.model.lagged_normal_force(plane, self.areas[s], &x);
+            for (f, plane) in forces.iter_mut().zip(&self.planes) {
+                *f = self.model.lagged_normal_force(plane, self.areas[s], &x);
             }
         }
     }
 
+    /// Whether point s may touch `plane` (its gap bounded from below through
+    /// `|W_s q| <= |W_s|_F |q|`) for the body at `center` turned by `rt^T`.
+    #[inline(always)]
+    fn may_touch(&self, plane: &Plane, center: &Vector3<f64>, rt: &Matrix3<f64>, s: usize, q_norm: f64) -> bool {
+        plane.gap(center) + (rt * plane.normal()).dot(&self.rest[s]) - self.reach[s] * q_norm < 0.0
+    }
+
     /// Contact energy (J) at `pose`, with the parts of `out` requested.
-    pub(super) fn evaluate(&self, start: &ContactStart, pose: &Pose, mut out: ContactOut<'_>) -> f64 {
+    pub(super) fn evaluate(&self, start: &ContactStart, pose: &Pose, out: ContactOut<'_>) -> f64 {
+        dispatch(EvaluateKernel { contacts: self, start, pose, out })
+    }
+
+    #[inline(always)]
+    fn evaluate_impl<M: Madd>(&self, start: &ContactStart, pose: &Pose, mut out: ContactOut<'_>) -> f64 {
         let n = self.n;
         let big = 6 + n;
         let n_planes = self.planes.len();
         let r = &pose.rotation;
+        let rt = r.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
         if let Some(rows) = out.rows.as_deref_mut() {
             rows.count = 0;
@@ -150,29 +281,37 @@ impl BodyContacts {
             // Lower bound of each gap; a plane is skipped where it cannot be
             // reached and the point carries no lagged force against it.
             let forces = &start.normal_force[s * n_planes..(s + 1) * n_planes];
-            let engaged = self.planes.iter().zip(forces).any(|(plane, &f)| {
-                f > 0.0 || plane.gap(&pose.center) + (r.transpose() * plane.normal()).dot(&self.rest[s]) - self.reach[s] * q_norm < 0.0
-            });
+            let engaged = self.planes.iter().zip(forces).any(|(plane, &f)| f > 0.0 || self.may_touch(plane, &pose.center, &rt, s, q_norm));
             if !engaged {
+                if let Some(terms) = out.terms.as_deref_mut() {
+                    for t in &mut terms.terms[s * n_planes..(s + 1) * n_planes] {
+                        t.len = 0;
+                    }
+                }
                 continue;
             }
-            let p = r * self.body_point(s, &pose.q);
+            let y = self.rest[s] + self.mode_motion::<M>(s, &pose.q);
+            let p = r * y;
             let x = pose.center + p;
             let mut f = Vector3::zeros();
-            for (plane, &fn_lag) in self.planes.iter().zip(forces) {
+            for (k, (plane, &fn_lag)) in self.planes.iter().zip(forces).enumerate() {
                 let e = self.model.evaluate(plane, self.areas[s], fn_lag, &x, &start.x_prev[s]);
                 energy += e.energy;
                 f += e.gradient;
                 if let Some(rows) = out.rows.as_deref_mut() {
                     for t in 0..e.hessian.len {
                         let d = e.hessian.dir[t] * e.hessian.coef[t].sqrt();
-                        let row = &mut rows.rows[rows.count * big..(rows.count + 1) * big];
-                        row[..3].copy_from_slice(d.as_slice());
-                        row[3..6].copy_from_slice(p.cross(&d).as_slice());
-                        self.pull_back(s, &(r.transpose() * d), &mut row[6..], false);
+                        self.world_row::<M>(s, &p, &rt, &d, &mut rows.rows[rows.count * big..(rows.count + 1) * big]);
                         rows.count += 1;
                     }
                 }
+                if let Some(terms) = out.terms.as_deref_mut() {
+                    terms.terms[s * n_planes + k] = e.hessian.rotated(&rt);
+                }
+            }
+            if let Some(terms) = out.terms.as_deref_mut() {
+                terms.y[s] = y;
+                terms.dx[s] = x - start.x_prev[s];
             }
             if f == Vector3::zeros() {
                 continue;
@@ -183,7 +322,7 @@ impl BodyContacts {
                     g[i] += f[i];
                     g[3 + i] += pf[i];
                 }
-                self.pull_back(s, &(r.transpose() * f), &mut g[6..], true);
+                self.pull_back::<M>(s, &(rt * f), &mut g[6..], true);
             }
             if let Some(h) = out.geometric.as_deref_mut() {
                 let fp = f * p.transpose();
@@ -208,41 +347,155 @@ impl BodyContacts {
     }
 
     /// `out (+)= W_s^T v` (n).
-    #[inline]
-    fn pull_back(&self, s: usize, v: &Vector3<f64>, out: &mut [f64], add: bool) {
+    #[inline(always)]
+    fn pull_back<M: Madd>(&self, s: usize, v: &Vector3<f64>, out: &mut [f64], add: bool) {
         let n = self.n;
         let w = &self.basis[3 * n * s..3 * n * (s + 1)];
-        for (i, o) in out.iter_mut().enumerate() {
-            let x = w[i] * v.x + w[n + i] * v.y + w[2 * n + i] * v.z;
+        let (wx, rest) = w.split_at(n);
+        let (wy, wz) = rest.split_at(n);
+        for (((o, a), b), c) in out.iter_mut().zip(wx).zip(wy).zip(wz) {
+            let x = M::madd(*c, v.z, M::madd(*b, v.y, a * v.x));
             *o = if add { *o + x } else { x };
         }
     }
 
-    /// Adds `B^T B` of the rows of the last evaluation to the full symmetric `hess` (N x N).
-    pub(super) fn add_rows(&self, rows: &ContactRows, hess: &mut [f64]) {
+    /// The row `[d, p x d, W_s^T R^T d]` of a world-frame vector d at point s
+    /// (`p = R y_s`, `rt` = R^T) into `row` (N).
+    #[inline(always)]
+    fn world_row<M: Madd>(&self, s: usize, p: &Vector3<f64>, rt: &Matrix3<f64>, d: &Vector3<f64>, row: &mut [f64]) {
+        row[..3].copy_from_slice(d.as_slice());
+        row[3..6].copy_from_slice(p.cross(d).as_slice());
+        self.pull_back::<M>(s, &(rt * d), &mut row[6..], false);
+    }
+
+    /// The rows `[d, y x d, W_s^T d]` of the square-root factors of `terms`
+    /// (directions seen from the body) at point s with body position y, into
+    /// `out` from row `at` on; returns the row after them.
+    #[inline(always)]
+    fn body_rows<M: Madd>(&self, s: usize, y: &Vector3<f64>, terms: &RankOneTerms, out: &mut [f64], at: usize) -> usize {
         let big = 6 + self.n;
-        if rows.count == 0 {
-            return;
+        let mut factors = [[0.0; 3]; 3];
+        let count = terms.write_factors(&mut factors, 0);
+        for (i, f) in factors[..count].iter().enumerate() {
+            let d = Vector3::from(*f);
+            let row = &mut out[(at + i) * big..(at + i + 1) * big];
+            row[..3].copy_from_slice(d.as_slice());
+            row[3..6].copy_from_slice(y.cross(&d).as_slice());
+            self.pull_back::<M>(s, &d, &mut row[6..], false);
         }
-        let b = MatRef::from_row_major_slice(&rows.rows[..rows.count * big], rows.count, big);
-        let a = MatMut::from_column_major_slice_mut(hess, big, big);
-        // Lower triangle only, then mirrored: hess is symmetric before and after.
-        triangular_matmul(
-            a,
-            BlockStructure::TriangularLower,
-            Accum::Add,
-            b.transpose(),
-            BlockStructure::Rectangular,
-            b,
-            BlockStructure::Rectangular,
-            1.0,
-            Par::Seq,
-        );
-        for c in 0..big {
-            for r in c + 1..big {
-                hess[r * big + c] = hess[c * big + r];
+        at + count
+    }
+
+    /// Adds `B^T B` of the first `count` rows in `rows` to the full symmetric `hess` (N x N).
+    pub(super) fn add_rows(&self, rows: &ContactRows, count: usize, hess: &mut [f64]) {
+        add_gram(hess, 6 + self.n, &rows.rows, count);
+    }
+
+    /// Brings `state` to the terms of the last evaluation with gradient
+    /// (see the module documentation); `rows` is scratch. Returns the rows
+    /// changed.
+    pub fn update_hessian(&self, terms: &ContactTerms, rows: &mut ContactRows, state: &mut BodyContactHessian) -> usize {
+        let (plus, minus, total) = dispatch(UpdateKernel { contacts: self, terms, rows: &mut *rows, state: &mut *state });
+        state.gram.update(&rows.rows, plus, &rows.out, minus, total);
+        plus + minus
+    }
+
+    /// The rows in and out of an incremental update; returns their counts and
+    /// the rows in the matrix afterwards.
+    #[inline(always)]
+    fn update_rows_impl<M: Madd>(&self, terms: &ContactTerms, rows: &mut ContactRows, state: &mut BodyContactHessian) -> (usize, usize, usize) {
+        let n_planes = self.planes.len();
+        let rebuild = state.gram.needs_rebuild();
+        let (mut plus, mut minus, mut total) = (0, 0, 0);
+        for s in 0..self.rest.len() {
+            let range = s * n_planes..(s + 1) * n_planes;
+            let (new, old) = (&terms.terms[range.clone()], &state.used[range.clone()]);
+            let y = terms.y[s];
+            let has_rows = new.iter().any(|t| t.len > 0);
+            let keep = !rebuild
+                && new.iter().zip(old).all(|(a, b)| a.len == 0 && b.len == 0 || a.close_to(b, CURVATURE_SLACK, DIRECTION_COS))
+                && (!has_rows || (y - state.used_y[s]).norm() <= LEVER_SLACK * state.used_y[s].norm());
+            if keep {
+                total += old.iter().map(|t| t.len).sum::<usize>();
+                continue;
+            }
+            for (a, b) in new.iter().zip(old) {
+                if !rebuild {
+                    minus = self.body_rows::<M>(s, &state.used_y[s], b, &mut rows.out, minus);
+                }
+                plus = self.body_rows::<M>(s, &y, a, &mut rows.rows, plus);
+                total += a.len;
+            }
+            state.used[range.clone()].copy_from_slice(&terms.terms[range]);
+            state.used_y[s] = y;
+        }
+        (plus, minus, total)
+    }
+
+    /// Stick switch of the direction `dir` (`(dc, omega, dq)`) from `pose`, the
+    /// point of the last evaluation with gradient (whose terms are `terms`):
+    /// the rows of the Hessian change of every slipping point that `dir` would
+    /// carry into the stick region go into `rows` (returns their number), and
+    /// the change of the gradient `Jc^T (stick force - slip force)` is added to
+    /// `rhs` (N).
+    pub fn stick_switch(
+        &self,
+        start: &ContactStart,
+        pose: &Pose,
+        dir: &[f64],
+        terms: &ContactTerms,
+        rows: &mut ContactRows,
+        rhs: &mut [f64],
+    ) -> usize {
+        dispatch(StickKernel { contacts: self, start, pose, dir, terms, rows, rhs })
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn stick_impl<M: Madd>(
+        &self,
+        start: &ContactStart,
+        pose: &Pose,
+        dir: &[f64],
+        terms: &ContactTerms,
+        rows: &mut ContactRows,
+        rhs: &mut [f64],
+    ) -> usize {
+        let big = 6 + self.n;
+        let n_planes = self.planes.len();
+        let r = &pose.rotation;
+        let rt = r.transpose();
+        let (dc, w) = (Vector3::new(dir[0], dir[1], dir[2]), Vector3::new(dir[3], dir[4], dir[5]));
+        let mut count = 0;
+        for s in 0..self.rest.len() {
+            // Slipping points carry a lagged normal force: they were evaluated.
+            let forces = &start.normal_force[s * n_planes..(s + 1) * n_planes];
+            let dx = terms.dx[s];
+            if !self.planes.iter().zip(forces).any(|(plane, &f)| self.model.slips(plane, self.areas[s], f, &dx)) {
+                continue;
+            }
+            let p = r * terms.y[s];
+            let motion = dc + w.cross(&p) + r * self.mode_motion::<M>(s, &dir[6..]);
+            let mut force = Vector3::zeros();
+            for (plane, &f) in self.planes.iter().zip(forces) {
+                if let Some(switch) = self.model.stick_switch(plane, self.areas[s], f, &dx, &motion) {
+                    for d in &switch.factors {
+                        self.world_row::<M>(s, &p, &rt, d, &mut rows.rows[count * big..(count + 1) * big]);
+                        count += 1;
+                    }
+                    force += switch.force;
+                }
+            }
+            if force != Vector3::zeros() {
+                let pf = p.cross(&force);
+                for i in 0..3 {
+                    rhs[i] += force[i];
+                    rhs[3 + i] += pf[i];
+                }
+                self.pull_back::<M>(s, &(rt * force), &mut rhs[6..], true);
             }
         }
+        count
     }
 
     /// Contact force (N) on every given point at `pose` over the step that
@@ -251,12 +504,74 @@ impl BodyContacts {
         out.fill(0.0);
         let n_planes = self.planes.len();
         for (s, &j) in self.index.iter().enumerate() {
-            let x = pose.center + pose.rotation * self.body_point(s, &pose.q);
+            let x = pose.center + pose.rotation * (self.rest[s] + self.mode_motion::<Separate>(s, &pose.q));
             let mut f = Vector3::zeros();
             for (p, plane) in self.planes.iter().enumerate() {
                 f -= self.model.evaluate(plane, self.areas[s], start.normal_force[s * n_planes + p], &x, &start.x_prev[s]).gradient;
             }
             out[3 * j..3 * j + 3].copy_from_slice(f.as_slice());
         }
+    }
+}
+
+struct EvaluateKernel<'a> {
+    contacts: &'a BodyContacts,
+    start: &'a ContactStart,
+    pose: &'a Pose,
+    out: ContactOut<'a>,
+}
+
+impl WithMadd for EvaluateKernel<'_> {
+    type Output = f64;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> f64 {
+        self.contacts.evaluate_impl::<M>(self.start, self.pose, self.out)
+    }
+}
+
+struct UpdateKernel<'a> {
+    contacts: &'a BodyContacts,
+    terms: &'a ContactTerms,
+    rows: &'a mut ContactRows,
+    state: &'a mut BodyContactHessian,
+}
+
+impl WithMadd for UpdateKernel<'_> {
+    type Output = (usize, usize, usize);
+    #[inline(always)]
+    fn run<M: Madd>(self) -> (usize, usize, usize) {
+        self.contacts.update_rows_impl::<M>(self.terms, self.rows, self.state)
+    }
+}
+
+struct StickKernel<'a> {
+    contacts: &'a BodyContacts,
+    start: &'a ContactStart,
+    pose: &'a Pose,
+    dir: &'a [f64],
+    terms: &'a ContactTerms,
+    rows: &'a mut ContactRows,
+    rhs: &'a mut [f64],
+}
+
+impl WithMadd for StickKernel<'_> {
+    type Output = usize;
+    #[inline(always)]
+    fn run<M: Madd>(self) -> usize {
+        self.contacts.stick_impl::<M>(self.start, self.pose, self.dir, self.terms, self.rows, self.rhs)
+    }
+}
+
+struct BeginKernel<'a> {
+    contacts: &'a BodyContacts,
+    pose: &'a Pose,
+    start: &'a mut ContactStart,
+}
+
+impl WithMadd for BeginKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        self.contacts.begin_impl::<M>(self.pose, self.start)
     }
 }

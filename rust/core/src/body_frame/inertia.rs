@@ -11,7 +11,9 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::rotation::axial;
 use super::Pose;
+use crate::dense::rows_dot;
 use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::simd::{dispatch, Madd, Separate, WithMadd};
 
 /// Mass moments of the body over all its vertices, fixed for a mesh and basis.
 #[derive(Debug, Clone)]
@@ -22,8 +24,11 @@ pub struct MassMoments {
     pub(super) j: Matrix3<f64>,
     /// `P_k = sum m W^k Xbar^T`, n of them.
     pub(super) p: Vec<Matrix3<f64>>,
-    /// `Q_kl = sum m W^k W^l^T` at `k n + l`.
-    pub(super) q: Vec<Matrix3<f64>>,
+    /// `Q_lk = sum m W^l W^k^T` laid out for `Y_k`: the nine components
+    /// (row-major) of `Q_lk` over l, nine rows of n per k.
+    pub(super) q_by_mode: Vec<f64>,
+    /// `Mqq_kl = tr Q_kl`, n x n.
+    pub(super) mode_mass: Vec<f64>,
     /// `b_k = tr P_k`.
     pub(super) b: Vec<f64>,
 }
@@ -67,7 +72,23 @@ impl MassMoments {
             }
         }
         let pm: Vec<Matrix3<f64>> = (0..n).map(|i| block(p, i)).collect();
-        Ok(Self { total: total_mass, j: 0.5 * (jm + jm.transpose()), b: pm.iter().map(|m| m.trace()).collect(), p: pm, q: qm })
+        let mut q_by_mode = vec![0.0; 9 * n * n];
+        for k in 0..n {
+            for l in 0..n {
+                for (a, v) in qm[l * n + k].transpose().iter().enumerate() {
+                    // Column-major iteration of the transpose: row-major of Q_lk.
+                    q_by_mode[(9 * k + a) * n + l] = *v;
+                }
+            }
+        }
+        Ok(Self {
+            total: total_mass,
+            j: 0.5 * (jm + jm.transpose()),
+            b: pm.iter().map(|m| m.trace()).collect(),
+            p: pm,
+            q_by_mode,
+            mode_mass: qm.iter().map(|m| m.trace()).collect(),
+        })
     }
 
     /// Number of modes n.
@@ -76,8 +97,8 @@ impl MassMoments {
     }
 
     /// `Mqq_kl = tr Q_kl`, n x n row-major.
-    pub fn mode_mass(&self) -> Vec<f64> {
-        self.q.iter().map(|m| m.trace()).collect()
+    pub fn mode_mass(&self) -> &[f64] {
+        &self.mode_mass
     }
 
     /// `sum m y Xbar^T = J + sum_l q_l P_l`.
@@ -86,21 +107,10 @@ impl MassMoments {
     }
 
     /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk`.
-    pub fn y_mode(&self, q: &[f64], k: usize) -> Matrix3<f64> {
+    #[inline(always)]
+    fn y_mode<M: Madd>(&self, q: &[f64], k: usize) -> Matrix3<f64> {
         let n = self.n_modes();
-        (0..n).fold(self.p[k].transpose(), |acc, l| acc + self.q[l * n + k] * q[l])
-    }
-
-    /// `C = sum m y y^T = J + sum_k q_k (P_k + P_k^T) + sum_kl q_k q_l Q_kl`.
-    pub fn second_moment(&self, q: &[f64]) -> Matrix3<f64> {
-        let n = self.n_modes();
-        let mut c = self.j;
-        for k in 0..n {
-            // sum_l q_l Q_kl, then q_k (P_k + P_k^T + that).
-            let row = (0..n).fold(Matrix3::zeros(), |acc, l| acc + self.q[k * n + l] * q[l]);
-            c += (self.p[k] + self.p[k].transpose() + row) * q[k];
-        }
-        c
+        self.p[k].transpose() + Matrix3::from_row_slice(&rows_dot::<M, 9>(&self.q_by_mode[9 * n * k..9 * n * (k + 1)], q))
     }
 }
 
@@ -125,7 +135,7 @@ impl InertiaTarget {
         let (r1, r0) = (cur.rotation * 2.0, prev.rotation);
         self.b0 = r1 * m.y_xbar(&cur.q) - r0 * m.y_xbar(&prev.q);
         for (k, b) in self.bk.iter_mut().enumerate() {
-            *b = r1 * m.y_mode(&cur.q, k) - r0 * m.y_mode(&prev.q, k);
+            *b = r1 * m.y_mode::<Separate>(&cur.q, k) - r0 * m.y_mode::<Separate>(&prev.q, k);
         }
     }
 
@@ -174,18 +184,28 @@ impl InertiaTarget {
 /// Adds `cc I` to the centre block, `ww` to the rotation block and
 /// `cross(k)` between omega and q_k (both ways) of the N x N `hess`.
 fn add_blocks(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>, cross: impl Fn(usize) -> Vector3<f64>) {
+    add_rigid(hess, big, cc, ww);
+    for k in 0..big - 6 {
+        add_cross(hess, big, k, &cross(k));
+    }
+}
+
+/// Adds `cc I` to the centre block and `ww` to the rotation block of the N x N `hess`.
+fn add_rigid(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>) {
     for i in 0..3 {
         hess[i * big + i] += cc;
         for j in 0..3 {
             hess[(3 + i) * big + 3 + j] += ww[(i, j)];
         }
     }
-    for k in 0..big - 6 {
-        let v = cross(k);
-        for i in 0..3 {
-            hess[(3 + i) * big + 6 + k] += v[i];
-            hess[(6 + k) * big + 3 + i] += v[i];
-        }
+}
+
+/// Adds `v` between omega and q_k (both ways) of the N x N `hess`.
+#[inline]
+fn add_cross(hess: &mut [f64], big: usize, k: usize, v: &Vector3<f64>) {
+    for i in 0..3 {
+        hess[(3 + i) * big + 6 + k] += v[i];
+        hess[(6 + k) * big + 3 + i] += v[i];
     }
 }
 
@@ -197,8 +217,36 @@ fn add_blocks(hess: &mut [f64], big: usize, cc: f64, ww: &Matrix3<f64>, cross: i
 /// `Mqq` block, and equals the exact Hessian where `R y_v` meets the predicted
 /// `a_v`, i.e. up to terms of the order of h^2 times the accelerations.
 pub fn add_gauss_newton(m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
+    dispatch(GaussNewtonKernel { m, pose, scale, hess })
+}
+
+#[inline(always)]
+fn gauss_newton_impl<M: Madd>(m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
     let r = &pose.rotation;
-    let c = m.second_moment(&pose.q);
+    let big = 6 + m.n_modes();
+    // One pass over the Y_k: with `Q_kl = Q_lk^T`,
+    // `C = J + sum_k q_k (P_k + P_k^T) + sum_kl q_k q_l Q_kl = J + sum_k q_k (P_k + Y_k)^T`.
+    let mut c = m.j;
+    for (k, qk) in pose.q.iter().enumerate() {
+        let y = m.y_mode::<M>(&pose.q, k);
+        add_cross(hess, big, k, &(r * axial(&y) * scale));
+        c += (m.p[k] + y).transpose() * *qk;
+    }
     let ww = r * (Matrix3::identity() * c.trace() - c) * r.transpose() * scale;
-    add_blocks(hess, 6 + m.n_modes(), m.total * scale, &ww, |k| r * axial(&m.y_mode(&pose.q, k)) * scale);
+    add_rigid(hess, big, m.total * scale, &ww);
+}
+
+struct GaussNewtonKernel<'a> {
+    m: &'a MassMoments,
+    pose: &'a Pose,
+    scale: f64,
+    hess: &'a mut [f64],
+}
+
+impl WithMadd for GaussNewtonKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        gauss_newton_impl::<M>(self.m, self.pose, self.scale, self.hess)
+    }
 }

@@ -48,8 +48,8 @@ use nalgebra::{Matrix3, Vector3};
 use crate::contact::{ContactModel, Plane};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
-use crate::reduced::{ReducedInputs, ReducedSystem, StepStart, Workspace};
-use contact::{BodyContacts, ContactOut, ContactRows, ContactStart};
+use crate::reduced::{ElasticModel, ReducedInputs, ReducedSystem, StepStart, Workspace};
+use contact::{BodyContactHessian, BodyContacts, ContactOut, ContactRows, ContactStart, ContactTerms};
 use inertia::{InertiaTarget, MassMoments};
 
 /// Borrowed description of a body-frame model; arrays row-major (C order).
@@ -116,6 +116,16 @@ impl Pose {
         }
     }
 
+    /// The direction `(dc, omega, dq)` (into `out`, 6 + n) with
+    /// `self = base (+) dir`, omega the shortest turn.
+    pub fn difference(&self, base: &Pose, out: &mut [f64]) {
+        out[..3].copy_from_slice((self.center - base.center).as_slice());
+        out[3..6].copy_from_slice(rotation::log_map(&(self.rotation * base.rotation.transpose())).as_slice());
+        for ((o, a), b) in out[6..].iter_mut().zip(&self.q).zip(&base.q) {
+            *o = a - b;
+        }
+    }
+
     /// Copies `other` without allocating.
     pub fn assign(&mut self, other: &Pose) {
         self.center = other.center;
@@ -155,9 +165,26 @@ pub struct BodyWorkspace {
     pub grad: Vec<f64>,
     elastic: Option<Workspace>,
     rows: ContactRows,
+    /// The contact points' terms of the last evaluation with gradient.
+    terms: ContactTerms,
     /// n x n scratch for the elastic Hessian, and for the modal block.
     square: Vec<f64>,
     block: Vec<f64>,
+}
+
+impl BodyWorkspace {
+    /// Elastic energy (J) of the last [`BodyFrameSystem::evaluate`].
+    pub fn elastic_energy(&self) -> f64 {
+        self.elastic.as_ref().map_or(0.0, |e| e.elastic_energy)
+    }
+
+    /// Elastic part (n) of the q-gradient of the last [`BodyFrameSystem::evaluate`] with gradient into `out`.
+    pub fn elastic_gradient(&self, out: &mut [f64]) {
+        match &self.elastic {
+            Some(e) => e.elastic_gradient(out),
+            None => out.fill(0.0),
+        }
+    }
 }
 
 /// Validated, owned body-frame model.
@@ -188,10 +215,9 @@ impl BodyFrameSystem {
         let elastic = if n == 0 {
             None
         } else {
-            let mass = moments.mode_mass();
             let zeros = vec![0.0; n];
             let system = ReducedSystem::new(&ReducedInputs {
-                mass: &mass,
+                mass: moments.mode_mass(),
                 gravity_force: &zeros,
                 cubature_jacobians: inp.cubature_jacobians,
                 cubature_weights: inp.cubature_weights,
@@ -253,6 +279,7 @@ impl BodyFrameSystem {
             grad: vec![0.0; 6 + self.n],
             elastic: self.elastic.as_ref().map(|e| e.system.workspace()),
             rows: self.contacts.rows(),
+            terms: self.contacts.terms(),
             square: vec![0.0; self.n * self.n],
             block: vec![0.0; self.n * self.n],
         }
@@ -265,11 +292,28 @@ impl BodyFrameSystem {
     }
 
     /// The step's energy at `pose` (J, without the step's constant); with
-    /// `with_gradient` its gradient in `(c, omega, q)` into `ws.grad`.
+    /// `with_gradient` its gradient in `(c, omega, q)` into `ws.grad` and the
+    /// contact points' terms (for [`Self::update_contact_hessian`] and
+    /// [`Self::stick_switch`]) into `ws`.
     pub fn evaluate(&self, start: &BodyStart, pose: &Pose, with_gradient: bool, ws: &mut BodyWorkspace) -> f64 {
+        self.evaluate_with(start, pose, None, with_gradient, ws)
+    }
+
+    /// [`Self::evaluate`] with the elastic energy replaced by a quadratic
+    /// `model` in q (inertia, gravity and contact exact; the
+    /// [`crate::solver`]'s contact model): no pass over the cubature points.
+    /// The elastic energy and gradient of `ws` are then not set.
+    pub fn evaluate_model(&self, start: &BodyStart, pose: &Pose, model: &ElasticModel<'_>, with_gradient: bool, ws: &mut BodyWorkspace) -> f64 {
+        self.evaluate_with(start, pose, Some(model), with_gradient, ws)
+    }
+
+    fn evaluate_with(&self, start: &BodyStart, pose: &Pose, model: Option<&ElasticModel<'_>>, with_gradient: bool, ws: &mut BodyWorkspace) -> f64 {
         let mut e = 0.0;
         if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
-            e += el.system.evaluate(&el.start, &pose.q, with_gradient, ews);
+            e += match model {
+                Some(m) => el.system.evaluate_model(&el.start, &pose.q, m, with_gradient, ews),
+                None => el.system.evaluate(&el.start, &pose.q, with_gradient, ews),
+            };
             if with_gradient {
                 ws.grad[6..].copy_from_slice(&ews.grad);
             }
@@ -279,7 +323,12 @@ impl BodyFrameSystem {
         }
         let grad = with_gradient.then_some(&mut ws.grad[..]);
         e += start.inertia.energy(&self.moments, pose, self.h, grad);
-        let out = ContactOut { grad: with_gradient.then_some(&mut ws.grad[..]), rows: None, geometric: None };
+        let out = ContactOut {
+            grad: with_gradient.then_some(&mut ws.grad[..]),
+            rows: None,
+            geometric: None,
+            terms: with_gradient.then_some(&mut ws.terms),
+        };
         e + self.contacts.evaluate(&start.contact, pose, out)
     }
 
@@ -303,45 +352,36 @@ impl BodyFrameSystem {
         ws.square = clamped;
     }
 
-    /// The Hessian at `pose` into `out` ((6 + n)^2, full symmetric), with the
-    /// modal block `elastic` (from [`Self::elastic_block`], possibly of an
-    /// earlier pose) or, when None, the block at `pose`; and the convergence
-    /// metric (the Gauss-Newton inertia times h^2) into `metric` when given.
-    #[allow(clippy::too_many_arguments)]
-    pub fn hessian(
-        &self,
-        start: &BodyStart,
-        pose: &Pose,
-        kind: BodyHessian,
-        elastic: Option<&[f64]>,
-        ws: &mut BodyWorkspace,
-        out: &mut [f64],
-        metric: Option<&mut [f64]>,
-    ) {
+    /// The PSD-projected elastic Hessian `K_el` at q into `out` (n x n, full symmetric).
+    pub fn elastic_stiffness(&self, q: &[f64], ws: &mut BodyWorkspace, out: &mut [f64]) {
+        if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
+            el.system.elastic_hessian(q, ews, out, None);
+        }
+    }
+
+    /// The modal mass matrix `Mqq` (n x n, kg; empty for n = 0).
+    pub fn mode_mass(&self) -> &[f64] {
+        self.elastic.as_ref().map_or(&[], |e| e.system.mass())
+    }
+
+    /// `out` zeroed but for the modal block `block` (n x n).
+    fn place_block(&self, block: &[f64], out: &mut [f64]) {
         let n = self.n;
         let big = 6 + n;
-        let h2 = self.h * self.h;
         out.fill(0.0);
-        if n > 0 {
-            let mut block = std::mem::take(&mut ws.block);
-            match elastic {
-                Some(e) => block.copy_from_slice(e),
-                None => self.elastic_block(&pose.q, kind == BodyHessian::Exact, ws, &mut block),
-            }
-            for r in 0..n {
-                out[(6 + r) * big + 6..(6 + r) * big + big].copy_from_slice(&block[r * n..(r + 1) * n]);
-            }
-            ws.block = block;
+        for r in 0..n {
+            out[(6 + r) * big + 6..(6 + r) * big + big].copy_from_slice(&block[r * n..(r + 1) * n]);
         }
-        if let Some(m) = metric {
-            m.fill(0.0);
-            inertia::add_gauss_newton(&self.moments, pose, 1.0, m);
-            if let Some(el) = &self.elastic {
-                for r in 0..n {
-                    m[(6 + r) * big + 6..(6 + r) * big + big].copy_from_slice(&el.system.mass()[r * n..(r + 1) * n]);
-                }
-            }
-        }
+    }
+
+    /// The Hessian at `pose` into `out` ((6 + n)^2, full symmetric), contact
+    /// terms formed from all points: for probes and tests.
+    pub fn hessian(&self, start: &BodyStart, pose: &Pose, kind: BodyHessian, ws: &mut BodyWorkspace, out: &mut [f64]) {
+        let h2 = self.h * self.h;
+        let mut block = std::mem::take(&mut ws.block);
+        self.elastic_block(&pose.q, kind == BodyHessian::Exact, ws, &mut block);
+        self.place_block(&block, out);
+        ws.block = block;
         let geometric = match kind {
             BodyHessian::GaussNewton => {
                 inertia::add_gauss_newton(&self.moments, pose, 1.0 / h2, out);
@@ -352,9 +392,68 @@ impl BodyFrameSystem {
                 Some(&mut out[..])
             }
         };
-        let out_c = ContactOut { grad: None, rows: Some(&mut ws.rows), geometric };
+        let out_c = ContactOut { grad: None, rows: Some(&mut ws.rows), geometric, terms: None };
         self.contacts.evaluate(&start.contact, pose, out_c);
-        self.contacts.add_rows(&ws.rows, out);
+        self.contacts.add_rows(&ws.rows, ws.rows.count, out);
+    }
+
+    /// Whether the model has contact points with area and planes (contact and
+    /// friction terms can be non-zero).
+    pub fn has_contact(&self) -> bool {
+        self.contacts.any()
+    }
+
+    /// An empty incremental contact Hessian for this system.
+    pub fn contact_hessian_state(&self) -> BodyContactHessian {
+        self.contacts.hessian_state()
+    }
+
+    /// Brings `state` to the contact terms of the last [`Self::evaluate`] (or
+    /// [`Self::evaluate_model`]) with gradient ([`contact`]'s incremental
+    /// Hessian). Returns the rows changed.
+    pub fn update_contact_hessian(&self, ws: &mut BodyWorkspace, state: &mut BodyContactHessian) -> usize {
+        self.contacts.update_hessian(&ws.terms, &mut ws.rows, state)
+    }
+
+    /// The solver's positive definite matrix at `pose` into `out` ((6 + n)^2,
+    /// full symmetric): the Gauss-Newton inertia, `Mqq/h^2` and the elastic
+    /// Hessian `stiffness` (n x n, possibly of an earlier pose) in the modal
+    /// block, and the contact part of `contact` (brought up to date by
+    /// [`Self::update_contact_hessian`]); and its inertia part, the
+    /// Gauss-Newton inertia over all vertices (with `Mqq`) over h^2, into
+    /// `metric` (positive definite: the solver's convergence metric).
+    pub fn newton_matrix(&self, pose: &Pose, stiffness: &[f64], contact: &BodyContactHessian, out: &mut [f64], metric: &mut [f64]) {
+        let n = self.n;
+        let big = 6 + n;
+        let inv_h2 = 1.0 / (self.h * self.h);
+        metric.fill(0.0);
+        inertia::add_gauss_newton(&self.moments, pose, inv_h2, metric);
+        for (r, row) in self.mode_mass().chunks_exact(n.max(1)).enumerate() {
+            for (c, m) in row.iter().enumerate() {
+                metric[(6 + r) * big + 6 + c] = m * inv_h2;
+            }
+        }
+        out.copy_from_slice(metric);
+        for (r, row) in stiffness.chunks_exact(n.max(1)).enumerate() {
+            for (c, k) in row.iter().enumerate() {
+                out[(6 + r) * big + 6 + c] += k;
+            }
+        }
+        contact::add_rotated(contact.body_matrix(), &pose.rotation, big, out);
+    }
+
+    /// Friction's stick switch of the direction `dir` from `pose`, the point of
+    /// the last evaluation with gradient ([`contact`]): returns the number of
+    /// switch rows (for [`Self::add_switch_rows`]) and adds the change of the
+    /// gradient to `rhs` (6 + n).
+    pub fn stick_switch(&self, start: &BodyStart, pose: &Pose, dir: &[f64], ws: &mut BodyWorkspace, rhs: &mut [f64]) -> usize {
+        self.contacts.stick_switch(&start.contact, pose, dir, &ws.terms, &mut ws.rows, rhs)
+    }
+
+    /// Adds the product of the first `count` switch rows of
+    /// [`Self::stick_switch`] to the full symmetric `hess`.
+    pub fn add_switch_rows(&self, ws: &BodyWorkspace, count: usize, hess: &mut [f64]) {
+        self.contacts.add_rows(&ws.rows, count, hess);
     }
 
     /// Contact forces (N) on the C points at `pose` over the step that started

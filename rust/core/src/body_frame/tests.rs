@@ -43,7 +43,7 @@ fn check_derivatives(sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose, what
     let fd = fd_gradient(|x| sys.energy(start, &moved(pose, x)), &zero, 1e-7);
     assert!(rel_err(&grad, &fd, 1e-6) < 1e-6, "{what}: gradient vs FD {}\n{grad:?}\n{fd:?}", rel_err(&grad, &fd, 1e-6));
     let mut hess = vec![0.0; big * big];
-    sys.hessian(start, pose, BodyHessian::Exact, None, &mut ws, &mut hess, None);
+    sys.hessian(start, pose, BodyHessian::Exact, &mut ws, &mut hess);
     let jac = fd_jacobian(
         |x| {
             let mut w = sys.workspace();
@@ -56,7 +56,7 @@ fn check_derivatives(sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose, what
     let sym: Vec<f64> = (0..big * big).map(|i| 0.5 * (jac[i / big][i % big] + jac[i % big][i / big])).collect();
     assert!(rel_err(&hess, &sym, 1e-6) < 2e-6, "{what}: Hessian vs FD {}", rel_err(&hess, &sym, 1e-6));
     // The solver's matrix is positive definite.
-    sys.hessian(start, pose, BodyHessian::GaussNewton, None, &mut ws, &mut hess, None);
+    sys.hessian(start, pose, BodyHessian::GaussNewton, &mut ws, &mut hess);
     assert!(crate::cholesky::Cholesky::factor(&hess, big).is_ok(), "{what}: Gauss-Newton Hessian not positive definite");
 }
 
@@ -103,6 +103,29 @@ fn moments_match_sums_over_vertices() {
     let d_sys = sys.energy(&start, &p1) - sys.energy(&start, &p2);
     let d_brute = brute(&p1) - brute(&p2);
     assert!((d_sys - d_brute).abs() < 1e-10 * d_brute.abs(), "{d_sys} vs {d_brute}");
+    // The Gauss-Newton inertia against `sum_v m_v Jv^T Jv`, `Jv = [I, -[R y_v]x, R W_v]`
+    // (its modal block `Mqq` is the elastic system's).
+    let big = 6 + n;
+    let mut gn = vec![0.0; big * big];
+    inertia::add_gauss_newton(sys.moments(), &p1, 1.0, &mut gn);
+    let mut brute_gn = vec![0.0; big * big];
+    for (v, m) in b.masses.iter().enumerate() {
+        let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
+        let jv = nalgebra::DMatrix::from_fn(3, big, |i, c| match c {
+            0..3 => f64::from(u8::from(i == c)),
+            3..6 => -super::rotation::skew(&(p1.rotation * y(&p1, v)))[(i, c - 3)],
+            _ => (p1.rotation * Vector3::new(w[c - 6], w[n + c - 6], w[2 * n + c - 6]))[i],
+        });
+        let jtj = jv.transpose() * jv * *m;
+        for r in 0..big {
+            for c in 0..big {
+                if r < 6 || c < 6 {
+                    brute_gn[r * big + c] += jtj[(r, c)];
+                }
+            }
+        }
+    }
+    assert!(rel_err(&gn, &brute_gn, 0.0) < 1e-12, "Gauss-Newton inertia: {}", rel_err(&gn, &brute_gn, 0.0));
     // Orthogonality to the rigid modes makes c the centre of mass.
     for k in 0..n {
         let (mut lin, mut ang) = (Vector3::zeros(), Vector3::zeros());
@@ -179,9 +202,9 @@ fn contact_derivatives_match_finite_differences() {
     check_derivatives(&sys, &start, &pose, "slip");
 }
 
-#[test]
-fn total_derivatives_match_finite_differences_on_a_turned_block() {
-    // Turned, an edge in the ground; slipping there.
+/// A turned block with an edge in the ground, slipping there: its step start
+/// and a pose moved from it (turned, slid and deformed).
+fn turned_case() -> (BodyBlock, BodyFrameSystem, BodyStart, Pose) {
     let b = block(3, 11, 60, true);
     let b = BodyBlock { scene: b.scene, ..body_block(&BlockScene { contact_on_all_faces: true, ..b.scene }, true).unwrap() };
     let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
@@ -199,7 +222,130 @@ fn total_derivatives_match_finite_differences_on_a_turned_block() {
     assert!(start.contact.normal_force.iter().filter(|f| **f > 0.0).count() >= 3);
     let mut pose = cur.clone();
     pose.retract(&cur, &[4e-3, -1e-3, -1e-4, 0.02, -0.01, 0.03, 1e-3, 0.0, -1e-3, 2e-3, 0.0, 0.0, 1e-3, -2e-3, 1e-3], 1.0);
+    (b, sys, start, pose)
+}
+
+#[test]
+fn total_derivatives_match_finite_differences_on_a_turned_block() {
+    let (_, sys, start, pose) = turned_case();
     check_derivatives(&sys, &start, &pose, "turned block");
+}
+
+#[test]
+fn contact_model_matches_the_energy_to_second_order() {
+    let (b, sys, start, pose) = turned_case();
+    let (n, big) = (b.n, 6 + b.n);
+    let mut ws = sys.workspace();
+    let e = sys.evaluate(&start, &pose, true, &mut ws);
+    let grad = ws.grad.clone();
+    let mut g_el = vec![0.0; n];
+    ws.elastic_gradient(&mut g_el);
+    let e_el = ws.elastic_energy();
+    // The exact elastic Hessian: the exact block less Mqq/h^2.
+    let mut k_el = vec![0.0; n * n];
+    sys.elastic_block(&pose.q, true, &mut ws, &mut k_el);
+    let h2 = b.scene.dt * b.scene.dt;
+    k_el.iter_mut().zip(sys.mode_mass()).for_each(|(k, m)| *k -= m / h2);
+    let m = ElasticModel { origin: &pose.q, energy: e_el, gradient: &g_el, hessian: &k_el };
+    // Same value and gradient at the expansion point.
+    assert!((sys.evaluate_model(&start, &pose, &m, true, &mut ws) - e).abs() < 1e-12 * e.abs().max(1.0));
+    assert!(rel_err(&ws.grad, &grad, 1e-9) < 1e-12);
+    // Its gradient is that of its value (rotation terms included), and it
+    // follows the energy to second order.
+    let mut rng = Rng::new(5);
+    let dir: Vec<f64> = (0..big).map(|i| rng.uniform() * if (3..6).contains(&i) { 1e-2 } else { 1e-3 }).collect();
+    let at = |t: f64| moved(&pose, &dir.iter().map(|d| t * d).collect::<Vec<_>>());
+    let p = at(1.0);
+    sys.evaluate_model(&start, &p, &m, true, &mut ws);
+    let fd = fd_gradient(|x| sys.evaluate_model(&start, &moved(&p, x), &m, false, &mut sys.workspace()), &vec![0.0; big], 1e-7);
+    assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-6, "model gradient vs FD: {}", rel_err(&ws.grad, &fd, 1e-6));
+    let mut gap = |t: f64| {
+        let x = at(t);
+        (sys.evaluate(&start, &x, false, &mut ws) - sys.evaluate_model(&start, &x, &m, false, &mut ws)).abs()
+    };
+    // Third order: halving the step divides the gap by about 8.
+    let (g1, g2) = (gap(1.0), gap(0.5));
+    assert!(g1 > 0.0 && g2 < g1 / 5.0, "model gap {g1} -> {g2}");
+}
+
+#[test]
+fn incremental_contact_hessian_follows_the_full_one() {
+    let (b, sys, start, base) = turned_case();
+    let big = 6 + b.n;
+    let mut ws = sys.workspace();
+    let mut state = sys.contact_hessian_state();
+    let mut k_el = vec![0.0; b.n * b.n];
+    let (mut newton, mut metric, mut full) = (vec![0.0; big * big], vec![0.0; big * big], vec![0.0; big * big]);
+    let mut check = |pose: &Pose, ws: &mut BodyWorkspace, state: &mut BodyContactHessian| {
+        sys.evaluate(&start, pose, true, ws);
+        let changed = sys.update_contact_hessian(ws, state);
+        sys.elastic_stiffness(&pose.q, ws, &mut k_el);
+        sys.newton_matrix(pose, &k_el, state, &mut newton, &mut metric);
+        sys.hessian(&start, pose, BodyHessian::GaussNewton, ws, &mut full);
+        (changed, rel_err(&newton, &full, 0.0), crate::cholesky::Cholesky::factor(&newton, big).is_ok())
+    };
+    let mut rng = Rng::new(13);
+    // Tilts of 0.2 rad about horizontal axes, alternately to either side (with
+    // slides and deformations), turn every contact term seen from the body by
+    // more than the lag: every row is replaced and the result is exact, though
+    // the turn of the body moved out of the sum (T S T^T).
+    let mut last = base.clone();
+    for step in 0..12 {
+        let a = 0.4 * step as f64;
+        let side = if step % 2 == 0 { 0.2 } else { -0.2 };
+        let mut x: Vec<f64> = rng.vec(big, 1e-3);
+        x[3..6].copy_from_slice(&[side * a.cos(), side * a.sin(), 0.1 * rng.uniform()]);
+        last = moved(&base, &x);
+        let (changed, err, _) = check(&last, &mut ws, &mut state);
+        assert!(changed > 0 && err < 1e-10, "step {step}: {changed} rows changed, error {err}");
+    }
+    // Moves within the lag keep the rows; the matrix stays close (within the
+    // 10 % lag of a curvature) and positive definite.
+    for (scale, bound) in [(1e-9, 1e-6), (1e-5, 0.1)] {
+        let pose = moved(&last, &rng.vec(big, scale));
+        let (changed, err, definite) = check(&pose, &mut ws, &mut state);
+        assert!((scale > 1e-9 || changed == 0) && err < bound && definite, "moved by {scale}: {changed} rows changed, error {err}");
+    }
+}
+
+#[test]
+fn stick_switch_turns_slipping_points_into_sticking_ones() {
+    // Slipping along +x on level ground.
+    let (b, sys, start, pose) = contact_case(4e-4, 1e-3, 1e-6);
+    let big = 6 + b.n;
+    let slipping = coulomb_ratios(&b, &sys, &start, &pose).len();
+    assert!(slipping > 0);
+    let mut ws = sys.workspace();
+    sys.evaluate(&start, &pose, true, &mut ws);
+    let grad = ws.grad.clone();
+    // A direction that carries the slip on switches nothing.
+    let mut on = vec![0.0; big];
+    on[0] = 1e-4;
+    let mut rhs = grad.clone();
+    assert_eq!(sys.stick_switch(&start, &pose, &on, &mut ws, &mut rhs), 0);
+    assert_eq!(rhs, grad);
+    // One that reverses it (by a turn about z and a slide back) switches every
+    // slipping point: gradient and Hessian become those of the same points
+    // sticking, i.e. of the model with unbounded friction.
+    let mut back = vec![0.0; big];
+    back[0] = -2e-3;
+    back[5] = 1e-3;
+    let rows = sys.stick_switch(&start, &pose, &back, &mut ws, &mut rhs);
+    assert_eq!(rows, 2 * slipping);
+    let mut hess = vec![0.0; big * big];
+    sys.hessian(&start, &pose, BodyHessian::GaussNewton, &mut ws, &mut hess);
+    sys.stick_switch(&start, &pose, &back, &mut ws, &mut vec![0.0; big]);
+    sys.add_switch_rows(&ws, rows, &mut hess);
+    let planes: Vec<Plane> = b.planes.iter().map(|p| Plane::new(p.normal(), p.offset(), 1e9).unwrap()).collect();
+    let sticky = BodyFrameSystem::new(&BodyFrameInputs { planes: &planes, ..b.inputs() }).unwrap();
+    // The step start does not depend on the friction coefficient.
+    let mut sticky_ws = sticky.workspace();
+    sticky.evaluate(&start, &pose, true, &mut sticky_ws);
+    assert!(rel_err(&rhs, &sticky_ws.grad, 1e-9) < 1e-10, "switched gradient: {}", rel_err(&rhs, &sticky_ws.grad, 1e-9));
+    let mut sticky_hess = vec![0.0; big * big];
+    sticky.hessian(&start, &pose, BodyHessian::GaussNewton, &mut sticky_ws, &mut sticky_hess);
+    assert!(rel_err(&hess, &sticky_hess, 0.0) < 1e-10, "switched Hessian: {}", rel_err(&hess, &sticky_hess, 0.0));
+    check_derivatives(&sticky, &start, &pose, "sticking");
 }
 
 fn solver(b: &BodyBlock, tolerance: f64, max_iterations: usize) -> BodyFrameSolver {
@@ -239,6 +385,28 @@ fn a_free_rigid_body_is_ballistic_and_spins_about_a_principal_axis() {
     }
     // The spin is damped only at order (h w)^2 per step.
     assert!((s.angular_velocity().norm() - spin).abs() < 50.0 * (spin * h).powi(2) * spin);
+}
+
+#[test]
+fn steps_after_set_state_are_those_of_a_new_solver() {
+    // A slide down an incline (contact Hessian built and updated) leaves nothing
+    // behind that a run from a state set afterwards would see.
+    let scene = BlockScene { learned_modes: 3, cubature_points: 50, contact_points: 60, incline: 25.0, friction: 0.3, ..Default::default() };
+    let b = body_block(&scene, true).unwrap();
+    let (c, r) = b.resting_pose();
+    let pose = Pose { center: c, rotation: r, q: vec![0.0; b.n] };
+    let run = |s: &mut BodyFrameSolver| -> Pose {
+        s.set_state(&pose, &[0.2, 0.0, 0.0], &[0.0, 0.5, 0.0], &vec![0.0; b.n]).unwrap();
+        for _ in 0..12 {
+            s.step().unwrap();
+        }
+        s.pose().clone()
+    };
+    let fresh = run(&mut solver(&b, 1e-8, 50));
+    let mut reused = solver(&b, 1e-8, 50);
+    run(&mut reused);
+    let again = run(&mut reused);
+    assert_eq!((again.center, again.rotation, &again.q), (fresh.center, fresh.rotation, &fresh.q));
 }
 
 /// Runs the block resting on an incline of `incline` degrees with Coulomb

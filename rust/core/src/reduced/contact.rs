@@ -10,11 +10,11 @@
 //! friction's correction of a Newton direction (used by the solver's contact
 //! model, [`crate::solver`]).
 
-use faer::{Accum, MatRef};
+use faer::Accum;
 use nalgebra::Vector3;
 
-use crate::contact::RankOneTerms;
-use crate::dense::{add_gram, combine_rows, mirror_lower, rows_dot, syrk_lower, syrk_rows};
+use crate::contact::{RankOneTerms, CURVATURE_SLACK, DIRECTION_COS};
+use crate::dense::{add_gram, combine_rows, mirror_lower, rows_dot, syrk_rows, IncrementalGram};
 use crate::real::LANES;
 use crate::simd::{dispatch, lane_sum, Madd, Separate, WithMadd};
 
@@ -27,24 +27,13 @@ use super::{ReducedSystem, StepStart, Workspace};
 /// the two ways of computing the gap.
 const CULL_MARGIN: f64 = 1e-9;
 
-/// Relative change of a contact curvature (and `1 - cos` of its direction)
-/// below which an incremental update keeps the old term.
-const CURVATURE_SLACK: f64 = 1.1;
-const DIRECTION_COS: f64 = 0.995;
-
 /// The contact part of the Hessian, kept up to date incrementally by
 /// [`ReducedSystem::update_contact_hessian`].
 #[derive(Debug, Clone)]
 pub struct ContactHessian {
-    /// The terms in `hess`, per contact point with area and plane.
+    /// The terms in the matrix, per contact point with area and plane.
     used: Vec<RankOneTerms>,
-    /// n x n, full symmetric.
-    hess: Vec<f64>,
-    /// Rows in `hess`, and rows taken out since it was last formed from scratch.
-    rows: usize,
-    removed: usize,
-    /// Whether `hess` holds the terms `used` (else it is formed from scratch).
-    valid: bool,
+    gram: IncrementalGram,
     /// Keep terms that changed by less than [`CURVATURE_SLACK`] (else only equal ones).
     lagged: bool,
 }
@@ -52,34 +41,13 @@ pub struct ContactHessian {
 impl ContactHessian {
     /// The matrix (n x n, full symmetric, PSD up to round-off).
     pub fn matrix(&self) -> &[f64] {
-        &self.hess
+        self.gram.matrix()
     }
 
     /// Forms the matrix from scratch at the next update.
     pub fn invalidate(&mut self) {
-        self.valid = false;
+        self.gram.invalidate();
     }
-}
-
-/// Whether the curvature terms `a` may stand in for `b` (`slack`: allowed ratio of
-/// the curvatures, `cos`: of the directions; 1, 1 for equality).
-fn close_terms(a: &RankOneTerms, b: &RankOneTerms, slack: f64, cos: f64) -> bool {
-    a.len == b.len
-        && (0..a.len).all(|t| {
-            let (ca, cb) = (a.coef[t], b.coef[t]);
-            ca <= slack * cb && cb <= slack * ca && a.dir[t].dot(&b.dir[t]) >= cos
-        })
-}
-
-/// Writes the square-root factors `sqrt(c_t) d_t` of the rank-one `terms`
-/// into `out` from index `at` on; returns the index after them.
-#[inline(always)]
-fn write_factors(terms: &RankOneTerms, out: &mut [[f64; 3]], at: usize) -> usize {
-    for t in 0..terms.len {
-        let d = terms.dir[t] * terms.coef[t].sqrt();
-        out[at + t] = [d.x, d.y, d.z];
-    }
-    at + terms.len
 }
 
 impl ReducedSystem {
@@ -234,7 +202,7 @@ impl ReducedSystem {
             let mut count = 0;
             for (p, plane) in self.planes.iter().enumerate() {
                 let e = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
-                count = write_factors(&e.hessian, &mut ws.contact_coef, count);
+                count = e.hessian.write_factors(&mut ws.contact_coef, count);
             }
             if count > 0 {
                 let w = &self.contact_basis[3 * n * j..3 * n * (j + 1)];
@@ -251,10 +219,7 @@ impl ReducedSystem {
     pub fn contact_hessian_state(&self, lagged: bool) -> ContactHessian {
         ContactHessian {
             used: vec![RankOneTerms::default(); self.contacts.points.len() * self.planes.len()],
-            hess: vec![0.0; self.n * self.n],
-            rows: 0,
-            removed: 0,
-            valid: false,
+            gram: IncrementalGram::new(self.n),
             lagged,
         }
     }
@@ -262,29 +227,12 @@ impl ReducedSystem {
     /// Brings `state` to the contact terms of the last [`Self::evaluate`] with
     /// gradient: the rows of the points whose terms changed are taken out of the
     /// matrix and their new rows put in, so that a contact state that does not
-    /// change (sticking, resting) costs nothing. The matrix is formed from scratch
-    /// when invalid or once the rows taken out outnumber four times those in it,
-    /// which bounds the round-off of the updates. Returns the rows changed.
+    /// change (sticking, resting) costs nothing ([`IncrementalGram`]). Returns
+    /// the rows changed.
     pub fn update_contact_hessian(&self, ws: &mut Workspace, state: &mut ContactHessian) -> usize {
-        let n = self.n;
-        let rebuild = !state.valid || state.removed > 4 * state.rows.max(64);
+        let rebuild = state.gram.needs_rebuild();
         let (plus, minus, rows) = dispatch(ContactUpdateKernel { sys: self, ws: &mut *ws, state: &mut *state, rebuild });
-        if rebuild {
-            syrk_rows(&mut state.hess, n, &ws.contact_rows, plus, Accum::Replace);
-            state.removed = 0;
-        } else {
-            if plus > 0 {
-                syrk_rows(&mut state.hess, n, &ws.contact_rows, plus, Accum::Add);
-            }
-            if minus > 0 {
-                let b = MatRef::from_row_major_slice(&ws.contact_rows_out[..minus * n], minus, n);
-                syrk_lower(&mut state.hess, n, Some(b), Accum::Add, -1.0);
-            }
-            state.removed += minus;
-        }
-        mirror_lower(&mut state.hess, n);
-        state.rows = rows;
-        state.valid = true;
+        state.gram.update(&ws.contact_rows, plus, &ws.contact_rows_out, minus, rows);
         plus + minus
     }
 
@@ -301,14 +249,14 @@ impl ReducedSystem {
             for p in 0..n_planes {
                 let k = slot * n_planes + p;
                 let (new, old) = (ws.contact_terms[k], state.used[k]);
-                if !rebuild && (new.len == 0 && old.len == 0 || close_terms(&new, &old, slack, cos)) {
+                if !rebuild && (new.len == 0 && old.len == 0 || new.close_to(&old, slack, cos)) {
                     rows += old.len;
                     continue;
                 }
                 if !rebuild {
-                    count_out = write_factors(&old, &mut ws.contact_coef_out, count_out);
+                    count_out = old.write_factors(&mut ws.contact_coef_out, count_out);
                 }
-                count_in = write_factors(&new, &mut ws.contact_coef, count_in);
+                count_in = new.write_factors(&mut ws.contact_coef, count_in);
                 state.used[k] = new;
                 rows += new.len;
             }
@@ -333,7 +281,8 @@ impl ReducedSystem {
     /// as sticking. For each, the square-root rows of the Hessian change
     /// `c T - (mu f_n / s)(T - t t^T)` (PSD: `c > mu f_n / s` while slipping) go to the
     /// switch rows, and `W_j^T t (c s - mu f_n)` (stick force minus slip force) is
-    /// added to `rhs`. Returns the number of rows; [`Self::add_switch_rows`] adds
+    /// added to `rhs` ([`crate::contact::ContactModel::stick_switch`]). Returns
+    /// the number of rows; [`Self::add_switch_rows`] adds
     /// their product to a Hessian.
     pub fn stick_switch(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
         dispatch(StickKernel { sys: self, start, dir, ws, rhs })
@@ -349,22 +298,16 @@ impl ReducedSystem {
     fn stick_impl<M: Madd>(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
         let n = self.n;
         let n_planes = self.planes.len();
-        let h = self.dt();
         let mut rows = 0;
         for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
             // Slipping points (all carry a lagged normal force, so they were
             // evaluated and their displacement kept).
             let mut slipping = 0u32;
             for (l, &j) in slots.iter().enumerate() {
-                let c = self.areas[j] * self.contact.friction_stiffness / h;
                 let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
                 for (p, plane) in self.planes.iter().enumerate() {
-                    let cap = plane.friction() * start.normal_force[j * n_planes + p];
-                    if cap > 0.0 && c > 0.0 {
-                        let nrm = plane.normal();
-                        if c * (dx - nrm * nrm.dot(&dx)).norm() > cap {
-                            slipping |= 1 << l;
-                        }
+                    if self.contact.slips(plane, self.areas[j], start.normal_force[j * n_planes + p], &dx) {
+                        slipping |= 1 << l;
                     }
                 }
             }
@@ -377,33 +320,18 @@ impl ReducedSystem {
                 if slipping & (1 << l) == 0 {
                     continue;
                 }
-                let c = self.areas[j] * self.contact.friction_stiffness / h;
                 let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
                 let wd = Vector3::new(wd[0][l], wd[1][l], wd[2][l]);
                 let mut count = 0;
                 let mut force = Vector3::zeros();
                 for (p, plane) in self.planes.iter().enumerate() {
-                    let cap = plane.friction() * start.normal_force[j * n_planes + p];
-                    if cap <= 0.0 {
-                        continue;
+                    if let Some(switch) = self.contact.stick_switch(plane, self.areas[j], start.normal_force[j * n_planes + p], &dx, &wd) {
+                        for f in switch.factors {
+                            ws.contact_coef[count] = [f.x, f.y, f.z];
+                            count += 1;
+                        }
+                        force += switch.force;
                     }
-                    let nrm = plane.normal();
-                    let delta = dx - nrm * nrm.dot(&dx);
-                    let slip = delta.norm();
-                    if c * slip <= cap {
-                        continue;
-                    }
-                    let t = delta / slip;
-                    let moved = delta + wd - nrm * nrm.dot(&wd);
-                    if t.dot(&moved) >= cap / c {
-                        continue;
-                    }
-                    let b = nrm.cross(&t);
-                    let (st, sb) = (c.sqrt(), (c - cap / slip).max(0.0).sqrt());
-                    ws.contact_coef[count] = [st * t.x, st * t.y, st * t.z];
-                    ws.contact_coef[count + 1] = [sb * b.x, sb * b.y, sb * b.z];
-                    count += 2;
-                    force += t * (c * slip - cap);
                 }
                 if count > 0 {
                     let f: &[f64; 3] = force.as_slice().try_into().expect("3 components");

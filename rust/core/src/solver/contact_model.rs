@@ -24,9 +24,15 @@
 //! modelled as sticking (a low-rank change of the Hessian and the right-hand
 //! side, [`crate::reduced::ReducedSystem::stick_switch`]), and that step is
 //! taken when it decreases the energy enough.
+//!
+//! The iteration on the model ([`minimise_contact_model`]) and the stick step
+//! are written once for any solver that provides its steps
+//! ([`ContactModelSteps`]): the world-frame solver here, the body-frame one in
+//! [`crate::body_frame::solver`].
 
 use super::line_search::sufficient_decrease;
-use super::{Objective, Point, ReducedSolver};
+use super::{Objective, Point, ReducedSolver, SolverStats};
+use crate::error::Result;
 
 /// Inner iterations on the contact model per outer iteration.
 const MAX_INNER: usize = 20;
@@ -36,6 +42,103 @@ const INNER_TOLERANCE: f64 = 0.5;
 /// Share of the outer residual down to which the contact model is minimised
 /// (see `INNER_TOLERANCE`).
 pub const INNER_FORCING: f64 = 0.01;
+
+/// What the iteration on the contact model needs from a solver. The solver
+/// holds an iterate (with the gradient of the model there), a search
+/// direction and a trial point; the last evaluation with gradient is at the
+/// iterate whenever a direction or a stick switch is asked for.
+pub(crate) trait ContactModelSteps {
+    /// Work counters.
+    fn stats_mut(&mut self) -> &mut SolverStats;
+    /// The model's Newton direction at the iterate (into the direction); its
+    /// convergence measure r, m/s.
+    fn model_direction(&mut self) -> Result<f64>;
+    /// Moves the iterate by the whole direction.
+    fn take_direction(&mut self);
+    /// Forms the stick switch of the direction (rows and right-hand side, see
+    /// the module documentation); returns its rows (0: no point switches).
+    fn switch_rows(&mut self) -> usize;
+    /// Solves with the `rows` switch rows added into the stick-corrected
+    /// direction; returns its slope (the model's gradient at the iterate along
+    /// it), or None when the system cannot be factored.
+    fn solve_switched(&mut self, rows: usize) -> Option<f64>;
+    /// The model at the iterate moved by the whole stick-corrected direction,
+    /// the point left as the trial point.
+    fn stick_trial(&mut self) -> f64;
+    /// Makes the trial point the iterate.
+    fn accept_trial(&mut self);
+    /// Line search on the model from the iterate (model value `e0`) along the
+    /// direction; moves the iterate and returns the model's value there, or
+    /// None when no step decreases it.
+    fn model_line_search(&mut self, e0: f64) -> Option<f64>;
+}
+
+/// Tolerance on r (m/s) of the model of an outer iteration of residual
+/// `residual` (m/s) under the solver's `tolerance`: solving the model much
+/// closer than the outer iteration can follow (its elastic part is only a
+/// model) is wasted work.
+pub(crate) fn inner_tolerance(tolerance: f64, residual: f64) -> f64 {
+    (INNER_TOLERANCE * tolerance).max(INNER_FORCING * residual)
+}
+
+/// Minimises the contact model from the solver's iterate (model value
+/// `energy` there, the outer Newton direction as its first direction) until
+/// its direction's r is below `tolerance`. Returns whether the iterate moved.
+pub(crate) fn minimise_contact_model(s: &mut impl ContactModelSteps, energy: f64, tolerance: f64) -> bool {
+    let mut e = energy;
+    let mut moved = false;
+    for inner in 0..MAX_INNER {
+        if inner > 0 {
+            s.stats_mut().model_iterations += 1;
+            match s.model_direction() {
+                Ok(r) if r < tolerance => {
+                    s.take_direction();
+                    break;
+                }
+                Ok(_) => {}
+                Err(_) => break,
+            }
+        }
+        if let Some(e1) = stick_step(s, e) {
+            e = e1;
+            moved = true;
+            continue;
+        }
+        match s.model_line_search(e) {
+            Some(e1) => {
+                e = e1;
+                moved = true;
+            }
+            None => break,
+        }
+    }
+    moved
+}
+
+/// The stick correction of the direction (see the module documentation):
+/// when some slipping contact points would be carried through the stick
+/// region, solves again with them sticking and takes that full step if it
+/// decreases the model enough. Returns the new model value when the step was
+/// taken.
+fn stick_step(s: &mut impl ContactModelSteps, energy: f64) -> Option<f64> {
+    let rows = s.switch_rows();
+    if rows == 0 {
+        return None;
+    }
+    s.stats_mut().stick_solves += 1;
+    let slope = s.solve_switched(rows)?;
+    if !(slope.is_finite() && slope < 0.0) {
+        return None;
+    }
+    let e = s.stick_trial();
+    if sufficient_decrease(energy, slope, 1.0, e) {
+        s.stats_mut().stick_steps += 1;
+        s.accept_trial();
+        Some(e)
+    } else {
+        None
+    }
+}
 
 /// The contact model of one outer iteration.
 #[derive(Debug)]
@@ -48,11 +151,13 @@ pub(super) struct ContactModelState {
     outer_dir: Vec<f64>,
     /// The model's elastic Hessian, n x n.
     pub(super) hessian: Vec<f64>,
+    /// Whether that is the exact elastic Hessian (else the projected one).
+    exact: bool,
 }
 
 impl ContactModelState {
     pub(super) fn new(n: usize) -> Self {
-        Self { outer: Point::zeros(n), outer_dir: vec![0.0; n], hessian: vec![0.0; n * n] }
+        Self { outer: Point::zeros(n), outer_dir: vec![0.0; n], hessian: vec![0.0; n * n], exact: false }
     }
 }
 
@@ -84,81 +189,61 @@ impl ReducedSolver {
             exact = false;
             self.model.hessian.copy_from_slice(&elastic.projected);
         }
-        // Solving the model much closer than the outer iteration can follow
-        // (its elastic part is only a model) is wasted work.
-        let tolerance = (INNER_TOLERANCE * self.settings.tolerance).max(INNER_FORCING * residual);
-        let mut e = energy;
-        let mut moved = false;
-        for inner in 0..MAX_INNER {
-            if inner > 0 {
-                self.stats.model_iterations += 1;
-                match self.direction(0, exact) {
-                    Ok(r) if r < tolerance => {
-                        for (x, d) in self.iterate.q.iter_mut().zip(&self.dir) {
-                            *x += d;
-                        }
-                        break;
-                    }
-                    Ok(_) => {}
-                    Err(_) => break,
-                }
-            }
-            if let Some(e1) = self.stick_step(e) {
-                e = e1;
-                moved = true;
-                continue;
-            }
-            match self.search_line(e, Objective::ContactModel) {
-                Some(step) => {
-                    e = step.energy;
-                    moved = true;
-                }
-                None => break,
-            }
-        }
+        self.model.exact = exact;
+        let moved = minimise_contact_model(self, energy, inner_tolerance(self.settings.tolerance, residual));
         self.factored_exact = factored_exact;
         for i in 0..n {
             self.dir[i] = if moved { self.iterate.q[i] - self.model.outer.q[i] } else { self.model.outer_dir[i] };
         }
         std::mem::swap(&mut self.iterate, &mut self.model.outer);
     }
+}
 
-    /// The stick correction of `self.dir` (see the module documentation): when
-    /// some slipping contact points would be carried through the stick region,
-    /// solves again with them sticking and takes that full step if it decreases
-    /// the model enough. Returns the new energy when the step was taken.
-    fn stick_step(&mut self, energy: f64) -> Option<f64> {
-        self.stick_dir.copy_from_slice(&self.iterate.grad);
-        // The last evaluation was at `self.iterate` (see `solve_contact_model`).
-        let rows = self.system.stick_switch(&self.current, &self.dir, &mut self.ws, &mut self.stick_dir);
-        if rows == 0 {
-            return None;
+impl ContactModelSteps for ReducedSolver {
+    fn stats_mut(&mut self) -> &mut SolverStats {
+        &mut self.stats
+    }
+
+    fn model_direction(&mut self) -> Result<f64> {
+        self.direction(0, self.model.exact)
+    }
+
+    fn take_direction(&mut self) {
+        for (x, d) in self.iterate.q.iter_mut().zip(&self.dir) {
+            *x += d;
         }
-        self.stats.stick_solves += 1;
+    }
+
+    fn switch_rows(&mut self) -> usize {
+        // The last evaluation was at `self.iterate` (see `ContactModelSteps`).
+        self.stick_dir.copy_from_slice(&self.iterate.grad);
+        self.system.stick_switch(&self.current, &self.dir, &mut self.ws, &mut self.stick_dir)
+    }
+
+    fn solve_switched(&mut self, rows: usize) -> Option<f64> {
         // `matrix` and `chol` now hold the corrected system; the next direction factors anew.
         self.factor_valid = false;
         self.system.add_switch_rows(&self.ws, rows, &mut self.matrix);
-        if self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_err() {
-            return None;
-        }
+        self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).ok()?;
         for a in self.stick_dir.iter_mut() {
             *a = -*a;
         }
         self.chol.solve_in_place(&mut self.stick_dir);
-        let slope: f64 = self.iterate.grad.iter().zip(&self.stick_dir).map(|(g, d)| g * d).sum();
-        if !(slope.is_finite() && slope < 0.0) {
-            return None;
-        }
+        Some(self.iterate.grad.iter().zip(&self.stick_dir).map(|(g, d)| g * d).sum())
+    }
+
+    fn stick_trial(&mut self) -> f64 {
         for ((t, x), d) in self.trial.q.iter_mut().zip(&self.iterate.q).zip(&self.stick_dir) {
             *t = x + d;
         }
-        let e = self.evaluate_trial(Objective::ContactModel);
-        if sufficient_decrease(energy, slope, 1.0, e) {
-            self.stats.stick_steps += 1;
-            self.accept_trial();
-            Some(e)
-        } else {
-            None
-        }
+        self.evaluate_trial(Objective::ContactModel)
+    }
+
+    fn accept_trial(&mut self) {
+        ReducedSolver::accept_trial(self);
+    }
+
+    fn model_line_search(&mut self, e0: f64) -> Option<f64> {
+        self.search_line(e0, Objective::ContactModel).map(|step| step.energy)
     }
 }

@@ -21,6 +21,7 @@
 //! first (near rest the clamped twist modes would turn Newton's quadratic
 //! convergence into a linear one).
 
+use crate::cholesky::Cholesky;
 use crate::error::{LicromError, Result};
 use crate::reduced::{ReducedSystem, Workspace};
 
@@ -59,6 +60,27 @@ impl ElasticPart {
         let clamped = with_clamped.then_some(&mut self.clamped[..]);
         self.any_clamped = system.elastic_hessian(q, ws, &mut self.projected, clamped);
     }
+}
+
+/// Factors `matrix`, inertia `inertia` (positive definite) plus positive
+/// semi-definite parts, into `chol`. That fails only through round-off; then a
+/// growing share of `inertia` is added (to `matrix` too) until it factors.
+/// Returns false when no share up to 1e9 does.
+pub(crate) fn factor_definite(chol: &mut Cholesky, matrix: &mut [f64], inertia: &[f64]) -> bool {
+    if chol.factor_shifted(matrix, 0.0, inertia).is_ok() {
+        return true;
+    }
+    let mut shift = 1e-8;
+    while shift <= 1e9 {
+        if chol.factor_shifted(matrix, shift, inertia).is_ok() {
+            for (h, m) in matrix.iter_mut().zip(inertia) {
+                *h += shift * m;
+            }
+            return true;
+        }
+        shift *= 10.0;
+    }
+    false
 }
 
 impl ReducedSolver {
@@ -128,26 +150,14 @@ impl ReducedSolver {
         if !self.matrix.iter().all(|v| v.is_finite()) {
             return Err(LicromError::Diverged { iteration, what: "Hessian" });
         }
-        let mut factored = self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok();
-        if !factored && exact {
-            self.factored_exact = false;
-            for (h, c) in self.matrix.iter_mut().zip(&elastic.clamped) {
-                *h += c;
-            }
-            factored = self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok();
-        }
-        // The projected Hessian is M/h^2 plus PSD terms, so this only fails
-        // through round-off; a growing share of M/h^2 restores definiteness.
-        let mut shift = 1e-8;
-        while !factored {
-            factored = self.chol.factor_shifted(&self.matrix, shift, &self.mass_over_h2).is_ok();
-            if factored {
-                for (h, m) in self.matrix.iter_mut().zip(&self.mass_over_h2) {
-                    *h += shift * m;
+        if !(exact && self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).is_ok()) {
+            if exact {
+                self.factored_exact = false;
+                for (h, c) in self.matrix.iter_mut().zip(&elastic.clamped) {
+                    *h += c;
                 }
             }
-            shift *= 10.0;
-            if shift > 1e9 {
+            if !factor_definite(&mut self.chol, &mut self.matrix, &self.mass_over_h2) {
                 return Err(LicromError::Diverged { iteration, what: "Hessian factorisation" });
             }
         }
@@ -157,72 +167,108 @@ impl ReducedSolver {
 
     /// `sqrt(d^T M d / m_total) / h`, m/s.
     pub(super) fn velocity_norm(&self, d: &[f64]) -> f64 {
-        let n = self.system.n_dofs();
-        let mass = self.system.mass();
-        let mut norm2 = 0.0;
-        for i in 0..n {
-            let row: f64 = (0..n).map(|j| mass[i * n + j] * d[j]).sum();
-            norm2 += d[i] * row;
-        }
-        (norm2.max(0.0) / self.settings.total_mass).sqrt() / self.system.dt()
+        metric_norm(self.system.mass(), d) / self.settings.total_mass.sqrt() / self.system.dt()
     }
 
-    /// How far the lagged elastic Hessian is off along the last step `s`: the
-    /// secant error `e = g_el(x + s) - g_el(x) - K_el s` measured as the part of
-    /// the next direction it causes, `|A^-1 e|_M / |s|_M`, with `A` the last
-    /// matrix factored. Zero where no step was taken yet or no Hessian is kept.
+    /// How far the lagged elastic Hessian is off along the last step
+    /// ([`elastic_drift`]). Zero where no Hessian is kept.
     fn elastic_drift(&mut self) -> f64 {
-        let n = self.system.n_dofs();
-        let den = self.velocity_norm(&self.step_taken);
-        if den <= 0.0 || !den.is_finite() {
-            return 0.0;
-        }
         let Some(elastic) = self.elastic.get() else {
             return 0.0;
         };
-        for i in 0..n {
-            let mut ks = 0.0;
-            for j in 0..n {
-                let k = elastic.projected[i * n + j] - if self.factored_exact { elastic.clamped[i * n + j] } else { 0.0 };
-                ks += k * self.step_taken[j];
-            }
-            // After `accept_trial`, `trial` holds the previous iterate.
-            self.secant_error[i] = self.iterate.grad_elastic[i] - self.trial.grad_elastic[i] - ks;
-        }
-        self.chol.solve_in_place(&mut self.secant_error);
-        self.velocity_norm(&self.secant_error) / den
+        let clamped = self.factored_exact.then_some(&elastic.clamped[..]);
+        // After `accept_trial`, `trial` holds the previous iterate.
+        let gradients = (&self.iterate.grad_elastic[..], &self.trial.grad_elastic[..]);
+        elastic_drift(&mut self.chol, self.system.mass(), (&elastic.projected, clamped), &self.step_taken, gradients, &mut self.secant_error)
     }
 
-    /// BFGS update of the lagged elastic Hessian along the last step `s`: with
-    /// `A = M/h^2 + K_el` and `y = M s / h^2 + g_el(x + s) - g_el(x)` (the change
-    /// of the smooth part of the gradient), `A + y y^T / y.s - A s (A s)^T / s.A s`
-    /// reproduces `y` along `s` and stays positive definite when `y.s > 0`
-    /// (skipped otherwise). The update goes into `K_el`.
+    /// BFGS update of the lagged elastic Hessian along the last step ([`secant_update`]).
     fn secant_update(&mut self) {
-        let n = self.system.n_dofs();
-        let Some(elastic) = self.elastic.get_mut() else {
-            return;
-        };
-        let (mut sas, mut ys) = (0.0, 0.0);
-        for i in 0..n {
-            let (mut a_s, mut m_s) = (0.0, 0.0);
-            for j in 0..n {
-                let sj = self.step_taken[j];
-                a_s += (self.mass_over_h2[i * n + j] + elastic.projected[i * n + j]) * sj;
-                m_s += self.mass_over_h2[i * n + j] * sj;
-            }
-            self.bfgs_as[i] = a_s;
-            self.bfgs_y[i] = m_s + self.iterate.grad_elastic[i] - self.trial.grad_elastic[i];
-            sas += self.step_taken[i] * a_s;
-            ys += self.step_taken[i] * self.bfgs_y[i];
+        if let Some(elastic) = self.elastic.get_mut() {
+            let gradients = (&self.iterate.grad_elastic[..], &self.trial.grad_elastic[..]);
+            secant_update(&mut elastic.projected, &self.mass_over_h2, &self.step_taken, gradients, (&mut self.bfgs_as, &mut self.bfgs_y));
         }
-        if !(sas > 0.0 && ys > 1e-8 * sas && sas.is_finite() && ys.is_finite()) {
-            return;
+    }
+}
+
+/// `sqrt(v^T m v)` for the positive definite m (N x N).
+pub(crate) fn metric_norm(m: &[f64], v: &[f64]) -> f64 {
+    let n = v.len();
+    let mut norm2 = 0.0;
+    for i in 0..n {
+        let row: f64 = (0..n).map(|j| m[i * n + j] * v[j]).sum();
+        norm2 += v[i] * row;
+    }
+    norm2.max(0.0).sqrt()
+}
+
+/// How far a lagged elastic Hessian `K_el` is off along the last step `s`
+/// (N, of which the elastic coordinates are the last n): the secant error
+/// `e = g_el(x + s) - g_el(x) - K_el s` (`gradients`: the elastic gradients
+/// at `x + s` and x, n each) measured as the part of the next direction it
+/// causes, `|A^-1 e|_M / |s|_M`, with A the last matrix factored (`chol`) and
+/// M any positive definite inertia `metric` (N x N). `stiffness`: `K_el` (n x
+/// n) and what to subtract from it (the clamped part where the exact Hessian
+/// was factored). Zero where no step was taken. `scratch`: N.
+pub(crate) fn elastic_drift(
+    chol: &mut Cholesky,
+    metric: &[f64],
+    stiffness: (&[f64], Option<&[f64]>),
+    s: &[f64],
+    gradients: (&[f64], &[f64]),
+    scratch: &mut [f64],
+) -> f64 {
+    let (g1, g0) = gradients;
+    let (big, n) = (s.len(), g1.len());
+    let offset = big - n;
+    let den = metric_norm(metric, s);
+    if den <= 0.0 || !den.is_finite() {
+        return 0.0;
+    }
+    let (k, clamped) = stiffness;
+    scratch[..offset].fill(0.0);
+    for i in 0..n {
+        let mut ks = 0.0;
+        for j in 0..n {
+            ks += (k[i * n + j] - clamped.map_or(0.0, |c| c[i * n + j])) * s[offset + j];
         }
-        for i in 0..n {
-            for j in 0..n {
-                elastic.projected[i * n + j] += self.bfgs_y[i] * self.bfgs_y[j] / ys - self.bfgs_as[i] * self.bfgs_as[j] / sas;
-            }
+        scratch[offset + i] = g1[i] - g0[i] - ks;
+    }
+    chol.solve_in_place(scratch);
+    metric_norm(metric, scratch) / den
+}
+
+/// BFGS update of a lagged elastic Hessian `stiffness` (`K_el`, n x n) along
+/// the last step `s` (N, of which the elastic coordinates are the last n):
+/// with `A = M/h^2 + K_el` (`mass_over_h2`: `M/h^2`, n x n) and
+/// `y = M s / h^2 + g_el(x + s) - g_el(x)` (the change of the smooth part of
+/// the gradient; `gradients` as in [`elastic_drift`]),
+/// `A + y y^T / y.s - A s (A s)^T / s.A s` reproduces `y` along `s` and stays
+/// positive definite when `y.s > 0` (skipped otherwise). The update goes into
+/// `K_el`. `scratch`: `A s` and y, n each.
+pub(crate) fn secant_update(stiffness: &mut [f64], mass_over_h2: &[f64], s: &[f64], gradients: (&[f64], &[f64]), scratch: (&mut [f64], &mut [f64])) {
+    let (g1, g0) = gradients;
+    let (a_s, y) = scratch;
+    let n = g1.len();
+    let s = &s[s.len() - n..];
+    let (mut sas, mut ys) = (0.0, 0.0);
+    for i in 0..n {
+        let (mut as_i, mut ms_i) = (0.0, 0.0);
+        for j in 0..n {
+            as_i += (mass_over_h2[i * n + j] + stiffness[i * n + j]) * s[j];
+            ms_i += mass_over_h2[i * n + j] * s[j];
+        }
+        a_s[i] = as_i;
+        y[i] = ms_i + g1[i] - g0[i];
+        sas += s[i] * as_i;
+        ys += s[i] * y[i];
+    }
+    if !(sas > 0.0 && ys > 1e-8 * sas && sas.is_finite() && ys.is_finite()) {
+        return;
+    }
+    for i in 0..n {
+        for j in 0..n {
+            stiffness[i * n + j] += y[i] * y[j] / ys - a_s[i] * a_s[j] / sas;
         }
     }
 }

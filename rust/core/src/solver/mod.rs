@@ -11,7 +11,10 @@
 //! incremental contact Hessian) and the search direction in `direction.rs`;
 //! the contact model and friction's stick correction in `contact_model.rs`;
 //! the line search, usable by any solver, in [`line_search`]; the parameters
-//! and reports in `settings.rs`.
+//! and reports in `settings.rs`. The iteration on the contact model, the
+//! factorisation and the lagged elastic Hessian's drift test and BFGS update
+//! are written for any solver and shared with the body-frame one
+//! ([`crate::body_frame::solver`]).
 //!
 //! **Initial guess.** `q_t + h qdot_t + h^2 a`, with `a` the acceleration of the
 //! previous step (`(qdot_t - qdot_{t-1}) / h`), or gravity alone (`M^-1 f`) on the
@@ -30,8 +33,8 @@
 //! taken and the solve stops. `iterations` counts these directions (outer
 //! iterations); the model's are counted in [`SolverStats`].
 
-mod contact_model;
-mod direction;
+pub(crate) mod contact_model;
+pub(crate) mod direction;
 pub mod line_search;
 mod settings;
 
@@ -128,7 +131,7 @@ impl Point {
 
 /// What a trial point is evaluated on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Objective {
+pub(crate) enum Objective {
     /// The incremental potential E.
     Energy,
     /// The contact model of the current outer iteration (see `contact_model.rs`).
@@ -306,7 +309,9 @@ impl ReducedSolver {
     }
 
     /// Replaces the state. Contact forces read zero until the next step; the
-    /// next step starts from the free-fall guess and (Newton) a fresh elastic Hessian.
+    /// next step starts from the free-fall guess and fresh elastic and contact
+    /// Hessians (the prefactored scheme: `K(rest)`), so that the steps from here
+    /// depend on the state alone (the same as a new solver's, bit for bit).
     pub fn set_state(&mut self, q: &[f64], qdot: &[f64]) -> Result<()> {
         self.check_state("q", q)?;
         self.check_state("qdot", qdot)?;
@@ -315,8 +320,14 @@ impl ReducedSolver {
         self.last.clear();
         self.failed.clear();
         self.qdot_prev.clear();
-        if self.settings.kind == SolverKind::Newton {
-            self.elastic.clear();
+        self.contact.invalidate();
+        match self.settings.kind {
+            SolverKind::Newton => self.elastic.clear(),
+            SolverKind::Prefactored => {
+                self.elastic.fill().set(&self.rest_stiffness);
+                self.mode = SolverKind::Prefactored;
+                self.factor_valid = false;
+            }
         }
         Ok(())
     }

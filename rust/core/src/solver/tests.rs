@@ -101,6 +101,25 @@ fn a_block_dropped_on_an_incline_lands_and_comes_to_rest() {
 }
 
 #[test]
+fn steps_after_set_state_are_those_of_a_new_solver() {
+    // A landing (contact Hessian built and updated) leaves nothing behind that a
+    // run from a state set afterwards would see.
+    let model = BlockScene { learned_modes: 4, cubature_points: 60, contact_points: 50, incline: 20.0, ..Default::default() }.build().unwrap();
+    let (q, qdot) = model.dropped_state(30.0, 0.002);
+    let run = |s: &mut ReducedSolver| -> Vec<f64> {
+        s.set_state(&q, &qdot).unwrap();
+        for _ in 0..12 {
+            s.step().unwrap();
+        }
+        s.q().to_vec()
+    };
+    let fresh = run(&mut solver(&model, SolverKind::Newton, 1e-8, 100));
+    let mut reused = solver(&model, SolverKind::Newton, 1e-8, 100);
+    run(&mut reused);
+    assert_eq!(run(&mut reused), fresh);
+}
+
+#[test]
 fn prefactored_reaches_the_newton_solution() {
     let model = block(6, 40, 30);
     let (q, qdot) = model.resting_state(0.3);
