@@ -140,7 +140,9 @@ def test_public_names_resolve_lazily_in_a_fresh_interpreter():
 def test_errors_are_the_licrom_error_family():
     for name in licrom.__all__:
         value = getattr(licrom, name)
-        if inspect.isclass(value) and issubclass(value, BaseException):
+        if inspect.isclass(value) and issubclass(value, Warning):
+            assert issubclass(value, licrom.LicromWarning), f"licrom.{name} is a warning outside the LicromWarning family"
+        elif inspect.isclass(value) and issubclass(value, BaseException):
             assert issubclass(value, licrom.LicromError), f"licrom.{name} is an exception outside the LicromError family"
 
 

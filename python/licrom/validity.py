@@ -6,20 +6,12 @@ soft for its load lets the body sink into the ground. Every simulator
 (:class:`~licrom.full_sim.FullSim`, :class:`~licrom.reduced_sim.ReducedSim`,
 :class:`~licrom.body_frame.BodyFrameSim`) reports these cases the same way:
 
-=====================  =================================================  ==============================
-case                   signal                                             recorded in the trajectory
-=====================  =================================================  ==============================
-non-finite energy      :class:`~licrom.errors.SolverError` from the step,  nothing (the step is not taken)
-                       also with ``on_failure="record"``: no finite
-                       iterate is left to keep
-inverted elements      :class:`PhysicsWarning` after ``run``              ``Trajectory.min_det_f``
-(``det F <= 0``)
-penetration deeper     :class:`PhysicsWarning` after ``run``              ``Trajectory.penetration``
-than ``PENETRATION_
-LIMIT`` of the size
-start inside a plane   :class:`PhysicsWarning` from the constructor or    ``Trajectory.penetration[0]``
-(same depth)           ``set_state``
-=====================  =================================================  ==============================
+| case | signal | recorded in the trajectory |
+|---|---|---|
+| non-finite energy | :class:`~licrom.errors.SolverError` from the step, also with ``on_failure="record"`` (no finite iterate is left to keep) | nothing (the step is not taken) |
+| inverted elements (``det F <= 0``) | :class:`PhysicsWarning` after ``run`` | ``Trajectory.min_det_f`` |
+| penetration deeper than ``PENETRATION_LIMIT`` of the object's size | :class:`PhysicsWarning` after ``run`` | ``Trajectory.penetration`` |
+| a start that deep inside a plane | :class:`PhysicsWarning` from the constructor or ``set_state`` | ``Trajectory.penetration[0]`` |
 
 Why: a non-finite energy leaves nothing to continue from, so it stops the run.
 Inversion and deep penetration leave a finite, continuable state (SNH recovers from
