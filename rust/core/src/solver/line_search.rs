@@ -76,7 +76,10 @@ pub fn line_search(e0: f64, d0: f64, mut phi: impl FnMut(f64) -> (f64, f64)) -> 
         let mut last = 1.0;
         for _ in 0..MAX_SECANT {
             let width = hi - lo;
-            let a = (lo - dlo * width / (dhi - dlo)).clamp(lo + 0.05 * width, hi - 0.05 * width);
+            // A secant through slopes that overflow (or are equal) gives no point: bisect, so that the
+            // bracket stays finite.
+            let secant = lo - dlo * width / (dhi - dlo);
+            let a = if secant.is_finite() { secant.clamp(lo + 0.05 * width, hi - 0.05 * width) } else { lo + 0.5 * width };
             let (e, d) = phi(a);
             last = a;
             let good = ok(a, e, d);
