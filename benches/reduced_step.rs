@@ -51,18 +51,7 @@ fn model(learned_modes: usize, cubature_points: usize, contact_points: usize) ->
 }
 
 fn landing_model(learned_modes: usize, cubature_points: usize, contact_points: usize) -> BlockModel {
-    BlockScene {
-        learned_modes,
-        cubature_points,
-        contact_points,
-        incline: 20.0,
-        contact_on_all_faces: true,
-        normal_stiffness: 1e7,
-        friction_stiffness: 1e7,
-        ..Default::default()
-    }
-    .build()
-    .expect("valid synthetic scene")
+    BlockScene::landing(learned_modes, cubature_points, contact_points).build().expect("valid synthetic scene")
 }
 
 fn solver(model: &BlockModel, kind: SolverKind) -> ReducedSolver {

@@ -31,18 +31,7 @@ const STEPS: usize = 20;
 const TOLERANCE: f64 = 1e-6;
 
 fn landing_model() -> BlockModel {
-    BlockScene {
-        learned_modes: 20,
-        cubature_points: 1000,
-        contact_points: 1000,
-        incline: 20.0,
-        contact_on_all_faces: true,
-        normal_stiffness: 1e7,
-        friction_stiffness: 1e7,
-        ..Default::default()
-    }
-    .build()
-    .expect("valid synthetic scene")
+    BlockScene::landing(20, 1000, 1000).build().expect("valid synthetic scene")
 }
 
 /// A state `(q, qdot)`.

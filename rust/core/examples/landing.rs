@@ -41,16 +41,7 @@ fn main() {
         println!("{:?}", solver.stats());
         return;
     }
-    let scene = BlockScene {
-        learned_modes: r,
-        cubature_points: k,
-        contact_points: c,
-        incline: 20.0,
-        contact_on_all_faces: true,
-        normal_stiffness: 1e7,
-        friction_stiffness: 1e7,
-        ..Default::default()
-    };
+    let scene = BlockScene::landing(r, k, c);
     let model = scene.build().expect("scene");
     let system = ReducedSystem::new(&model.inputs()).expect("system");
     let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(model.total_mass, 1e-6, 500, kind) };

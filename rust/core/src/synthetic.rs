@@ -49,6 +49,23 @@ pub struct BlockScene {
     pub seed: u64,
 }
 
+impl BlockScene {
+    /// The landing scene of the benches and solver tests: a 20 degree incline,
+    /// contact on every face and the cheese scene's stiff contact (k_n = k_f = 1e7).
+    pub fn landing(learned_modes: usize, cubature_points: usize, contact_points: usize) -> Self {
+        Self {
+            learned_modes,
+            cubature_points,
+            contact_points,
+            incline: 20.0,
+            contact_on_all_faces: true,
+            normal_stiffness: 1e7,
+            friction_stiffness: 1e7,
+            ..Default::default()
+        }
+    }
+}
+
 impl Default for BlockScene {
     /// A 10 cm block of soft rubber-like material (E = 1e5 Pa, nu = 0.3) on
     /// ground with mu = 0.5, at h = 10 ms.

@@ -72,19 +72,7 @@ fn lagged_and_plain_newton_reach_the_same_solution() {
 fn a_block_dropped_on_an_incline_lands_and_comes_to_rest() {
     // Turned 30 degrees about y above a 20 degree incline: it lands on an edge,
     // rocks and stops (tan 20 < mu = 0.5); stiff contact as in the cheese scene.
-    let model = BlockScene {
-        learned_modes: 6,
-        cubature_points: 80,
-        contact_points: 120,
-        incline: 20.0,
-        contact_on_all_faces: true,
-        normal_stiffness: 1e7,
-        friction_stiffness: 1e7,
-        seed: 7,
-        ..Default::default()
-    }
-    .build()
-    .unwrap();
+    let model = BlockScene { seed: 7, ..BlockScene::landing(6, 80, 120) }.build().unwrap();
     let mut s = solver(&model, SolverKind::Newton, 1e-6, 50);
     let (q, qdot) = model.dropped_state(30.0, 0.01);
     s.set_state(&q, &qdot).unwrap();
@@ -235,18 +223,7 @@ fn probes_out_of_double_range_are_errors() {
 /// it lands on an edge, tips flat and slides (contact on all faces, the cheese
 /// scene's stiffnesses). Returns the final state and the stats.
 fn landing(kind: SolverKind, steps: usize) -> (Vec<f64>, SolverStats) {
-    let model = BlockScene {
-        learned_modes: 4,
-        cubature_points: 60,
-        contact_points: 120,
-        incline: 20.0,
-        contact_on_all_faces: true,
-        normal_stiffness: 1e7,
-        friction_stiffness: 1e7,
-        ..Default::default()
-    }
-    .build()
-    .unwrap();
+    let model = BlockScene::landing(4, 60, 120).build().unwrap();
     let mut s = solver(&model, kind, 1e-6, 100);
     let (q, qdot) = model.dropped_state(30.0, 0.01);
     s.set_state(&q, &qdot).unwrap();
