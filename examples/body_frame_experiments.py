@@ -47,7 +47,7 @@ import numpy as np
 from licrom import AffineBasis, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
 from licrom.affine import apply_affine, fit_affine
-from licrom.basis import SubspaceProjector
+from licrom.basis import SubspaceProjector, run_balanced_weights
 from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.compare import compare, first_contact_frame, nonrigid_error
 from licrom.cubature import Cubature
@@ -60,7 +60,7 @@ SECTION_TITLE = "## 10. Body-frame reduced model"
 READING = "### Reading"  # the hand-written part of the section, kept when the script rewrites its tables
 NUDGE = 1e-4  # m: the noise floor's higher drop
 CHAOTIC_FLOOR = 0.02  # a noise floor above this makes a scene chaotic (target: 3x the floor)
-POD_SIZES = (20, 40)
+POD_SIZES = (20, 40, 60)
 TRAINING_AZIMUTHS = (0.0, 50.0, 160.0, 230.0, 300.0)  # deg; the held-out 120 lies between two of them
 
 
@@ -180,12 +180,14 @@ def sphere_family(small: bool) -> Family:
     mesh = meshes.sphere(radius=0.05, resolution=4 if small else 7)
     base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.005)
     cases = []
-    for slope, mu, held in ((20.0, 0.5, False), (30.0, 0.5, False), (25.0, 0.3, True)):
+    # Friction on both sides of the held-out 0.3 (as the cheese's 0.2 / 0.8): with mu 0.5 alone, POD(60) of the
+    # training frames left 5.0 % of the held-out run and its reduced run ended 11 % of the size away (with 0.2 too: 3.3 %, 4.6 %).
+    for slope, mu, held in ((20.0, 0.5, False), (30.0, 0.5, False), (20.0, 0.2, False), (30.0, 0.2, False), (25.0, 0.3, True)):
         p = incline(slope, 0.0, mu)
         cases.append(Case(f"sphere_{slope:g}_{mu:g}", f"rolls: {_label(p, 0.0)}", held,
                           _on_plane(mesh, base, p, 0.1, velocity=(0.5, 0.0, -1.0)), figure=held))
     if small:
-        cases = cases[1:]
+        cases = cases[-2:]
     return Family("sphere", mesh, 20 if small else 200, tuple(cases))
 
 
@@ -199,12 +201,23 @@ def nudged(scene: Scene) -> Scene:
     return scene.replace(initial=dataclasses.replace(init, translation=tuple(np.add(init.translation, (0.0, 0.0, NUDGE)))))
 
 
+def _close(a, b) -> bool:
+    """Equal scene descriptions up to round-off (the start pose is computed, and numpy builds differ in the last bit)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-15)
+    return a == b
+
+
 def full_run(work: Path, name: str, mesh: licrom.Mesh, scene: Scene, steps: int) -> Trajectory:
     """The full-space run, from the cache when it holds this scene and step count."""
     path = work / "full" / f"{name}.npz"
     if path.exists():
         traj = Trajectory.load(path)
-        if traj.scene == scene and traj.n_frames == steps + 1 and traj.rest_positions.shape == mesh.vertices.shape:
+        if _close(traj.scene.to_dict(), scene.to_dict()) and traj.n_frames == steps + 1 and traj.rest_positions.shape == mesh.vertices.shape:
             return traj
     t0 = time.perf_counter()
     traj = licrom.FullSim(mesh, scene).run(steps)  # looked up here: warp loads only when a run is not cached
@@ -240,14 +253,18 @@ def run_metrics(full: Trajectory, other: Trajectory) -> dict:
 
 
 # --- subspace bounds ------------------------------------------------------------------------
-def residual_pod(mesh: licrom.Mesh, u: np.ndarray, masses: np.ndarray, r: int) -> MeshBasis:
-    """POD(r) of what the mass-weighted affine fit leaves of the snapshots ``u`` (f, n, 3), as the training data does.
+def residual_pod(mesh: licrom.Mesh, runs: list[np.ndarray], masses: np.ndarray, r: int) -> MeshBasis:
+    """POD(r) of what the mass-weighted affine fit leaves of each run's snapshots (f_k, n, 3), as training does.
 
-    The modes are mass-orthogonal to every affine mode, rigid ones included.
+    Every run counts the same (:func:`licrom.basis.run_balanced_weights`, the training's
+    default ``pod_weighting="run"``), so the POD spans what the models learn. The modes are
+    mass-orthogonal to every affine mode, rigid ones included.
     """
     rest = mesh.vertices
-    residual = u - apply_affine(rest, fit_affine(rest, u, masses))
-    return MeshBasis.pod(mesh, residual, min(r, len(u)))[0]
+    residual = np.concatenate([u - apply_affine(rest, fit_affine(rest, u, masses)) for u in runs])
+    run_index = np.concatenate([np.full(len(u), k) for k, u in enumerate(runs)])
+    weights = run_balanced_weights(run_index, np.einsum("fni,fni,n->f", residual, residual, masses))
+    return MeshBasis.pod(mesh, residual, min(r, len(residual)), weights=weights)[0]
 
 
 def _as_run(full: Trajectory, displacements: np.ndarray) -> Trajectory:
@@ -306,14 +323,14 @@ class Setting:
         return masses_of(self.train[0])
 
     @cached_property
-    def train_u(self) -> np.ndarray:
-        """World-frame displacements of the training frames from first contact on (the fall adds nothing)."""
-        return np.concatenate([t.displacements[contact_start(t):] for t in self.train])
+    def train_u(self) -> list[np.ndarray]:
+        """World-frame displacements of each training run's frames from first contact on (the fall adds nothing)."""
+        return [t.displacements[contact_start(t):] for t in self.train]
 
     @cached_property
-    def train_d(self) -> np.ndarray:
+    def train_d(self) -> list[np.ndarray]:
         """Body-frame displacements of the same frames."""
-        return np.concatenate([body_displacements(t)[contact_start(t):] for t in self.train])
+        return [body_displacements(t)[contact_start(t):] for t in self.train]
 
     def world_pod(self, r: int) -> StackedBasis:
         return StackedBasis(AffineBasis(), residual_pod(self.mesh, self.train_u, self.masses, r))
@@ -378,7 +395,7 @@ def body_pod_column(setting: Setting, case: Case, full: Trajectory, r: int) -> t
 def own_body_pod_column(setting: Setting, case: Case, full: Trajectory, r: int) -> tuple[Trajectory, float]:
     """The body-frame model with POD(r) of the held-out run's own body-frame displacements: the dynamics alone, no training gap."""
     own = body_displacements(full)[contact_start(full):]
-    basis = setting.body_basis(residual_pod(setting.mesh, own, setting.masses, r))
+    basis = setting.body_basis(residual_pod(setting.mesh, [own], setting.masses, r))
     return _body_reduced(setting, case, basis), body_projection_error(full, basis.values(setting.mesh.vertices))
 
 
@@ -543,7 +560,7 @@ def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], s
     bounds = {}
     for r in pod_sizes:
         bounds[f"world{r}"] = world_projection_error(full, setting.world_pod(r).values(mesh.vertices))
-        for key, learned in (("body", setting.body_pod(r)), ("own", residual_pod(mesh, own_d, setting.masses, r))):
+        for key, learned in (("body", setting.body_pod(r)), ("own", residual_pod(mesh, [own_d], setting.masses, r))):
             bounds[f"{key}{r}"] = body_projection_error(full, setting.body_basis(learned).values(mesh.vertices))
     for r in sizes:
         bounds[f"learned{r}"] = body_projection_error(full, setting.body_basis(setting.model("body", r)).values(mesh.vertices))

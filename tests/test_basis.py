@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
-from licrom.basis import SubspaceProjector, strain_jacobians
+from licrom.basis import SubspaceProjector, run_balanced_weights, strain_jacobians
 
 
 def _fd_jacobian(basis, points, eps=1e-6):
@@ -85,6 +85,62 @@ def test_pod_modes_are_mass_orthonormal(rng):
     w = b.modes.reshape(-1, 4)
     np.testing.assert_allclose(w.T @ (m[:, None] * w), np.eye(4), atol=1e-10)
     assert np.all(np.diff(sigma) <= 0)
+
+
+def _in_span(modes: np.ndarray, field: np.ndarray, masses: np.ndarray) -> float:
+    """Relative mass-weighted part of ``field`` (n, 3) outside the span of mass-orthonormal ``modes`` (n, 3, k)."""
+    m = np.repeat(masses, 3)
+    w, f = modes.reshape(-1, modes.shape[2]), field.reshape(-1)
+    rest = f - w @ (w.T @ (m * f))
+    return float(np.sqrt(rest @ (m * rest) / (f @ (m * f))))
+
+
+def test_weighted_pod_minimises_the_weighted_error(rng):
+    mesh = meshes.box(0.1, resolution=2)
+    masses = mesh.vertex_masses(1.0)
+    snaps = rng.standard_normal((5, mesh.n_vertices, 3))
+    w = np.array([4.0, 1.0, 0.0, 2.0, 0.5])
+    weighted, sigma = MeshBasis.pod(mesh, snaps, 3, weights=w)
+    scaled, sigma_scaled = MeshBasis.pod(mesh, snaps * np.sqrt(w)[:, None, None], 3)
+    np.testing.assert_allclose(sigma[:4], sigma_scaled[:4], rtol=1e-12)  # the fifth is round-off (weight 0)
+    for k in range(3):  # the same modes up to sign
+        assert _in_span(weighted.modes, scaled.modes[:, :, k], masses) < 1e-9
+    # a snapshot of weight 0 takes no mode: 4 modes span the other four snapshots exactly
+    four = MeshBasis.pod(mesh, snaps, 4, weights=w)[0]
+    assert max(_in_span(four.modes, snaps[i], masses) for i in (0, 1, 3, 4)) < 1e-9
+    assert _in_span(four.modes, snaps[2], masses) > 0.1
+    for bad in (np.ones(4), np.array([1.0, -1.0, 1.0, 1.0, 1.0]), np.array([1.0, np.nan, 1.0, 1.0, 1.0])):
+        with pytest.raises(ShapeError, match="weights"):
+            MeshBasis.pod(mesh, snaps, 2, weights=bad)
+
+
+def test_run_balanced_pod_keeps_the_gentle_run(rng):
+    """Two large deformations of one run take plain POD(2); balanced, the small run of another gets its mode."""
+    mesh = meshes.box(0.1, resolution=2)
+    masses = mesh.vertex_masses(1.0)
+    # three mass-orthonormal fields (Gram-Schmidt), so that each is one POD mode
+    m3 = np.repeat(masses, 3)
+    q, _ = np.linalg.qr(np.sqrt(m3)[:, None] * rng.standard_normal((3 * mesh.n_vertices, 3)))
+    a, b, c = ((q[:, k] / np.sqrt(m3)).reshape(mesh.n_vertices, 3) for k in range(3))
+    big = np.stack([100.0 * a, 90.0 * b] * 3)  # one run, six frames
+    small = np.stack([1.0 * c] * 4)  # another, four frames
+    snaps = np.concatenate([big, small])
+    runs = np.array([0] * 6 + [1] * 4)
+    norm2 = np.einsum("fni,fni,n->f", snaps, snaps, masses)
+    weights = run_balanced_weights(runs, norm2)
+    np.testing.assert_allclose(np.bincount(runs, weights=weights * norm2), [1.0, 1.0])
+    plain = MeshBasis.pod(mesh, snaps, 2)[0]
+    balanced = MeshBasis.pod(mesh, snaps, 2, weights=weights)[0]
+    assert _in_span(plain.modes, c, masses) > 0.5
+    assert _in_span(balanced.modes, c, masses) < 1e-9
+
+
+def test_run_balanced_weights_edge_cases():
+    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0])), [0.25, 0.25, 0.0])
+    with pytest.raises(ShapeError, match="one length"):
+        run_balanced_weights(np.zeros(3), np.ones(2))
+    with pytest.raises(ShapeError, match="finite"):
+        run_balanced_weights(np.zeros(2), np.array([1.0, -1.0]))
 
 
 class _Wiggly:

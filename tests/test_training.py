@@ -158,11 +158,16 @@ def test_relative_error():
 @pytest.mark.parametrize(
     "kwargs",
     [{"epochs": 0}, {"lr": -1.0}, {"sample": "faces"}, {"device": "tpu"}, {"val_fraction": 1.0}, {"batch_frames": 1.5},
-     {"projection_weight": -1.0}, {"devices": 0}, {"nodes": 0}, {"objective": "vae"}],
+     {"projection_weight": -1.0}, {"devices": 0}, {"nodes": 0}, {"objective": "vae"}, {"pod_weighting": "energy"}],
 )
 def test_train_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
         TrainConfig(**kwargs)
+
+
+def test_train_config_names_the_accepted_pod_weightings():
+    with pytest.raises(ConfigError, match="'run', 'frame'"):
+        TrainConfig(pod_weighting="energy")
 
 
 # --- training ----------------------------------------------------------------------------
@@ -295,13 +300,15 @@ def test_cli_train(data_dir, tmp_path):
     assert out.is_file() and "held-out projection error" in res.output and "body frame" in res.output
     back = Model.load(out)
     assert back.n_learned == 2 and back.frame == "body"  # body frame by default
+    assert back.metadata["train_config"]["pod_weighting"] == "run"  # every training run counts the same by default
     world = tmp_path / "world.lcm"
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(world), "--modes", "2", "--epochs", "1", "--points", "128",
-                                   "--batch-frames", "4", "--device", "cpu", "--quiet", "--frame", "world", "--objective", "autoencoder"])
+                                   "--batch-frames", "4", "--device", "cpu", "--quiet", "--frame", "world", "--objective", "autoencoder",
+                                   "--pod-weighting", "frame"])
     assert res.exit_code == 0, res.output
     back = Model.load(world)
     assert back.frame == "world" and back.n_modes == 14
-    assert back.metadata["train_config"]["objective"] == "autoencoder"
+    assert back.metadata["train_config"]["objective"] == "autoencoder" and back.metadata["train_config"]["pod_weighting"] == "frame"
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(tmp_path / "x.lcm"), "--frame", "lab"])
     assert res.exit_code != 0 and "body" in res.output and "world" in res.output
 

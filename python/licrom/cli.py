@@ -216,6 +216,8 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
               help="pod: regress the field onto the POD modes of the training frames; autoencoder: LiCROM's training [pod].")
+@click.option("--pod-weighting", type=click.Choice(["run", "frame"]), default=None,
+              help="run: every training run counts the same in the POD; frame: every frame does (plain POD) [run].")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Passes over the training frames [TrainConfig default].")
 @click.option("--lr", type=float, default=None, help="Initial Adam learning rate [3e-3].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")
@@ -232,7 +234,7 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, frame, objective, epochs, lr, seed, device, gpus, nodes, batch_frames, points, val_fraction, width,
+def train_command(data, output, modes, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, batch_frames, points, val_fraction, width,
                   layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -244,7 +246,7 @@ def train_command(data, output, modes, frame, objective, epochs, lr, seed, devic
 
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
-    for key, value in (("objective", objective), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
+    for key, value in (("objective", objective), ("pod_weighting", pod_weighting), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
                        ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes)):
         if value is not None:
             tkw[key] = value

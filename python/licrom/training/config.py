@@ -16,6 +16,7 @@ from .._io import atomic_path
 from ..errors import ConfigError
 
 OBJECTIVES = ("pod", "autoencoder")
+POD_WEIGHTINGS = ("run", "frame")
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,11 @@ class TrainConfig:
             residuals, the encoder onto their coordinates; one SVD of the training
             residuals before the first step) or ``"autoencoder"`` (LiCROM's joint
             training); see the module docstring.
+        pod_weighting: how the ``"pod"`` objective weights the training frames: ``"run"``
+            (every training run counts the same, :func:`licrom.basis.run_balanced_weights`:
+            a few runs that deform a lot no longer take the modes the gentle ones need) or
+            ``"frame"`` (every frame counts the same: plain POD, the best subspace for the
+            frames' summed squared error).
         epochs: passes over the training frames.
         batch_frames: frames per optimisation step (each frame is one point cloud).
         points_per_frame: points sampled per step, shared by the frames of the step
@@ -71,6 +77,7 @@ class TrainConfig:
     """
 
     objective: str = "pod"
+    pod_weighting: str = "run"
     epochs: int = 200
     batch_frames: int = 16
     points_per_frame: int = 2048
@@ -118,6 +125,8 @@ class TrainConfig:
             object.__setattr__(self, "val_indices", tuple(int(i) for i in self.val_indices))
         if self.objective not in OBJECTIVES:
             raise ConfigError(f"TrainConfig.objective must be one of {', '.join(repr(o) for o in OBJECTIVES)}, got {self.objective!r}")
+        if self.pod_weighting not in POD_WEIGHTINGS:
+            raise ConfigError(f"TrainConfig.pod_weighting must be one of {', '.join(repr(w) for w in POD_WEIGHTINGS)}, got {self.pod_weighting!r}")
         if self.sample not in ("tets", "vertices"):
             raise ConfigError(f"TrainConfig.sample must be 'tets' or 'vertices', got {self.sample!r}")
         if self.device not in ("auto", "cpu", "cuda"):

@@ -143,8 +143,8 @@ def subspace_report(model: Model, data: TrainingData) -> dict[str, Any]:
     """The learned subspace against the POD bound of its own size, in the model's frame.
 
     Both subspaces hold the exact affine modes plus r more: the model's learned modes,
-    or the first r mass-orthonormal POD modes of ``data``'s training residuals (the
-    best r-dimensional subspace for those frames). For each split the error is
+    or the first r mass-orthonormal POD modes of ``data``'s training residuals (plain POD,
+    every frame weighted the same: the best r-dimensional subspace for those frames). For each split the error is
     ``sqrt(sum_f ||u_f - P u_f||_M^2 / sum_f ||u_f||_M^2)`` with ``u_f`` the displacement
     in the data's frame, i.e. in the body frame the non-rigid deformation only (the
     rigid part is exact there, and the affine part is exact in both subspaces).
@@ -169,7 +169,7 @@ def subspace_report(model: Model, data: TrainingData) -> dict[str, Any]:
                           f"affine={model.affine}, data {data.frame!r}/affine={data.affine}")
     r = model.n_learned
     learned = model.values(data.rest)[:, :, model.n_affine :]
-    pod = pod_targets(data, r)[0]
+    pod = pod_targets(data, r, "frame")[0]  # the best r-dimensional subspace for the frames, whatever the training weighted
     out: dict[str, Any] = {"frame": data.frame, "r": r}
     for split, frames in (("train", data.train), ("val", data.val)):
         total = float(frames.norm2_full.sum()) if len(frames) else 0.0

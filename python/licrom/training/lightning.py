@@ -63,7 +63,7 @@ def _lightning_classes() -> dict[str, Any]:
         def attach(self, data: TrainingData) -> None:
             self._data = data
             if self.tcfg.objective == "pod":
-                self._pod = pod_targets(data, self.mcfg.latent_dim)
+                self._pod = pod_targets(data, self.mcfg.latent_dim, self.tcfg.pod_weighting)
 
         def setup(self, stage: str) -> None:
             self._bank = None  # built on the device at fit start

@@ -5,14 +5,20 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..basis import MeshBasis
+from ..basis import MeshBasis, run_balanced_weights
 from ..errors import ConfigError, ShapeError
 from ..model import LicromNet
 from ..training_data import TrainingData
 
 
-def pod_targets(data: TrainingData, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pod_targets(data: TrainingData, count: int, weighting: str = "run") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Regression targets of the ``"pod"`` objective from the training residuals of ``data``.
+
+    Args:
+        data: the training data.
+        count: number of modes.
+        weighting: ``"run"`` (every training run counts the same in the POD,
+            :func:`licrom.basis.run_balanced_weights`) or ``"frame"`` (plain POD).
 
     Returns:
         ``(modes, latents, weights)``: the ``count`` POD modes (count, n, 3), scaled to a
@@ -25,8 +31,9 @@ def pod_targets(data: TrainingData, count: int) -> tuple[np.ndarray, np.ndarray,
         ConfigError: ``count`` exceeds the number of training frames (or 3 n).
     """
     res = data.train.residuals
+    weights = run_balanced_weights(data.train.trajectory, data.train.norm2_residual) if weighting == "run" else None
     try:
-        basis, _ = MeshBasis.pod(data.mesh, res, count)
+        basis, _ = MeshBasis.pod(data.mesh, res, count, weights=weights)
     except ShapeError as exc:
         raise ConfigError(f"the 'pod' objective needs latent_dim <= the number of training frames ({len(res)}): {exc}") from exc
     m = data.mesh.vertex_masses(1.0)
