@@ -115,14 +115,14 @@ def test_weighted_pod_minimises_the_weighted_error(rng):
 
 
 def test_run_balanced_pod_keeps_the_gentle_run(rng):
-    """Two large deformations of one run take plain POD(2); balanced, the small run of another gets its mode."""
+    """Two large deformations of one run take plain POD(2); balanced, the smaller run of another gets its mode."""
     mesh = meshes.box(0.1, resolution=2)
     masses = mesh.vertex_masses(1.0)
     # three mass-orthonormal fields (Gram-Schmidt), so that each is one POD mode
     m3 = np.repeat(masses, 3)
     q, _ = np.linalg.qr(np.sqrt(m3)[:, None] * rng.standard_normal((3 * mesh.n_vertices, 3)))
     a, b, c = ((q[:, k] / np.sqrt(m3)).reshape(mesh.n_vertices, 3) for k in range(3))
-    big = np.stack([100.0 * a, 90.0 * b] * 3)  # one run, six frames
+    big = np.stack([5.0 * a, 4.5 * b] * 3)  # one run, six frames, 34x the energy of the other
     small = np.stack([1.0 * c] * 4)  # another, four frames
     snaps = np.concatenate([big, small])
     runs = np.array([0] * 6 + [1] * 4)
@@ -135,8 +135,25 @@ def test_run_balanced_pod_keeps_the_gentle_run(rng):
     assert _in_span(balanced.modes, c, masses) < 1e-9
 
 
+def test_run_balanced_pod_ignores_the_round_off_of_a_run_that_does_not_deform(rng):
+    """A free fall's residual is round-off: balanced in full it would become the modes."""
+    mesh = meshes.box(0.1, resolution=2)
+    masses = mesh.vertex_masses(1.0)
+    a = rng.standard_normal((mesh.n_vertices, 3))
+    snaps = np.concatenate([np.stack([a * s for s in (1.0, 2.0, 3.0)]), 1e-15 * rng.standard_normal((3, mesh.n_vertices, 3))])
+    runs = np.array([0, 0, 0, 1, 1, 1])
+    weights = run_balanced_weights(runs, np.einsum("fni,fni,n->f", snaps, snaps, masses))
+    assert weights[3] == weights[0] * 100.0  # the noisy run is boosted by at most 1 / floor
+    assert _in_span(MeshBasis.pod(mesh, snaps, 1, weights=weights)[0].modes, a, masses) < 1e-9
+
+
 def test_run_balanced_weights_edge_cases():
-    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0])), [0.25, 0.25, 0.0])
+    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0])), [0.25, 0.25, 25.0])
+    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0]), floor=0.5), [0.25, 0.25, 0.5])
+    np.testing.assert_array_equal(run_balanced_weights(np.array([1, 1]), np.zeros(2)), [0.0, 0.0])
+    assert run_balanced_weights(np.zeros(0, dtype=int), np.zeros(0)).shape == (0,)
+    with pytest.raises(ConfigError, match="floor"):
+        run_balanced_weights(np.zeros(2), np.ones(2), floor=2.0)
     with pytest.raises(ShapeError, match="one length"):
         run_balanced_weights(np.zeros(3), np.ones(2))
     with pytest.raises(ShapeError, match="finite"):
