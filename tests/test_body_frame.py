@@ -215,3 +215,22 @@ def test_binding_gradient_and_hessian_match_finite_differences():
     hess = core.hessian(c, r, q, exact=True)
     np.testing.assert_allclose(hess, 0.5 * (jac + jac.T), atol=1e-5 * np.abs(hess).max())
     assert np.linalg.eigvalsh(core.hessian(c, r, q, exact=False)).min() > 0
+
+
+def test_a_step_whose_contact_model_stalls_goes_on_with_newton():
+    """The tipping box of docs/results.md section 10 in 80 POD modes of its training runs (saved).
+
+    At step 38 the contact model's direction led where the energy does not decrease, every
+    outer iteration again: the line search took steps of 4e-11 to 2e-8 and the step failed
+    after max_iterations at a residual of 1.8e-3 m/s. After such a step the next direction
+    is now the plain Newton one (``STALLED_STEP`` in the Rust solver), and the run converges.
+    """
+    import pathlib
+
+    data = np.load(pathlib.Path(__file__).parent / "data" / "box_tip_pod80.npz")
+    mesh = meshes.box(size=(0.04, 0.04, 0.12), resolution=8)
+    scene = Scene.from_json(str(data["scene"]))
+    basis = BodyFrameBasis(mesh, MeshBasis(mesh, data["modes"]), density=scene.material.density)
+    sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+    iterations = [sim.step()[0] for _ in range(45)]
+    assert max(iterations) < 20

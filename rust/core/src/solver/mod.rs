@@ -41,7 +41,7 @@ mod settings;
 #[cfg(test)]
 mod tests;
 
-pub use contact_model::INNER_FORCING;
+pub use contact_model::{INNER_FORCING, STALLED_STEP};
 pub use direction::ELASTIC_DRIFT;
 pub use line_search::CURVATURE;
 pub use settings::{ElasticHessian, SolverKind, SolverSettings, SolverStats, StepReport};
@@ -49,7 +49,7 @@ pub use settings::{ElasticHessian, SolverKind, SolverSettings, SolverStats, Step
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepStart, Workspace};
-use contact_model::ContactModelState;
+use contact_model::{skip_contact_model, ContactModelState};
 use direction::ElasticPart;
 use line_search::{line_search, LineStep};
 
@@ -365,6 +365,7 @@ impl ReducedSolver {
         }
         let mut residual = f64::INFINITY;
         let mut full_step = false;
+        let mut plain_newton = false;
         for iteration in 1..=self.settings.max_iterations {
             self.stats.iterations += 1;
             if !self.iterate.grad.iter().all(|g| g.is_finite()) {
@@ -381,13 +382,14 @@ impl ReducedSolver {
                 self.finish_step();
                 return Ok(StepReport { iterations: iteration, residual });
             }
-            if self.system.has_contact() {
+            if self.system.has_contact() && !plain_newton {
                 self.solve_contact_model(energy, residual);
             }
             match self.search_line(energy, Objective::Energy) {
                 Some(step) => {
                     energy = step.energy;
                     full_step = step.alpha == 1.0;
+                    plain_newton = skip_contact_model(step.alpha);
                 }
                 None if self.mode == SolverKind::Prefactored => {
                     self.fall_back();
