@@ -165,9 +165,16 @@ def test_train_config_rejects_bad_values(kwargs):
         TrainConfig(**kwargs)
 
 
-def test_train_config_names_the_accepted_pod_weightings():
+def test_train_config_names_the_accepted_pod_weightings(mesh):
+    from licrom.training.objectives import pod_targets
+
     with pytest.raises(ConfigError, match="'run', 'frame'"):
         TrainConfig(pod_weighting="energy")
+    data = TrainingData(make_synthetic_trajectories(mesh, count=2, frames=5, seed=1), val_fraction=0.0)
+    with pytest.raises(ConfigError, match="'run', 'frame'"):
+        pod_targets(data, 2, "energy")
+    # The two weightings give two sets of modes of the same shape.
+    assert pod_targets(data, 2, "run")[0].shape == pod_targets(data, 2, "frame")[0].shape == (2, mesh.n_vertices, 3)
 
 
 # --- training ----------------------------------------------------------------------------

@@ -305,7 +305,8 @@ def run_balanced_weights(runs: np.ndarray, norm2: np.ndarray, floor: float = 1e-
     if len(runs) == 0:
         return np.zeros(0)
     _, inverse = np.unique(runs, return_inverse=True)
-    totals = np.maximum(np.bincount(inverse, weights=norm2), floor * np.bincount(inverse, weights=norm2).max())
+    energies = np.bincount(inverse, weights=norm2)
+    totals = np.maximum(energies, floor * energies.max())
     per_run = np.divide(1.0, totals, out=np.zeros_like(totals), where=totals > 0)
     return per_run[inverse]
 

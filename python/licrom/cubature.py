@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from .mesh import Mesh
 from .scene import Material
 
 if TYPE_CHECKING:
+    from .model import Model
     from .trajectory import Trajectory
 
 __all__ = ["ContactPoints", "Cubature"]
@@ -172,7 +173,7 @@ class Cubature:
         return cls(tets[order], weights[nz][order], mesh.centroids[tets[order]], "optimized", float(error))
 
     @classmethod
-    def for_model(cls, model: Any, runs: Sequence[Trajectory], count: int = 1000, frame_stride: int = 5, tolerance: float = 1e-3,
+    def for_model(cls, model: Model, runs: Sequence[Trajectory], count: int = 1000, frame_stride: int = 5, tolerance: float = 1e-3,
                   strain: str = "mesh") -> Cubature:
         """:meth:`optimized` cubature for a trained model, fitted to the poses of its training runs.
 

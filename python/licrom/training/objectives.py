@@ -9,6 +9,7 @@ from ..basis import MeshBasis, run_balanced_weights
 from ..errors import ConfigError, ShapeError
 from ..model import LicromNet
 from ..training_data import TrainingData
+from .config import POD_WEIGHTINGS
 
 
 def pod_targets(data: TrainingData, count: int, weighting: str = "run") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -28,8 +29,11 @@ def pod_targets(data: TrainingData, count: int, weighting: str = "run") -> tuple
         loss (count,), proportional to the RMS of its coordinate, mean 1.
 
     Raises:
-        ConfigError: ``count`` exceeds the number of training frames (or 3 n).
+        ConfigError: ``count`` exceeds the number of training frames (or 3 n), or an
+            unknown ``weighting``.
     """
+    if weighting not in POD_WEIGHTINGS:
+        raise ConfigError(f"pod weighting must be one of {', '.join(repr(w) for w in POD_WEIGHTINGS)}, got {weighting!r}")
     res = data.train.residuals
     weights = run_balanced_weights(data.train.trajectory, data.train.norm2_residual) if weighting == "run" else None
     try:
