@@ -60,7 +60,9 @@ def test_identity_basis_reproduces_full_simulation():
     assert scale > 0.01  # it moved and touched (contact + friction active)
     err = np.abs(reduced.displacements - full.displacements).max() / scale
     print(f"identity basis vs full: max relative position difference {err:.2e}")
-    assert err < 1e-8
+    # The reduced system holds its Jacobians in single precision (relative rounding 6e-8): that alone moves the
+    # result by about 1.5e-8 here, where any error of a term would show at 1e-4 or more.
+    assert err < 1e-7
 
 
 def test_affine_free_fall_is_discrete_backward_euler():

@@ -15,7 +15,7 @@ use crate::dense::{mirror_lower, syrk_columns};
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
-use super::layout::lanes_at;
+use super::layout::widened_at;
 use super::{ReducedSystem, Workspace};
 
 /// A quadratic stand-in for the elastic energy about `origin`:
@@ -128,7 +128,7 @@ impl ReducedSystem {
                 for (g, acc) in group.chunks_exact(9 * LANES).zip(var_acc.iter_mut()) {
                     let mut v = *acc;
                     for a in 0..9 {
-                        v = M::madd8(lanes_at(g, a * LANES), &p[a], v);
+                        v = M::madd8(&widened_at(g, a * LANES), &p[a], v);
                     }
                     *acc = v;
                 }
@@ -236,7 +236,7 @@ impl ReducedSystem {
             for (g, &c) in group.chunks_exact(9 * LANES).zip(&cub.var_cols) {
                 let mut gs = [[0.0; LANES]; 9];
                 for a in 0..9 {
-                    gs[a] = *lanes_at(g, a * LANES);
+                    gs[a] = widened_at(g, a * LANES);
                 }
                 write_rows::<M>(c * stride, &gs, [&pos_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
             }

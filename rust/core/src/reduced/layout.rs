@@ -13,10 +13,17 @@
 //! the same way (`W_j` as `[i][c][lane]`, plus their normal rows `n_p^T W_j`):
 //! the gaps of eight points cost one pass over the normal rows, and only groups
 //! with a point that touches a plane or carries a lagged normal force go on to
-//! positions, contact terms and gradient. Measured on one core (AVX-512), the
-//! elastic gradient costs about 30-40 ns per cubature point at n = 32 whether
-//! K is 100 or 5000, so it is compute bound: storing G in f32 would save
-//! bandwidth that is not the limit, and would perturb the model at 1e-7.
+//! positions, contact terms and gradient.
+//!
+//! **G in f32.** The varying columns of G are stored in single precision and
+//! widened as they are loaded. At n = 32 the pass is compute bound (30-40 ns
+//! per point whether K is 100 or 5000), but at n = 66 and K = 1000 the f64
+//! Jacobians take 4.3 MB, twice the 2 MB L2 of one core, and the pass waits on
+//! L3: measured on the `body_frame_landing` bench (r = 60), f32 storage cut
+//! the step from 1.04 to 0.89 ms, at the same iteration counts. The rounding
+//! (relative 6e-8, far below the discretisation error) is the model: energy,
+//! gradient and Hessian all use the same rounded G (the constant columns are
+//! rounded alike), so they stay consistent and Newton converges as before.
 
 use nalgebra::Vector3;
 
@@ -28,6 +35,13 @@ use crate::simd::{Madd, F8};
 #[inline(always)]
 pub(super) fn lanes_at(s: &[f64], at: usize) -> &F8 {
     s[at..at + LANES].try_into().expect("eight lanes")
+}
+
+/// The eight values of `s` from `at`, widened to f64.
+#[inline(always)]
+pub(super) fn widened_at(s: &[f32], at: usize) -> F8 {
+    let v: &[f32; LANES] = s[at..at + LANES].try_into().expect("eight lanes");
+    v.map(f64::from)
 }
 
 /// The cubature Jacobians `G_k` of the points with `w_k > 0`, packed by lanes.
@@ -42,7 +56,7 @@ pub(super) struct CubatureLayout {
     /// The varying columns of the Jacobians, in groups of LANES points, group g
     /// at `g group_len()` as `[i][a][lane]`; the last group is padded with
     /// G = 0, w = 0.
-    pub(super) packed: Vec<f64>,
+    pub(super) packed: Vec<f32>,
     /// Weights of the packed points, `LANES` per group, m^3.
     pub(super) weights: Vec<f64>,
 }
@@ -51,7 +65,7 @@ impl CubatureLayout {
     /// Packs the K x 9 x n Jacobians (row-major) of the points of positive weight.
     pub(super) fn new(jacobians: &[f64], weights: &[f64], n: usize) -> Self {
         let kept: Vec<usize> = (0..weights.len()).filter(|&i| weights[i] > 0.0).collect();
-        let column = |point: usize, c: usize| -> [f64; 9] { std::array::from_fn(|a| jacobians[9 * n * point + a * n + c]) };
+        let column = |point: usize, c: usize| -> [f64; 9] { std::array::from_fn(|a| f64::from(jacobians[9 * n * point + a * n + c] as f32)) };
         let (mut var_cols, mut const_cols) = (Vec::new(), Vec::new());
         for c in 0..n {
             let first = kept.first().map(|&p| column(p, c)).unwrap_or([0.0; 9]);
@@ -63,7 +77,7 @@ impl CubatureLayout {
         }
         let nv = var_cols.len();
         let groups = kept.len().div_ceil(LANES);
-        let mut packed = vec![0.0; groups * nv * 9 * LANES];
+        let mut packed = vec![0.0f32; groups * nv * 9 * LANES];
         let mut packed_weights = vec![0.0; groups * LANES];
         for (slot, &point) in kept.iter().enumerate() {
             let (g, l) = (slot / LANES, slot % LANES);
@@ -72,7 +86,7 @@ impl CubatureLayout {
             let dst = &mut packed[g * nv * 9 * LANES..(g + 1) * nv * 9 * LANES];
             for (iv, &c) in var_cols.iter().enumerate() {
                 for a in 0..9 {
-                    dst[(iv * 9 + a) * LANES + l] = src[a * n + c];
+                    dst[(iv * 9 + a) * LANES + l] = src[a * n + c] as f32;
                 }
             }
         }
@@ -104,7 +118,7 @@ impl CubatureLayout {
     /// The eight deformation gradients of a packed group, `F[a][lane]`: `f0`
     /// (identity plus the constant columns' part) plus the varying columns.
     #[inline(always)]
-    pub(super) fn group_deformation<M: Madd>(&self, group: &[f64], q: &[f64], f0: &[f64; 9]) -> [F8; 9] {
+    pub(super) fn group_deformation<M: Madd>(&self, group: &[f32], q: &[f64], f0: &[f64; 9]) -> [F8; 9] {
         let mut f = [[0.0; LANES]; 9];
         for a in 0..9 {
             f[a] = [f0[a]; LANES];
@@ -112,7 +126,7 @@ impl CubatureLayout {
         for (g, &c) in group.chunks_exact(9 * LANES).zip(&self.var_cols) {
             let qc = q[c];
             for a in 0..9 {
-                f[a] = M::madd8_splat(qc, lanes_at(g, a * LANES), f[a]);
+                f[a] = M::madd8_splat(qc, &widened_at(g, a * LANES), f[a]);
             }
         }
         f
