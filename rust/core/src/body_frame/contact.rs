@@ -49,7 +49,7 @@ pub struct BodyContacts {
     rest: Vec<Vector3<f64>>,
     /// `W_j`, 3 x n row-major per kept point.
     basis: Vec<f64>,
-    /// `|W_j|_F`, m per unit of q.
+    /// `|W_j|_2` (largest singular value), m per unit of q: `|W_j q| <= reach |q|`.
     reach: Vec<f64>,
     areas: Vec<f64>,
     planes: Vec<Plane>,
@@ -57,10 +57,21 @@ pub struct BodyContacts {
 }
 
 /// Positions at the start of a step and lagged normal forces (per kept point and plane).
+///
+/// Also the body positions `y_s` at the start of the step's q (`q_start`) of
+/// the points that might touch then (`has_y`). Within a step q moves little,
+/// so `|W_s (q - q_start)|` bounds a point's gap much more tightly than
+/// `|W_s q|`: measured on the `body_frame_landing` bench (r = 60, 1000 points
+/// on all faces, 142 of them carrying a force), the bound through `|q|` let
+/// 544 points per evaluation on to their positions, this one 358, and the
+/// step took 8-10 % less time at the same iteration counts.
 #[derive(Debug, Clone)]
 pub struct ContactStart {
     pub(super) x_prev: Vec<Vector3<f64>>,
     pub(super) normal_force: Vec<f64>,
+    y_start: Vec<Vector3<f64>>,
+    has_y: Vec<bool>,
+    q_start: Vec<f64>,
 }
 
 /// Scratch for rows of the Hessian (N = 6 + n wide, row-major): the
@@ -147,6 +158,15 @@ pub fn add_rotated(s: &[f64], r: &Matrix3<f64>, big: usize, out: &mut [f64]) {
     }
 }
 
+/// Largest singular value of the 3 x n row-major `w`: the square root of the
+/// largest eigenvalue of `w w^T`. It bounds `|w q|` by up to sqrt(3) more
+/// tightly than the Frobenius norm, and the bound decides which points are
+/// evaluated at all.
+fn spectral_norm(w: &[f64], n: usize) -> f64 {
+    let gram = Matrix3::from_fn(|a, b| (0..n).map(|i| w[a * n + i] * w[b * n + i]).sum::<f64>());
+    gram.symmetric_eigenvalues().max().max(0.0).sqrt()
+}
+
 impl BodyContacts {
     /// Validated contact points: `basis` C x 3 x n, `rest` (Xbar_j) C x 3,
     /// `areas` C (>= 0).
@@ -171,7 +191,7 @@ impl BodyContacts {
             total: c,
             rest: index.iter().map(|&j| Vector3::from_column_slice(&rest[3 * j..3 * j + 3])).collect(),
             basis: index.iter().flat_map(|&j| rows(j).iter().copied()).collect(),
-            reach: index.iter().map(|&j| rows(j).iter().map(|w| w * w).sum::<f64>().sqrt()).collect(),
+            reach: index.iter().map(|&j| spectral_norm(rows(j), n)).collect(),
             areas: index.iter().map(|&j| areas[j]).collect(),
             index,
             planes: planes.to_vec(),
@@ -191,7 +211,14 @@ impl BodyContacts {
 
     /// Zeroed start-of-step buffers.
     pub fn start(&self) -> ContactStart {
-        ContactStart { x_prev: vec![Vector3::zeros(); self.rest.len()], normal_force: vec![0.0; self.rest.len() * self.planes.len()] }
+        let c = self.rest.len();
+        ContactStart {
+            x_prev: vec![Vector3::zeros(); c],
+            normal_force: vec![0.0; c * self.planes.len()],
+            y_start: vec![Vector3::zeros(); c],
+            has_y: vec![false; c],
+            q_start: vec![0.0; self.n],
+        }
     }
 
     /// Whether any contact term can be non-zero (points with area and planes).
@@ -228,8 +255,8 @@ impl BodyContacts {
         Vector3::from(rows_dot::<M, 3>(&self.basis[3 * n * s..3 * n * (s + 1)], v))
     }
 
-    /// The lagged normal forces of the points at `pose` and the positions of
-    /// those that carry one (the only ones that use their start position).
+    /// The lagged normal forces of the points at `pose`, and the positions of
+    /// those that might touch a plane (the only ones that use them).
     pub fn begin(&self, pose: &Pose, start: &mut ContactStart) {
         dispatch(BeginKernel { contacts: self, pose, start })
     }
@@ -239,13 +266,17 @@ impl BodyContacts {
         let n_planes = self.planes.len();
         let rt = pose.rotation.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        start.q_start.copy_from_slice(&pose.q);
         for s in 0..self.rest.len() {
             let forces = &mut start.normal_force[s * n_planes..(s + 1) * n_planes];
             forces.fill(0.0);
-            if !self.planes.iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm)) {
+            start.has_y[s] = self.planes.iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm));
+            if !start.has_y[s] {
                 continue;
             }
-            let x = pose.center + pose.rotation * (self.rest[s] + self.mode_motion::<M>(s, &pose.q));
+            let y = self.rest[s] + self.mode_motion::<M>(s, &pose.q);
+            start.y_start[s] = y;
+            let x = pose.center + pose.rotation * y;
             start.x_prev[s] = x;
             for (f, plane) in forces.iter_mut().zip(&self.planes) {
                 *f = self.model.lagged_normal_force(plane, self.areas[s], &x);
@@ -254,10 +285,21 @@ impl BodyContacts {
     }
 
     /// Whether point s may touch `plane` (its gap bounded from below through
-    /// `|W_s q| <= |W_s|_F |q|`) for the body at `center` turned by `rt^T`.
+    /// `|W_s q| <= |W_s|_2 |q|`) for the body at `center` turned by `rt^T`.
     #[inline(always)]
     fn may_touch(&self, plane: &Plane, center: &Vector3<f64>, rt: &Matrix3<f64>, s: usize, q_norm: f64) -> bool {
         plane.gap(center) + (rt * plane.normal()).dot(&self.rest[s]) - self.reach[s] * q_norm < 0.0
+    }
+
+    /// [`Self::may_touch`] within a step: from the point's start position
+    /// through `|W_s (q - q_start)| <= |W_s|_2 |q - q_start|` where it has one
+    /// (`bounds` = (|q|, |q - q_start|)).
+    #[inline(always)]
+    fn may_touch_in_step(&self, plane: &Plane, center: &Vector3<f64>, rt: &Matrix3<f64>, s: usize, start: &ContactStart, bounds: (f64, f64)) -> bool {
+        if !start.has_y[s] {
+            return self.may_touch(plane, center, rt, s, bounds.0);
+        }
+        plane.gap(center) + (rt * plane.normal()).dot(&start.y_start[s]) - self.reach[s] * bounds.1 < 0.0
     }
 
     /// Contact energy (J) at `pose`, with the parts of `out` requested.
@@ -273,6 +315,7 @@ impl BodyContacts {
         let r = &pose.rotation;
         let rt = r.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let dq_norm = pose.q.iter().zip(&start.q_start).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
         if let Some(rows) = out.rows.as_deref_mut() {
             rows.count = 0;
         }
@@ -281,7 +324,11 @@ impl BodyContacts {
             // Lower bound of each gap; a plane is skipped where it cannot be
             // reached and the point carries no lagged force against it.
             let forces = &start.normal_force[s * n_planes..(s + 1) * n_planes];
-            let engaged = self.planes.iter().zip(forces).any(|(plane, &f)| f > 0.0 || self.may_touch(plane, &pose.center, &rt, s, q_norm));
+            let engaged = self
+                .planes
+                .iter()
+                .zip(forces)
+                .any(|(plane, &f)| f > 0.0 || self.may_touch_in_step(plane, &pose.center, &rt, s, start, (q_norm, dq_norm)));
             if !engaged {
                 if let Some(terms) = out.terms.as_deref_mut() {
                     for t in &mut terms.terms[s * n_planes..(s + 1) * n_planes] {
