@@ -74,6 +74,17 @@ pub struct ContactStart {
     q_start: Vec<f64>,
 }
 
+#[cfg(test)]
+impl ContactStart {
+    /// The same start without the points' start positions: every gap is then
+    /// bounded through `|q|` alone.
+    pub(super) fn without_start_positions(&self) -> Self {
+        let mut out = self.clone();
+        out.has_y.fill(false);
+        out
+    }
+}
+
 /// Scratch for rows of the Hessian (N = 6 + n wide, row-major): the
 /// Gauss-Newton rows `sqrt(coef) d^T Jc` of an evaluation, the rows put in
 /// (`rows`) and taken out (`out`) by an incremental update, the stick switch's.
