@@ -307,6 +307,7 @@ class Setting:
         models: folder of the trained models (cached).
         epochs: training epochs of models trained here.
         device: training device (``"auto"``, ``"cpu"``, ``"cuda"``).
+        cubatures: the fitted cubatures of :meth:`fitted_cubature` already loaded, by r.
     """
 
     family: Family
@@ -314,6 +315,7 @@ class Setting:
     models: Path
     epochs: int
     device: str = "auto"
+    cubatures: dict[int, Cubature] = dataclasses.field(default_factory=dict, init=False, repr=False)
 
     @property
     def mesh(self) -> licrom.Mesh:
@@ -342,17 +344,21 @@ class Setting:
     def fitted_cubature(self, r: int) -> Cubature:
         """Optimised cubature of the body-frame model with r learned modes (``Cubature.for_model`` on the training
         runs, to ``CUBATURE_TOLERANCE``), fitted once and cached beside the model."""
-        path = self.models / f"{self.family.name}_body_r{r}_e{self.epochs}_cubature.npz"
+        if r in self.cubatures:
+            return self.cubatures[r]
+        path = self.models / f"{self.family.name}_body_r{r}_e{self.epochs}_cubature_tol{CUBATURE_TOLERANCE:g}.npz"
         if path.exists():
             with np.load(path) as f:
                 tets, weights, fit_error = f["tets"], f["weights"], float(f["fit_error"])
-            return Cubature(tets, weights, self.mesh.centroids[tets], "optimized", fit_error)
+            self.cubatures[r] = Cubature(tets, weights, self.mesh.centroids[tets], "optimized", fit_error)
+            return self.cubatures[r]
         t0 = time.perf_counter()
         cub = Cubature.for_model(self.model("body", r), self.train, tolerance=CUBATURE_TOLERANCE)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez(f, tets=cub.tets, weights=cub.weights, fit_error=cub.fit_error)
         print(f"  fitted {cub.count} cubature tets of {self.mesh.n_tets} to {cub.fit_error:.1e} for {path.name} "
               f"in {time.perf_counter() - t0:.0f} s", flush=True)
+        self.cubatures[r] = cub
         return cub
 
     def body_basis(self, learned) -> BodyFrameBasis:

@@ -238,7 +238,7 @@ fn contact_points_are_skipped_only_where_they_cannot_touch() {
     // case (the body turned so that W_j's top left singular vector is the
     // plane's normal, and dq along the top right one) a point that starts
     // above the plane and ends 1 um in it must be evaluated: the energy and
-    // gradient are those of the bound through |q| alone. A bound 10 % too
+    // gradient are those of the bound through |q| alone. A bound 1 % too
     // tight skips the point and fails here.
     let (b, sys, _, _) = turned_case();
     let (n, plane) = (b.n, &b.planes[0]);
