@@ -22,6 +22,7 @@
 //! convergence into a linear one).
 
 use crate::cholesky::Cholesky;
+use crate::dense::{mat_vec_add, quadratic_form};
 use crate::error::{LicromError, Result};
 use crate::reduced::{ReducedSystem, Workspace};
 
@@ -193,13 +194,7 @@ impl ReducedSolver {
 
 /// `sqrt(v^T m v)` for the positive definite m (N x N).
 pub(crate) fn metric_norm(m: &[f64], v: &[f64]) -> f64 {
-    let n = v.len();
-    let mut norm2 = 0.0;
-    for i in 0..n {
-        let row: f64 = (0..n).map(|j| m[i * n + j] * v[j]).sum();
-        norm2 += v[i] * row;
-    }
-    norm2.max(0.0).sqrt()
+    quadratic_form(m, v).max(0.0).sqrt()
 }
 
 /// How far a lagged elastic Hessian `K_el` is off along the last step `s`
@@ -227,12 +222,13 @@ pub(crate) fn elastic_drift(
     }
     let (k, clamped) = stiffness;
     scratch[..offset].fill(0.0);
-    for i in 0..n {
-        let mut ks = 0.0;
-        for j in 0..n {
-            ks += (k[i * n + j] - clamped.map_or(0.0, |c| c[i * n + j])) * s[offset + j];
-        }
-        scratch[offset + i] = g1[i] - g0[i] - ks;
+    let (e, s_el) = (&mut scratch[offset..], &s[offset..]);
+    for ((e, a), b) in e.iter_mut().zip(g1).zip(g0) {
+        *e = a - b;
+    }
+    mat_vec_add(k, s_el, -1.0, e);
+    if let Some(c) = clamped {
+        mat_vec_add(c, s_el, 1.0, e);
     }
     chol.solve_in_place(scratch);
     metric_norm(metric, scratch) / den
@@ -251,18 +247,16 @@ pub(crate) fn secant_update(stiffness: &mut [f64], mass_over_h2: &[f64], s: &[f6
     let (a_s, y) = scratch;
     let n = g1.len();
     let s = &s[s.len() - n..];
-    let (mut sas, mut ys) = (0.0, 0.0);
-    for i in 0..n {
-        let (mut as_i, mut ms_i) = (0.0, 0.0);
-        for j in 0..n {
-            as_i += (mass_over_h2[i * n + j] + stiffness[i * n + j]) * s[j];
-            ms_i += mass_over_h2[i * n + j] * s[j];
-        }
-        a_s[i] = as_i;
-        y[i] = ms_i + g1[i] - g0[i];
-        sas += s[i] * as_i;
-        ys += s[i] * y[i];
+    let (a_s, y) = (&mut a_s[..n], &mut y[..n]);
+    y.fill(0.0);
+    mat_vec_add(mass_over_h2, s, 1.0, y);
+    a_s.copy_from_slice(y);
+    mat_vec_add(stiffness, s, 1.0, a_s);
+    for ((y, a), b) in y.iter_mut().zip(g1).zip(g0) {
+        *y += a - b;
     }
+    let sas: f64 = s.iter().zip(a_s.iter()).map(|(s, a)| s * a).sum();
+    let ys: f64 = s.iter().zip(y.iter()).map(|(s, y)| s * y).sum();
     if !(sas > 0.0 && ys > 1e-8 * sas && sas.is_finite() && ys.is_finite()) {
         return;
     }
