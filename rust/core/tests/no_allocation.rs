@@ -1,10 +1,10 @@
 //! `ReducedSolver::step` and `BodyFrameSolver::step` must not allocate once
 //! warm: this test binary counts heap allocations with a wrapping global
-//! allocator, and its tests take turns so that one does not count the other's.
+//! allocator, per thread, so that neither the other test nor the harness
+//! reporting a finished one counts against a test.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
+use std::cell::Cell;
 
 use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver};
 use licrom_core::body_frame::synthetic::body_block;
@@ -15,11 +15,19 @@ use licrom_core::synthetic::BlockScene;
 
 struct Counting;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    // Const-initialised and without a destructor: usable from the allocator at any time.
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+/// Allocations made so far by the calling thread.
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
@@ -30,11 +38,8 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-static SERIAL: Mutex<()> = Mutex::new(());
-
 #[test]
 fn steps_do_not_allocate() {
-    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     for kind in [SolverKind::Newton, SolverKind::Prefactored] {
         let model = BlockScene { learned_modes: 6, cubature_points: 40, contact_points: 30, ..Default::default() }.build().unwrap();
         let system = ReducedSystem::new(&model.inputs()).unwrap();
@@ -45,19 +50,18 @@ fn steps_do_not_allocate() {
         // The first step may fill lazily created buffers (matrix-product packing).
         solver.step().unwrap();
         let mut forces = vec![0.0; 3 * 30];
-        let before = ALLOCATIONS.load(Ordering::Relaxed);
+        let before = allocations();
         for _ in 0..5 {
             solver.set_state(&q, &qdot).unwrap();
             solver.step().unwrap();
         }
         solver.contact_forces(&mut forces).unwrap();
-        assert_eq!(ALLOCATIONS.load(Ordering::Relaxed) - before, 0, "{kind:?} allocated while stepping");
+        assert_eq!(allocations() - before, 0, "{kind:?} allocated while stepping");
     }
 }
 
 #[test]
 fn body_frame_steps_do_not_allocate() {
-    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let scene = BlockScene { learned_modes: 6, cubature_points: 40, contact_points: 30, ..Default::default() };
     let model = body_block(&scene, true).unwrap();
     let system = BodyFrameSystem::new(&model.inputs()).unwrap();
@@ -74,7 +78,7 @@ fn body_frame_steps_do_not_allocate() {
     }
     solver.reset_stats();
     let mut forces = vec![0.0; 3 * 30];
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = allocations();
     for _ in 0..3 {
         for (v, w) in &states {
             solver.set_state(&pose, v, w, &qdot).unwrap();
@@ -82,7 +86,7 @@ fn body_frame_steps_do_not_allocate() {
         }
     }
     solver.contact_forces(&mut forces).unwrap();
-    assert_eq!(ALLOCATIONS.load(Ordering::Relaxed) - before, 0, "the body-frame solver allocated while stepping");
+    assert_eq!(allocations() - before, 0, "the body-frame solver allocated while stepping");
     // Those steps went through the contact model and the stick correction.
     let stats = solver.stats();
     assert!(stats.model_evaluations > 0 && stats.stick_solves > 0, "{stats:?}");
