@@ -85,7 +85,7 @@ use super::{BodyFrameSystem, BodyHessian, BodyStart, BodyWorkspace, Pose};
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::ElasticModel;
-use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, skip_contact_model, ContactModelSteps};
+use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, skip_contact_model, ContactModelSteps, ModelOutcome};
 use crate::solver::direction::{elastic_drift, factor_definite, metric_norm, secant_update};
 use crate::solver::line_search::{line_search, LineStep};
 use crate::solver::{Objective, SolverStats};
@@ -384,6 +384,7 @@ impl BodyFrameSolver {
         }
         let mut residual = f64::INFINITY;
         let mut plain_newton = false;
+        let mut model_settled = false;
         for iteration in 1..=self.settings.max_iterations {
             self.stats.iterations += 1;
             if !self.iterate.grad.iter().all(|g| g.is_finite()) {
@@ -396,13 +397,14 @@ impl BodyFrameSolver {
                 self.finish_step();
                 return Ok(BodyStepReport { iterations: iteration, residual });
             }
-            if self.system.has_contact() && !plain_newton {
-                self.solve_contact_model(energy, residual);
+            if self.system.has_contact() && !plain_newton && !model_settled {
+                model_settled = self.solve_contact_model(energy, residual) == ModelOutcome::Settled;
             }
             match self.search_line(energy, Objective::Energy) {
                 Some(step) => {
                     energy = step.energy;
                     plain_newton = skip_contact_model(step.alpha);
+                    model_settled &= step.alpha == 1.0;
                 }
                 None => return Err(self.fail(iteration, residual)),
             }
@@ -476,16 +478,17 @@ impl BodyFrameSolver {
     /// minimiser of the contact model ([`crate::solver`]'s, with the elastic
     /// energy expanded in q about the iterate with the lagged `K_el`); falls
     /// back to the Newton direction when the model makes no progress.
-    fn solve_contact_model(&mut self, energy: f64, residual: f64) {
+    fn solve_contact_model(&mut self, energy: f64, residual: f64) -> ModelOutcome {
         self.outer.assign(&self.iterate);
         self.outer_dir.copy_from_slice(&self.dir);
-        let moved = minimise_contact_model(self, energy, inner_tolerance(self.settings.tolerance, residual));
-        if moved {
+        let outcome = minimise_contact_model(self, energy, inner_tolerance(self.settings.tolerance, residual));
+        if outcome != ModelOutcome::Stalled {
             self.iterate.pose.difference(&self.outer.pose, &mut self.dir);
         } else {
             self.dir.copy_from_slice(&self.outer_dir);
         }
         std::mem::swap(&mut self.iterate, &mut self.outer);
+        outcome
     }
 
     /// Energy (or contact model) and gradient at `self.trial.pose`, kept in `self.trial`.
@@ -630,7 +633,7 @@ impl ContactModelSteps for BodyFrameSolver {
         BodyFrameSolver::accept_trial(self);
     }
 
-    fn model_line_search(&mut self, e0: f64) -> Option<f64> {
-        self.search_line(e0, Objective::ContactModel).map(|step| step.energy)
+    fn model_line_search(&mut self, e0: f64) -> Option<LineStep> {
+        self.search_line(e0, Objective::ContactModel)
     }
 }
