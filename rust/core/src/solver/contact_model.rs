@@ -13,7 +13,9 @@
 //! the same iteration (stick correction and line search included) to half the
 //! tolerance, or to [`INNER_FORCING`] of the outer residual; E then takes the
 //! step to its minimiser as the search direction, and only the elastic
-//! nonlinearity is left for the next outer iteration.
+//! nonlinearity is left for the next outer iteration. Once the model's
+//! minimiser is Newton's own full step, the rest of the time step goes without
+//! it ([`ModelOutcome::Settled`]).
 //!
 //! **Stick correction.** Coulomb friction makes the potential nearly non-smooth:
 //! its curvature jumps from `a k_f / h` (stick) to almost nothing (slip) over a
