@@ -307,3 +307,94 @@ impl ContactModelSteps for ReducedSolver {
         self.search_line(e0, Objective::ContactModel)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::line_search::line_search;
+
+    /// A one-dimensional solver for the driver: the model is `phi` (value and
+    /// slope), every direction's matrix the number `curvature`, no stick switch.
+    struct Line {
+        phi: fn(f64) -> (f64, f64),
+        curvature: f64,
+        x: f64,
+        dir: f64,
+        stats: SolverStats,
+    }
+
+    impl Line {
+        /// At `x`, with the Newton direction there as the outer direction.
+        fn at(phi: fn(f64) -> (f64, f64), curvature: f64, x: f64) -> Self {
+            Self { phi, curvature, x, dir: -phi(x).1 / curvature, stats: SolverStats::default() }
+        }
+    }
+
+    impl ContactModelSteps for Line {
+        fn stats_mut(&mut self) -> &mut SolverStats {
+            &mut self.stats
+        }
+        fn model_direction(&mut self) -> Result<f64> {
+            self.dir = -(self.phi)(self.x).1 / self.curvature;
+            Ok(self.dir.abs())
+        }
+        fn take_direction(&mut self) {
+            self.x += self.dir;
+        }
+        fn switch_rows(&mut self) -> usize {
+            0
+        }
+        fn solve_switched(&mut self, _rows: usize) -> Option<f64> {
+            None
+        }
+        fn stick_trial(&mut self) -> f64 {
+            f64::NAN
+        }
+        fn accept_trial(&mut self) {}
+        fn model_line_search(&mut self, e0: f64) -> Option<LineStep> {
+            let (x, dir, phi) = (self.x, self.dir, self.phi);
+            let step = line_search(e0, phi(x).1 * dir, |alpha| {
+                let (e, slope) = phi(x + alpha * dir);
+                (e, slope * dir)
+            })?;
+            self.x = x + step.alpha * dir;
+            Some(step)
+        }
+    }
+
+    fn quadratic(x: f64) -> (f64, f64) {
+        (0.5 * x * x, x)
+    }
+
+    fn steep_quadratic(x: f64) -> (f64, f64) {
+        (2.0 * x * x, 4.0 * x)
+    }
+
+    fn quartic(x: f64) -> (f64, f64) {
+        (0.5 * x * x + 0.25 * x.powi(4), x + x.powi(3))
+    }
+
+    fn minimise(line: &mut Line) -> ModelOutcome {
+        let e0 = (line.phi)(line.x).0;
+        minimise_contact_model(line, e0, 1e-6)
+    }
+
+    #[test]
+    fn a_model_whose_minimiser_is_the_full_newton_step_has_settled() {
+        let mut line = Line::at(quadratic, 1.0, 0.3);
+        assert_eq!(minimise(&mut line), ModelOutcome::Settled);
+        assert!(line.x.abs() < 1e-12 && line.stats.model_iterations == 1, "x = {}, {:?}", line.x, line.stats);
+    }
+
+    #[test]
+    fn a_shortened_step_or_a_further_direction_is_not_settled() {
+        // The matrix misses 3/4 of the curvature: the full step overshoots and the line search shortens it.
+        let mut overshoot = Line::at(steep_quadratic, 1.0, 0.3);
+        assert_eq!(minimise(&mut overshoot), ModelOutcome::Moved);
+        assert!(overshoot.x.abs() < 1e-6, "x = {}", overshoot.x);
+        // The full step is taken, but the model's minimiser lies beyond it: more directions follow.
+        let mut curved = Line::at(quartic, 1.0, 0.5);
+        assert_eq!(minimise(&mut curved), ModelOutcome::Moved);
+        assert!(curved.x.abs() < 1e-6 && curved.stats.model_iterations > 1, "x = {}, {:?}", curved.x, curved.stats);
+    }
+}
