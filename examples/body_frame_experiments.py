@@ -577,7 +577,7 @@ REDUCED_INTRO = (
     "and `own body POD` (`BodyFrameSim` with POD(r) of the held-out run's own "
     "body-frame displacements: no training gap, so what it misses is the reduced dynamics). Models: 200 epochs of the "
     "POD objective, run-balanced (`--train-only world|body --r 20|40|60 --epochs 200 --device cuda`, one process per model, "
-    "130-175 s each for the box and the ball, 12 at once, and 353-364 s for the cheese, 6 at once, on one H100). Each run "
+    "122-163 s each for the box and the ball, 12 at once, and 357-365 s for the cheese, 6 at once, on one H100). Each run "
     "stands beside the projection error of its own subspace. Targets: non-rigid error < 15 %, final COM within 2 % of "
     "the size, stick/slip right (chaotic: 3x the floor). A miss is put on the subspace when its projection error alone "
     "is above the target, or (body-frame runs) when `own body POD` of the same r meets every target (the solver is then sound and the "
