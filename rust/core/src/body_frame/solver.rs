@@ -85,7 +85,7 @@ use super::{BodyFrameSystem, BodyHessian, BodyStart, BodyWorkspace, Pose};
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::ElasticModel;
-use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, skip_contact_model, ContactModelSteps, ModelOutcome};
+use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, ContactModelSteps, ModelOutcome, ModelSchedule};
 use crate::solver::direction::{elastic_drift, factor_definite, metric_norm, secant_update};
 use crate::solver::line_search::{line_search, LineStep};
 use crate::solver::{Objective, SolverStats};
@@ -383,8 +383,7 @@ impl BodyFrameSolver {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
         }
         let mut residual = f64::INFINITY;
-        let mut plain_newton = false;
-        let mut model_settled = false;
+        let mut schedule = ModelSchedule::default();
         for iteration in 1..=self.settings.max_iterations {
             self.stats.iterations += 1;
             if !self.iterate.grad.iter().all(|g| g.is_finite()) {
@@ -397,14 +396,13 @@ impl BodyFrameSolver {
                 self.finish_step();
                 return Ok(BodyStepReport { iterations: iteration, residual });
             }
-            if self.system.has_contact() && !plain_newton && !model_settled {
-                model_settled = self.solve_contact_model(energy, residual) == ModelOutcome::Settled;
+            if self.system.has_contact() && schedule.wanted() {
+                schedule.solved(self.solve_contact_model(energy, residual));
             }
             match self.search_line(energy, Objective::Energy) {
                 Some(step) => {
                     energy = step.energy;
-                    plain_newton = skip_contact_model(step.alpha);
-                    model_settled &= step.alpha == 1.0;
+                    schedule.searched(step.alpha);
                 }
                 None => return Err(self.fail(iteration, residual)),
             }

@@ -56,17 +56,40 @@ pub const INNER_FORCING: f64 = 0.1;
 /// direction made no progress: the model's minimiser lies where E does not
 /// decrease (a friction switch that the lagged elastic model misjudges), and
 /// the model would lead there again. The next outer iteration then searches
-/// along the plain Newton direction ([`skip_contact_model`]). Measured: the
+/// along the plain Newton direction ([`ModelSchedule`]). Measured: the
 /// body-frame solver on the tipping box of docs/results.md section 10 with 80
 /// POD modes stalled at one step for 1000 iterations (residual 1.8e-3 m/s,
 /// steps of 4e-11 to 2e-8); with the plain direction after such a step it
 /// converged in 7 iterations.
 pub const STALLED_STEP: f64 = 1e-4;
 
-/// Whether the next outer iteration goes without the contact model, after a
-/// line search on E that took a step of length `alpha` ([`STALLED_STEP`]).
-pub(crate) fn skip_contact_model(alpha: f64) -> bool {
-    alpha < STALLED_STEP
+/// Whether the outer iterations of one time step solve the contact model: not
+/// after a line search on E that stalled along the model's direction
+/// ([`STALLED_STEP`]: the next iteration takes the plain Newton direction), and
+/// not after the model has settled ([`ModelOutcome::Settled`]) while the line
+/// search keeps taking full steps. One schedule per step, shared by the solvers.
+#[derive(Debug, Default)]
+pub(crate) struct ModelSchedule {
+    stalled: bool,
+    settled: bool,
+}
+
+impl ModelSchedule {
+    /// Whether the next outer iteration solves the contact model.
+    pub(crate) fn wanted(&self) -> bool {
+        !self.stalled && !self.settled
+    }
+
+    /// Records what the contact model of this outer iteration did.
+    pub(crate) fn solved(&mut self, outcome: ModelOutcome) {
+        self.settled = outcome == ModelOutcome::Settled;
+    }
+
+    /// Records the step length of this outer iteration's line search on E.
+    pub(crate) fn searched(&mut self, alpha: f64) {
+        self.stalled = alpha < STALLED_STEP;
+        self.settled &= alpha == 1.0;
+    }
 }
 
 /// What the iteration on the contact model did with the outer Newton direction.
@@ -372,6 +395,26 @@ mod tests {
 
     fn quartic(x: f64) -> (f64, f64) {
         (0.5 * x * x + 0.25 * x.powi(4), x + x.powi(3))
+    }
+
+    #[test]
+    fn the_schedule_leaves_the_model_out_after_it_settled_or_stalled_until_a_step_is_shortened() {
+        let mut schedule = ModelSchedule::default();
+        assert!(schedule.wanted());
+        schedule.solved(ModelOutcome::Moved);
+        schedule.searched(1.0);
+        assert!(schedule.wanted(), "{schedule:?}");
+        schedule.solved(ModelOutcome::Settled);
+        schedule.searched(1.0);
+        assert!(!schedule.wanted(), "{schedule:?}");
+        schedule.searched(1.0);
+        assert!(!schedule.wanted(), "settled while the steps are full: {schedule:?}");
+        schedule.searched(0.5);
+        assert!(schedule.wanted(), "a shortened step brings the model back: {schedule:?}");
+        schedule.searched(0.1 * STALLED_STEP);
+        assert!(!schedule.wanted(), "a stalled step leaves it out: {schedule:?}");
+        schedule.searched(0.5);
+        assert!(schedule.wanted(), "for one iteration only: {schedule:?}");
     }
 
     fn minimise(line: &mut Line) -> ModelOutcome {

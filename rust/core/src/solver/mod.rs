@@ -49,7 +49,7 @@ pub use settings::{ElasticHessian, SolverKind, SolverSettings, SolverStats, Step
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepStart, Workspace};
-use contact_model::{skip_contact_model, ContactModelState, ModelOutcome};
+use contact_model::{ContactModelState, ModelSchedule};
 use direction::ElasticPart;
 use line_search::{line_search, LineStep};
 
@@ -365,8 +365,7 @@ impl ReducedSolver {
         }
         let mut residual = f64::INFINITY;
         let mut full_step = false;
-        let mut plain_newton = false;
-        let mut model_settled = false;
+        let mut schedule = ModelSchedule::default();
         for iteration in 1..=self.settings.max_iterations {
             self.stats.iterations += 1;
             if !self.iterate.grad.iter().all(|g| g.is_finite()) {
@@ -383,15 +382,14 @@ impl ReducedSolver {
                 self.finish_step();
                 return Ok(StepReport { iterations: iteration, residual });
             }
-            if self.system.has_contact() && !plain_newton && !model_settled {
-                model_settled = self.solve_contact_model(energy, residual) == ModelOutcome::Settled;
+            if self.system.has_contact() && schedule.wanted() {
+                schedule.solved(self.solve_contact_model(energy, residual));
             }
             match self.search_line(energy, Objective::Energy) {
                 Some(step) => {
                     energy = step.energy;
                     full_step = step.alpha == 1.0;
-                    plain_newton = skip_contact_model(step.alpha);
-                    model_settled &= full_step;
+                    schedule.searched(step.alpha);
                 }
                 None if self.mode == SolverKind::Prefactored => {
                     self.fall_back();
