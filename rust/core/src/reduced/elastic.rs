@@ -11,7 +11,7 @@
 
 use faer::Accum;
 
-use crate::dense::{mirror_lower, syrk_columns};
+use crate::dense::{mirror_lower, offset_rows_dot, syrk_columns};
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
@@ -36,18 +36,13 @@ impl ElasticModel<'_> {
     /// The model's energy at `q`, and its gradient added to `grad` when given.
     #[inline(always)]
     pub(super) fn evaluate<M: Madd>(&self, q: &[f64], mut grad: Option<&mut [f64]>) -> f64 {
-        let n = q.len();
         let mut em = self.energy;
-        for i in 0..n {
-            let mut kd = 0.0;
-            for j in 0..n {
-                kd = M::madd(self.hessian[i * n + j], q[j] - self.origin[j], kd);
-            }
+        offset_rows_dot::<M>(self.hessian, q, self.origin, |i, kd| {
             em = M::madd(q[i] - self.origin[i], self.gradient[i] + 0.5 * kd, em);
             if let Some(g) = grad.as_deref_mut() {
                 g[i] += self.gradient[i] + kd;
             }
-        }
+        });
         em
     }
 }

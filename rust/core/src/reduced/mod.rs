@@ -37,7 +37,7 @@ pub use elastic::ElasticModel;
 pub use workspace::Workspace;
 
 use crate::contact::{ContactModel, Plane};
-use crate::dense::dot;
+use crate::dense::{dot, offset_rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
 use crate::simd::{dispatch, Madd, WithMadd};
@@ -281,23 +281,18 @@ impl ReducedSystem {
     /// `ws`, the gradient into `ws.grad`.
     #[inline(always)]
     fn evaluate_impl<M: Madd>(&self, start: &StepStart, q: &[f64], model: Option<&ElasticModel<'_>>, mut ws: Option<&mut Workspace>) -> (f64, f64) {
-        let n = self.n;
         let inv_h2 = 1.0 / (self.dt() * self.dt());
         // Inertia and gravity, relative to the inertial target.
         let mut inertia = 0.0;
         let mut work = 0.0;
-        for i in 0..n {
-            let mut md = 0.0;
-            for j in 0..n {
-                md = M::madd(self.mass[i * n + j], q[j] - start.qtilde[j], md);
-            }
+        offset_rows_dot::<M>(&self.mass, q, &start.qtilde, |i, md| {
             let d = q[i] - start.qtilde[i];
             inertia = M::madd(d, md, inertia);
             work = M::madd(self.gravity[i], d, work);
             if let Some(ws) = ws.as_deref_mut() {
                 ws.grad[i] = md * inv_h2 - self.gravity[i];
             }
-        }
+        });
         let mut e = 0.5 * inertia * inv_h2 - work;
         let elastic_energy = match (model, ws.as_deref_mut()) {
             (Some(m), ws) => m.evaluate::<M>(q, ws.map(|ws| &mut ws.grad[..])),

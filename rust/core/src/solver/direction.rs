@@ -260,9 +260,12 @@ pub(crate) fn secant_update(stiffness: &mut [f64], mass_over_h2: &[f64], s: &[f6
     if !(sas > 0.0 && ys > 1e-8 * sas && sas.is_finite() && ys.is_finite()) {
         return;
     }
-    for i in 0..n {
-        for j in 0..n {
-            stiffness[i * n + j] += y[i] * y[j] / ys - a_s[i] * a_s[j] / sas;
+    // The rank-two update as `u y^T - v (A s)^T`, the divisions taken out of the n^2 loop.
+    let (y_scale, as_scale) = (1.0 / ys, 1.0 / sas);
+    for (row, (yi, ai)) in stiffness.chunks_exact_mut(n).zip(y.iter().zip(a_s.iter())) {
+        let (u, v) = (yi * y_scale, ai * as_scale);
+        for ((k, yj), aj) in row.iter_mut().zip(y.iter()).zip(a_s.iter()) {
+            *k += u * yj - v * aj;
         }
     }
 }
