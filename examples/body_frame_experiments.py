@@ -47,7 +47,7 @@ import numpy as np
 from licrom import AffineBasis, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
 from licrom.affine import apply_affine, fit_affine
-from licrom.basis import SubspaceProjector, run_balanced_weights
+from licrom.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights
 from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.compare import compare, first_contact_frame, nonrigid_error
 from licrom.cubature import Cubature
@@ -254,17 +254,18 @@ def run_metrics(full: Trajectory, other: Trajectory) -> dict:
 
 
 # --- subspace bounds ------------------------------------------------------------------------
-def residual_pod(mesh: licrom.Mesh, runs: list[np.ndarray], masses: np.ndarray, r: int) -> MeshBasis:
+def residual_pod(mesh: licrom.Mesh, runs: list[np.ndarray], masses: np.ndarray, r: int, balance: float = RUN_BALANCE) -> MeshBasis:
     """POD(r) of what the mass-weighted affine fit leaves of each run's snapshots (f_k, n, 3), as training does.
 
-    Every run counts the same (:func:`licrom.basis.run_balanced_weights`, the training's
-    default ``pod_weighting="run"``), so the POD spans what the models learn. The modes are
-    mass-orthogonal to every affine mode, rigid ones included.
+    The runs are balanced (:func:`licrom.basis.run_balanced_weights` with power ``balance``:
+    the training's default ``pod_weighting="run"``), so the POD spans what the models
+    learn; ``balance=0`` is plain POD. The modes are mass-orthogonal to every affine mode,
+    rigid ones included.
     """
     rest = mesh.vertices
     residual = np.concatenate([u - apply_affine(rest, fit_affine(rest, u, masses)) for u in runs])
     run_index = np.concatenate([np.full(len(u), k) for k, u in enumerate(runs)])
-    weights = run_balanced_weights(run_index, np.einsum("fni,fni,n->f", residual, residual, masses))
+    weights = run_balanced_weights(run_index, np.einsum("fni,fni,n->f", residual, residual, masses), power=balance)
     return MeshBasis.pod(mesh, residual, min(r, len(residual)), weights=weights)[0]
 
 
@@ -338,8 +339,8 @@ class Setting:
     def world_pod(self, r: int) -> StackedBasis:
         return StackedBasis(AffineBasis(), residual_pod(self.mesh, self.train_u, self.masses, r))
 
-    def body_pod(self, r: int) -> MeshBasis:
-        return residual_pod(self.mesh, self.train_d, self.masses, r)
+    def body_pod(self, r: int, balance: float = RUN_BALANCE) -> MeshBasis:
+        return residual_pod(self.mesh, self.train_d, self.masses, r, balance)
 
     def fitted_cubature(self, r: int) -> Cubature:
         """Optimised cubature of the body-frame model with r learned modes (``Cubature.for_model`` on the training
@@ -499,6 +500,23 @@ def held_out_table(rows: list[dict], pod_sizes: tuple[int, ...]) -> str:
     return "\n".join(out)
 
 
+def learned_table(rows: list[dict], sizes: list[int]) -> str:
+    """The learned body-frame modes' projection error against body POD of the same size and frames: balanced as they
+    were trained, and plain (every frame the same), whose 1.2x is the bound a learned subspace must reach."""
+    sizes = [r for r in sizes if any(f"learned{r}" in row["bounds"] for row in rows)]
+    head = ["held-out run", *(f"r = {r}: learned / balanced POD / plain POD" for r in sizes),
+            *(f"r = {r}: learned over balanced, over plain" for r in sizes)]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        b = row["bounds"]
+        out.append("| " + " | ".join([
+            f"{row['family']}: {row['kind']}",
+            *(f"{_pct(b[f'learned{r}'])} / {_pct(b[f'body{r}'])} / {_pct(b[f'plain{r}'])}" for r in sizes),
+            *(f"{b[f'learned{r}'] / b[f'body{r}']:.3f}x, {b[f'learned{r}'] / b[f'plain{r}']:.3f}x" for r in sizes),
+        ]) + " |")
+    return "\n".join(out)
+
+
 def reduced_table(rows: list[dict]) -> str:
     out = ["| held-out run | subspace | r | projection | non-rigid error | final COM / size | full / reduced | "
            "peak def. full / reduced | rotation full / reduced | ms/step (Newton its) | cubature tets | verdict |", "|" + "---|" * 12]
@@ -563,8 +581,13 @@ BOUNDS_INTRO = (
     "projected onto affine + POD(r) of the training frames in the world frame, onto the 6 symmetric affine modes + POD(r) "
     "of the training frames' body-frame displacements (the rigid motion kept exact), and onto the same built from the "
     "run's own frames; and onto the learned body-frame model's modes (with the same 6 affine modes), which should come "
-    "within 1.2x of body POD of its size. POD of the training frames weights every training run the same "
-    "(`run_balanced_weights`, as the training does by default), so that it spans what the models learn."
+    "within 1.2x of body POD of its size. POD of the training frames balances the training runs "
+    f"(`run_balanced_weights`, power {RUN_BALANCE:g}, as the training does by default), so that it spans what the models learn."
+)
+LEARNED_INTRO = (
+    "The learned body-frame modes against body POD of the same size and training frames (each with the 6 symmetric "
+    "affine modes; body-frame projection error of each held-out run, as above): balanced as the models are trained, and "
+    "plain, every frame counting the same, within 1.2x of which a learned subspace must come."
 )
 REDUCED_INTRO = (
     "Reduced runs, every tet a cubature point (except in one column) and every boundary vertex a contact point: `world POD` (`ReducedSim`, affine + "
@@ -576,7 +599,7 @@ REDUCED_INTRO = (
     "as its strain, `strain=\"field\"` as LiCROM publishes, instead of the default linear-tet gradient of its vertex values) "
     "and `own body POD` (`BodyFrameSim` with POD(r) of the held-out run's own "
     "body-frame displacements: no training gap, so what it misses is the reduced dynamics). Models: 200 epochs of the "
-    "POD objective, run-balanced (`--train-only world|body --r 20|40|60 --epochs 200 --device cuda`, one process per model, "
+    f"POD objective, runs balanced with power {RUN_BALANCE:g} (`--train-only world|body --r 20|40|60 --epochs 200 --device cuda`, one process per model, "
     "122-163 s each for the box and the ball, 12 at once, and 357-365 s for the cheese, 6 at once, on one H100). Each run "
     "stands beside the projection error of its own subspace. Targets: non-rigid error < 15 %, final COM within 2 % of "
     "the size, stick/slip right (chaotic: 3x the floor). A miss is put on the subspace when its projection error alone "
@@ -601,6 +624,9 @@ def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], s
             bounds[f"{key}{r}"] = body_projection_error(full, setting.body_basis(learned).values(mesh.vertices))
     for r in sizes if any("model" in name for name in columns) else ():  # POD columns alone need no trained model
         bounds[f"learned{r}"] = body_projection_error(full, setting.body_basis(setting.model("body", r)).values(mesh.vertices))
+        for key, balance in (("body", RUN_BALANCE), ("plain", 0.0)):
+            if f"{key}{r}" not in bounds:
+                bounds[f"{key}{r}"] = body_projection_error(full, setting.body_basis(setting.body_pod(r, balance)).values(mesh.vertices))
     own = run_metrics(full, full)
     row = {"family": fam.name, "name": case.name, "kind": case.kind, "tets": mesh.n_tets, "peak_deformation": own["peak_deformation"],
            "rotation": own["rotation"], "slides": own["slides"], "noise_floor": floor,
@@ -674,6 +700,7 @@ def main() -> None:
                   f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s "
                   "(full runs and models cached; the models trained on an H100 with `--train-only`, see below).\n\n" + INTRO + "\n\n"
                   + training_table(train_rows) + "\n\n" + BOUNDS_INTRO + "\n\n" + held_out_table(test_rows, pod_sizes) + "\n\n"
+                  + (LEARNED_INTRO + "\n\n" + learned_table(test_rows, sizes) + "\n\n" if any("model" in c for c in args.columns) else "")
                   + REDUCED_INTRO + "\n\n" + summary_table(test_rows) + "\n\n" + reduced_table(test_rows) + "\n\n"
                   + f"Filmstrips: the full run, then each subspace at r = {sizes[0]}.\n\n"
                   + "\n\n".join(f"![{row['family']}: {row['kind']}]({row['figure']})" for row in test_rows if row["figure"]) + "\n")

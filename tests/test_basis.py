@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
-from licrom.basis import SubspaceProjector, run_balanced_weights, strain_jacobians
+from licrom.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights, strain_jacobians
 
 
 def _fd_jacobian(basis, points, eps=1e-6):
@@ -127,7 +127,7 @@ def test_run_balanced_pod_keeps_the_gentle_run(rng):
     snaps = np.concatenate([big, small])
     runs = np.array([0] * 6 + [1] * 4)
     norm2 = np.einsum("fni,fni,n->f", snaps, snaps, masses)
-    weights = run_balanced_weights(runs, norm2)
+    weights = run_balanced_weights(runs, norm2, power=1.0)
     np.testing.assert_allclose(np.bincount(runs, weights=weights * norm2), [1.0, 1.0])
     plain = MeshBasis.pod(mesh, snaps, 2)[0]
     balanced = MeshBasis.pod(mesh, snaps, 2, weights=weights)[0]
@@ -143,13 +143,24 @@ def test_run_balanced_pod_ignores_the_round_off_of_a_run_that_does_not_deform(rn
     snaps = np.concatenate([np.stack([a * s for s in (1.0, 2.0, 3.0)]), 1e-15 * rng.standard_normal((3, mesh.n_vertices, 3))])
     runs = np.array([0, 0, 0, 1, 1, 1])
     weights = run_balanced_weights(runs, np.einsum("fni,fni,n->f", snaps, snaps, masses))
-    assert weights[3] == weights[0] * 100.0  # the noisy run is boosted by at most 1 / floor
+    assert weights[3] == pytest.approx(weights[0] * 100.0**RUN_BALANCE)  # the noisy run is boosted by at most floor^-power
     assert _in_span(MeshBasis.pod(mesh, snaps, 1, weights=weights)[0].modes, a, masses) < 1e-9
 
 
+def test_run_balanced_weights_count_each_run_by_its_energy_to_one_minus_the_power():
+    runs = np.array([0, 0, 1, 2, 2, 2])
+    norm2 = np.array([1.0, 3.0, 16.0, 0.5, 0.25, 0.25])  # run energies 4, 16, 1
+    for power in (0.0, 0.5, RUN_BALANCE, 1.0):
+        weights = run_balanced_weights(runs, norm2, power=power)
+        np.testing.assert_allclose(np.bincount(runs, weights=weights * norm2), np.array([4.0, 16.0, 1.0]) ** (1.0 - power))
+    np.testing.assert_array_equal(run_balanced_weights(runs, norm2), run_balanced_weights(runs, norm2, power=RUN_BALANCE))
+
+
 def test_run_balanced_weights_edge_cases():
-    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0])), [0.25, 0.25, 25.0])
-    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0]), floor=0.5), [0.25, 0.25, 0.5])
+    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0]), power=1.0), [0.25, 0.25, 25.0])
+    np.testing.assert_array_equal(run_balanced_weights(np.array([3, 3, 7]), np.array([1.0, 3.0, 0.0]), floor=0.5, power=1.0), [0.25, 0.25, 0.5])
+    with pytest.raises(ConfigError, match="power"):
+        run_balanced_weights(np.zeros(2), np.ones(2), power=1.5)
     np.testing.assert_array_equal(run_balanced_weights(np.array([1, 1]), np.zeros(2)), [0.0, 0.0])
     assert run_balanced_weights(np.zeros(0, dtype=int), np.zeros(0)).shape == (0,)
     with pytest.raises(ConfigError, match="floor"):

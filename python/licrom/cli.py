@@ -217,7 +217,7 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
               help="pod: regress the field onto the POD modes of the training frames; autoencoder: LiCROM's training [pod].")
 @click.option("--pod-weighting", type=click.Choice(["run", "frame"]), default=None,
-              help="run: every training run counts the same in the POD; frame: every frame does (plain POD) [run].")
+              help="run: the training runs balanced in the POD (a run that deforms a lot counts little more than a gentle one); frame: every frame counts the same (plain POD) [run].")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Passes over the training frames [TrainConfig default].")
 @click.option("--lr", type=float, default=None, help="Initial Adam learning rate [3e-3].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")

@@ -29,8 +29,9 @@ class TrainConfig:
             residuals before the first step) or ``"autoencoder"`` (LiCROM's joint
             training); see the module docstring.
         pod_weighting: how the ``"pod"`` objective weights the training frames: ``"run"``
-            (every training run counts the same, :func:`licrom.basis.run_balanced_weights`:
-            a few runs that deform a lot no longer take the modes the gentle ones need) or
+            (a run that deforms a lot counts little more than a gentle one,
+            :func:`licrom.basis.run_balanced_weights`: a few such runs no longer take the
+            modes the gentle ones need) or
             ``"frame"`` (every frame counts the same: plain POD, the best subspace for the
             frames' summed squared error).
         epochs: passes over the training frames.

@@ -18,7 +18,7 @@ def pod_targets(data: TrainingData, count: int, weighting: str = "run") -> tuple
     Args:
         data: the training data.
         count: number of modes.
-        weighting: ``"run"`` (every training run counts the same in the POD,
+        weighting: ``"run"`` (the training runs balanced in the POD,
             :func:`licrom.basis.run_balanced_weights`) or ``"frame"`` (plain POD).
 
     Returns:
