@@ -143,13 +143,10 @@ pub(super) struct ContactOut<'a> {
     pub terms: Option<&'a mut ContactTerms>,
 }
 
-/// `out += T S T^T` for `T = diag(R, R, I)` (N x N, full symmetric).
-pub fn add_rotated(s: &[f64], r: &Matrix3<f64>, big: usize, out: &mut [f64]) {
-    for i in 6..big {
-        for j in 6..big {
-            out[i * big + j] += s[i * big + j];
-        }
-    }
+/// `out += T S T^T` for `T = diag(R, R, I)` (N x N, full symmetric) in the
+/// rows and columns of c and omega; the modal block of `T S T^T` is S's own
+/// (the caller adds it in its pass over that block).
+pub fn add_rotated_rigid(s: &[f64], r: &Matrix3<f64>, big: usize, out: &mut [f64]) {
     for a in [0, 3] {
         for j in 6..big {
             let v = r * Vector3::new(s[a * big + j], s[(a + 1) * big + j], s[(a + 2) * big + j]);

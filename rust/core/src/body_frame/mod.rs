@@ -426,20 +426,28 @@ impl BodyFrameSystem {
         let n = self.n;
         let big = 6 + n;
         let inv_h2 = 1.0 / (self.h * self.h);
-        metric.fill(0.0);
+        let s = contact.body_matrix();
+        // Rows and columns of c and omega: the Gauss-Newton inertia, then in `out` the rotated contact part.
+        for (r, row) in metric.chunks_exact_mut(big).enumerate() {
+            row[..if r < 6 { big } else { 6 }].fill(0.0);
+        }
         inertia::add_gauss_newton(&self.moments, pose, inv_h2, metric);
-        for (r, row) in self.mode_mass().chunks_exact(n.max(1)).enumerate() {
-            for (c, m) in row.iter().enumerate() {
-                metric[(6 + r) * big + 6 + c] = m * inv_h2;
+        for (r, (o, m)) in out.chunks_exact_mut(big).zip(metric.chunks_exact(big)).enumerate() {
+            let rigid = if r < 6 { big } else { 6 };
+            o[..rigid].copy_from_slice(&m[..rigid]);
+        }
+        contact::add_rotated_rigid(s, &pose.rotation, big, out);
+        // The modal block in one pass: `Mqq/h^2` in both, `+ K_el + S_qq` in `out`.
+        for r in 0..n {
+            let at = (6 + r) * big + 6;
+            let (mass, k) = (&self.mode_mass()[r * n..(r + 1) * n], &stiffness[r * n..(r + 1) * n]);
+            let (o, m, sq) = (&mut out[at..at + n], &mut metric[at..at + n], &s[at..at + n]);
+            for c in 0..n {
+                let mc = mass[c] * inv_h2;
+                m[c] = mc;
+                o[c] = mc + k[c] + sq[c];
             }
         }
-        out.copy_from_slice(metric);
-        for (r, row) in stiffness.chunks_exact(n.max(1)).enumerate() {
-            for (c, k) in row.iter().enumerate() {
-                out[(6 + r) * big + 6 + c] += k;
-            }
-        }
-        contact::add_rotated(contact.body_matrix(), &pose.rotation, big, out);
     }
 
     /// Friction's stick switch of the direction `dir` from `pose`, the point of
