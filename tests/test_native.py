@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from licrom import _core
+from licrom import _core, meshes
+from licrom.basis import MeshBasis, strain_jacobians, vertex_strain_form
 from licrom.errors import ConfigError, ShapeError, SolverError
 
 MU, LAM = 5.0e4, 9.0e4
@@ -289,6 +290,51 @@ def test_reconstruction_matches_numpy(block, rng):
 def test_reduced_core_rejects_bad_inputs(block, changes, error, match):
     with pytest.raises(error, match=match):
         block.core(**changes)
+
+
+def _vertex_form_case(block, rng):
+    """Cubature on every tet of a small box mesh, the block's 15 modes given random values at its vertices."""
+    mesh = meshes.box(SIZE, resolution=2)
+    values = 0.05 * rng.normal(size=(mesh.n_vertices, 3, block.n))
+    tets = np.arange(mesh.n_tets)
+    jac = strain_jacobians(MeshBasis(mesh, values), mesh, tets).reshape(mesh.n_tets, 9, block.n)
+    cubature = {"cubature_jacobians": np.ascontiguousarray(jac), "cubature_weights": mesh.rest_volumes.copy()}
+    return cubature, vertex_strain_form(mesh, tets, "mesh", values)
+
+
+def test_vertex_form_of_the_cubature_gives_the_energy_and_forces_of_its_jacobians(block, rng):
+    cubature, form = _vertex_form_case(block, rng)
+    by_points, by_vertices = block.core(**cubature), block.core(**cubature, **form)
+    q0, qdot = block.sliding_state()
+    for core in (by_points, by_vertices):
+        core.set_state(q0, qdot)
+    q = q0 + 0.2 * rng.uniform(-1, 1, block.n)
+    e = by_vertices.energy(q)
+    grad = by_vertices.gradient(q)
+    # The Jacobians are held in f32 (relative 6e-8), the vertex rows in f64.
+    assert e == pytest.approx(by_points.energy(q), rel=1e-6, abs=1e-9)
+    np.testing.assert_allclose(grad, by_points.gradient(q), rtol=0, atol=1e-6 * np.abs(grad).max())
+    np.testing.assert_allclose(grad, fd_gradient(by_vertices.energy, q, 1e-8), rtol=0, atol=1e-5 * np.abs(grad).max())
+    for core in (by_points, by_vertices):
+        core.step()
+    np.testing.assert_allclose(by_vertices.q, by_points.q, rtol=0, atol=1e-6 * np.abs(by_points.q).max())
+
+
+@pytest.mark.parametrize(
+    "change, error, match",
+    [
+        (lambda f: {"cubature_vertex_basis": f["cubature_vertex_basis"]}, ConfigError, "all three or none"),
+        (lambda f: {**f, "cubature_tet_vertices": f["cubature_tet_vertices"].astype(np.float64)}, ShapeError, "int64"),
+        (lambda f: {**f, "cubature_tet_vertices": -f["cubature_tet_vertices"]}, ShapeError, "indices >= 0"),
+        (lambda f: {**f, "cubature_tet_vertices": f["cubature_tet_vertices"] + len(f["cubature_vertex_basis"])}, ConfigError, "below the"),
+        (lambda f: {**f, "cubature_vertex_basis": 2.0 * f["cubature_vertex_basis"]}, ConfigError, "reproduce cubature_jacobians"),
+        (lambda f: {**f, "cubature_shape_gradients": f["cubature_shape_gradients"][:, :3]}, ShapeError, "cubature_shape_gradients"),
+    ],
+)
+def test_vertex_form_is_checked_against_the_jacobians(block, rng, change, error, match):
+    cubature, form = _vertex_form_case(block, rng)
+    with pytest.raises(error, match=match):
+        block.core(**cubature, **change(form))
 
 
 def test_state_and_probes_check_their_arguments(block):

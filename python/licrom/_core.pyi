@@ -27,6 +27,7 @@ from typing_extensions import Self
 __all__ = ["LINE_SEARCH", "BodyFrameCore", "Reconstruction", "ReducedCore", "line_search", "snh_energy", "snh_hessian", "snh_pk1", "step_many"]
 
 _Float64Array: TypeAlias = npt.NDArray[np.float64]
+_Int64Array: TypeAlias = npt.NDArray[np.int64]
 
 def snh_energy(F: _Float64Array, mu: float, lam: float) -> _Float64Array:
     """Energy densities Psi(F), shape (p,), in J/m^3, of deformation gradients ``F`` (p, 3, 3)."""
@@ -86,6 +87,13 @@ class ReducedCore:
             iterations and steps, corrected by BFGS along each step, and assembled
             again when it drifts or after ``set_state``; a quasi-Newton method with
             the same minimiser) or ``"every_iteration"`` (plain Newton). Newton only.
+        cubature_vertex_basis: (V, 3, n) basis rows ``W_v`` at the mesh vertices, with
+            ``cubature_tet_vertices`` (K, 4) int64, the vertices of each cubature point's
+            tet, and ``cubature_shape_gradients`` (K, 4, 3), its shape functions' gradients
+            in 1/m: the Jacobians in vertex form, ``G_k = sum_a W_{v_a} (x) grad N_a``
+            (the ``"mesh"`` strain). All three or none; they must reproduce
+            ``cubature_jacobians``. The energy and gradient then go through the vertices
+            where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
 
     K, C and P may be zero.
     """
@@ -111,6 +119,9 @@ class ReducedCore:
         max_iterations: int,
         solver: str = "newton",
         elastic_hessian: str = "lagged",
+        cubature_vertex_basis: _Float64Array | None = None,
+        cubature_tet_vertices: _Int64Array | None = None,
+        cubature_shape_gradients: _Float64Array | None = None,
     ) -> Self: ...
     @property
     def n_dofs(self) -> int:
@@ -198,6 +209,13 @@ class BodyFrameCore:
         dt: time step h in s, > 0.
         tolerance: convergence threshold on r in m/s, > 0.
         max_iterations: Newton directions allowed per step, >= 1.
+        cubature_vertex_basis: (V, 3, n) basis rows ``W_v`` at the mesh vertices, with
+            ``cubature_tet_vertices`` (K, 4) int64, the vertices of each cubature point's
+            tet, and ``cubature_shape_gradients`` (K, 4, 3), its shape functions' gradients
+            in 1/m: the Jacobians in vertex form, ``G_k = sum_a W_{v_a} (x) grad N_a``
+            (the ``"mesh"`` strain). All three or none; they must reproduce
+            ``cubature_jacobians``. The energy and gradient then go through the vertices
+            where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
 
     n, K, C and P may be zero (n = 0: a rigid body).
     """
@@ -223,6 +241,9 @@ class BodyFrameCore:
         dt: float,
         tolerance: float,
         max_iterations: int,
+        cubature_vertex_basis: _Float64Array | None = None,
+        cubature_tet_vertices: _Int64Array | None = None,
+        cubature_shape_gradients: _Float64Array | None = None,
     ) -> Self: ...
     @property
     def n_dofs(self) -> int:

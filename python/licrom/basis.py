@@ -39,6 +39,7 @@ __all__ = [
     "check_basis_output",
     "run_balanced_weights",
     "strain_jacobians",
+    "vertex_strain_form",
 ]
 
 
@@ -184,6 +185,30 @@ def strain_jacobians(basis: Basis, mesh: Mesh, tets: np.ndarray, strain: str = "
         raise ConfigError(f"strain must be one of {', '.join(repr(s) for s in STRAINS)}, got {strain!r}")
     v = basis.values(mesh.vertices) if values is None else values
     return np.einsum("paic,paj->pijc", v[mesh.tets[idx]], mesh.shape_gradients[idx])
+
+
+def vertex_strain_form(mesh: Mesh, tets: np.ndarray, strain: str, values: np.ndarray) -> dict[str, np.ndarray]:
+    """The ``"mesh"`` strain of :func:`strain_jacobians` in vertex form, as keyword arguments of the native cores.
+
+    ``dF/dq`` of tet t is ``sum_a W_{v_a} (x) grad N_a`` over its four vertices, so the
+    cores can form F from the vertex displacements ``W_v q`` and the gradient from vertex
+    forces, which costs less than the 9 x k Jacobian of every cubature tet when the tets
+    share their vertices (they check that both forms agree and pick the cheaper).
+
+    Args:
+        mesh: the simulated mesh.
+        tets: (p,) tet indices (the cubature tets).
+        strain: ``"mesh"`` or ``"field"`` (no vertex form: an empty dict).
+        values: the basis' values at the mesh vertices (n, 3, k).
+    """
+    if strain != "mesh" or values.shape[2] == 0:
+        return {}
+    idx = np.asarray(tets, dtype=np.int64)
+    return {
+        "cubature_vertex_basis": np.ascontiguousarray(values, dtype=np.float64),
+        "cubature_tet_vertices": np.ascontiguousarray(mesh.tets[idx], dtype=np.int64),
+        "cubature_shape_gradients": np.ascontiguousarray(mesh.shape_gradients[idx], dtype=np.float64),
+    }
 
 
 class MeshBasis:

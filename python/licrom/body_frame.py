@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from . import _core
-from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
@@ -230,6 +230,7 @@ class BodyFrameSim:
             dt=scene.dt,
             tolerance=scene.solver.tolerance,
             max_iterations=scene.solver.max_iterations,
+            **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
         self.time = 0.0

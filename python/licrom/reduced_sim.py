@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
+from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
 from .errors import ConfigError, ShapeError, SolverError
 from .mesh import Mesh
@@ -192,6 +192,7 @@ class ReducedSim:
             tolerance=scene.solver.tolerance,
             max_iterations=scene.solver.max_iterations,
             solver=solver,
+            **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
         self.time = 0.0

@@ -289,6 +289,7 @@ impl BlockModel {
             gravity_force: &self.gravity_force,
             cubature_jacobians: &self.cubature_jacobians,
             cubature_weights: &self.cubature_weights,
+            vertex_strain: None,
             material: self.material,
             contact_basis: &self.contact_basis,
             contact_rest: &self.contact_rest,

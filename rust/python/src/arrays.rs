@@ -81,6 +81,36 @@ pub fn read(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Array>
     Ok(Array { data, shape })
 }
 
+/// Checks that `obj` is an int64 numpy array of shape `dims` with values >= 0
+/// and copies it in C order (as indices: their upper bound is the caller's to check).
+pub fn read_indices(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<(Vec<usize>, Vec<usize>)> {
+    let py = obj.py();
+    let expected = expected_text(dims);
+    let Ok(untyped) = obj.cast::<PyUntypedArray>() else {
+        let type_name = obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
+        return Err(error(py, Kind::Shape, format!("{name} must be an int64 numpy array of shape {expected}, got a {type_name}")));
+    };
+    let dtype = untyped.dtype();
+    let Ok(array) = obj.cast::<PyArrayDyn<i64>>() else {
+        return Err(error(py, Kind::Shape, format!("{name} must be an int64 array of shape {expected}, got dtype {dtype}")));
+    };
+    let shape = untyped.shape().to_vec();
+    let matches = shape.len() == dims.len()
+        && shape.iter().zip(dims).all(|(s, d)| match d {
+            Dim::Is(n) => s == n,
+            Dim::Any(_) => true,
+        });
+    if !matches {
+        return Err(error(py, Kind::Shape, format!("{name} must have shape {expected}, got {}", shape_text(&shape))));
+    }
+    let readonly = array.try_readonly().map_err(|e| error(py, Kind::Shape, format!("{name} cannot be read: {e}")))?;
+    let values: Vec<i64> = readonly.as_array().iter().copied().collect();
+    if let Some(v) = values.iter().find(|v| **v < 0) {
+        return Err(error(py, Kind::Shape, format!("{name} must hold indices >= 0, found {v}")));
+    }
+    Ok((values.into_iter().map(|v| v as usize).collect(), shape))
+}
+
 /// A new numpy array of `shape` owning `data` (C order).
 pub fn write<'py>(py: Python<'py>, data: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     numpy::PyArray1::from_vec(py, data).reshape(shape.to_vec())

@@ -14,7 +14,7 @@ use std::sync::Mutex;
 
 use crate::arrays::{count, read, write, Dim};
 use crate::errors::{error, exclusive, CoreResultExt, Kind};
-use crate::reduced::stats_dict;
+use crate::reduced::{stats_dict, VertexForm};
 
 /// Body-frame model, pose history and solver of one simulation.
 ///
@@ -57,7 +57,8 @@ impl BodyFrameCore {
     #[pyo3(signature = (
         total_mass, inertia_moments, mode_moments, mode_products, gravity, cubature_jacobians, cubature_weights,
         mu, lam, contact_basis, contact_rest, contact_areas, planes, normal_stiffness, normal_damping,
-        friction_stiffness, dt, tolerance, max_iterations
+        friction_stiffness, dt, tolerance, max_iterations, cubature_vertex_basis = None, cubature_tet_vertices = None,
+        cubature_shape_gradients = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -81,6 +82,9 @@ impl BodyFrameCore {
         dt: f64,
         tolerance: f64,
         max_iterations: &Bound<'_, PyAny>,
+        cubature_vertex_basis: Option<&Bound<'_, PyAny>>,
+        cubature_tet_vertices: Option<&Bound<'_, PyAny>>,
+        cubature_shape_gradients: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let max_iterations = count(max_iterations, "max_iterations")?;
         let material = StableNeoHookean::new(mu, lam).py_err(py)?;
@@ -92,6 +96,7 @@ impl BodyFrameCore {
         let weights = read(cubature_weights, "cubature_weights", &[Dim::Any("K")])?;
         let k = weights.shape[0];
         let jacobians = read(cubature_jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
+        let vertex_form = VertexForm::read(cubature_vertex_basis, cubature_tet_vertices, cubature_shape_gradients, k, n)?;
         let areas = read(contact_areas, "contact_areas", &[Dim::Any("C")])?;
         let c = areas.shape[0];
         let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
@@ -107,6 +112,7 @@ impl BodyFrameCore {
             gravity: [g.data[0], g.data[1], g.data[2]],
             cubature_jacobians: &jacobians.data,
             cubature_weights: &weights.data,
+            vertex_strain: vertex_form.as_ref().map(VertexForm::inputs),
             material,
             contact_basis: &basis.data,
             contact_rest: &rest.data,

@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 
 use licrom_core::contact::Plane;
-use licrom_core::reduced::{ReducedInputs, ReducedSystem};
+use licrom_core::reduced::{ReducedInputs, ReducedSystem, VertexStrainInputs};
 use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings, SolverStats};
 use licrom_core::StableNeoHookean;
 use nalgebra::Vector3;
@@ -11,7 +11,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 use std::sync::Mutex;
 
-use crate::arrays::{count, read, write, Dim};
+use crate::arrays::{count, read, read_indices, write, Array, Dim};
 use crate::errors::{error, exclusive, CoreResultExt, Kind};
 
 /// Reduced model, state `(q, qdot)` and solver of one simulation.
@@ -30,7 +30,8 @@ impl ReducedCore {
     #[pyo3(signature = (
         mass, gravity_force, cubature_jacobians, cubature_weights, mu, lam, contact_basis, contact_rest,
         contact_areas, planes, normal_stiffness, normal_damping, friction_stiffness, dt, total_mass,
-        tolerance, max_iterations, solver = "newton", elastic_hessian = "lagged"
+        tolerance, max_iterations, solver = "newton", elastic_hessian = "lagged", cubature_vertex_basis = None,
+        cubature_tet_vertices = None, cubature_shape_gradients = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -54,6 +55,9 @@ impl ReducedCore {
         max_iterations: &Bound<'_, PyAny>,
         solver: &str,
         elastic_hessian: &str,
+        cubature_vertex_basis: Option<&Bound<'_, PyAny>>,
+        cubature_tet_vertices: Option<&Bound<'_, PyAny>>,
+        cubature_shape_gradients: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let kind: SolverKind = solver.parse().py_err(py)?;
         let elastic_hessian: ElasticHessian = elastic_hessian.parse().py_err(py)?;
@@ -68,6 +72,7 @@ impl ReducedCore {
         let weights = read(cubature_weights, "cubature_weights", &[Dim::Any("K")])?;
         let k = weights.shape[0];
         let jacobians = read(cubature_jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
+        let vertex_form = VertexForm::read(cubature_vertex_basis, cubature_tet_vertices, cubature_shape_gradients, k, n)?;
         let areas = read(contact_areas, "contact_areas", &[Dim::Any("C")])?;
         let c = areas.shape[0];
         let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
@@ -80,6 +85,7 @@ impl ReducedCore {
             gravity_force: &gravity.data,
             cubature_jacobians: &jacobians.data,
             cubature_weights: &weights.data,
+            vertex_strain: vertex_form.as_ref().map(VertexForm::inputs),
             material,
             contact_basis: &basis.data,
             contact_rest: &rest.data,
@@ -205,4 +211,44 @@ pub(crate) fn stats_dict(s: SolverStats) -> HashMap<&'static str, usize> {
     ]
     .into_iter()
     .collect()
+}
+
+/// The cubature Jacobians in vertex form (`cubature_vertex_basis` V x 3 x n,
+/// `cubature_tet_vertices` K x 4, `cubature_shape_gradients` K x 4 x 3): all
+/// three or none.
+pub(crate) struct VertexForm {
+    basis: Array,
+    tets: Vec<usize>,
+    grads: Array,
+}
+
+impl VertexForm {
+    pub(crate) fn read(
+        basis: Option<&Bound<'_, PyAny>>,
+        tets: Option<&Bound<'_, PyAny>>,
+        grads: Option<&Bound<'_, PyAny>>,
+        k: usize,
+        n: usize,
+    ) -> PyResult<Option<Self>> {
+        match (basis, tets, grads) {
+            (None, None, None) => Ok(None),
+            (Some(basis), Some(tets), Some(grads)) => Ok(Some(Self {
+                basis: read(basis, "cubature_vertex_basis", &[Dim::Any("V"), Dim::Is(3), Dim::Is(n)])?,
+                tets: read_indices(tets, "cubature_tet_vertices", &[Dim::Is(k), Dim::Is(4)])?.0,
+                grads: read(grads, "cubature_shape_gradients", &[Dim::Is(k), Dim::Is(4), Dim::Is(3)])?,
+            })),
+            (basis, ..) => {
+                let py = basis.or(tets).or(grads).map(|o| o.py()).expect("one of the three is given");
+                Err(error(
+                    py,
+                    Kind::Config,
+                    "cubature_vertex_basis, cubature_tet_vertices and cubature_shape_gradients go together: give all three or none".to_string(),
+                ))
+            }
+        }
+    }
+
+    pub(crate) fn inputs(&self) -> VertexStrainInputs<'_> {
+        VertexStrainInputs { vertex_basis: &self.basis.data, tet_vertices: &self.tets, shape_gradients: &self.grads.data }
+    }
 }

@@ -48,7 +48,7 @@ use nalgebra::{Matrix3, Vector3};
 use crate::contact::{ContactModel, Plane};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
-use crate::reduced::{ElasticModel, ReducedInputs, ReducedSystem, StepStart, Workspace};
+use crate::reduced::{ElasticModel, ReducedInputs, ReducedSystem, StepStart, VertexStrainInputs, Workspace};
 use contact::{BodyContactHessian, BodyContacts, ContactOut, ContactRows, ContactStart, ContactTerms};
 use inertia::{InertiaTarget, MassMoments};
 
@@ -69,6 +69,8 @@ pub struct BodyFrameInputs<'a> {
     pub cubature_jacobians: &'a [f64],
     /// Cubature weights w_k >= 0, K, m^3.
     pub cubature_weights: &'a [f64],
+    /// The Jacobians in vertex form (see [`crate::reduced::ReducedInputs`]).
+    pub vertex_strain: Option<VertexStrainInputs<'a>>,
     /// Material of the solid.
     pub material: StableNeoHookean,
     /// Basis rows W_j at the C contact points, C x 3 x n.
@@ -221,6 +223,7 @@ impl BodyFrameSystem {
                 gravity_force: &zeros,
                 cubature_jacobians: inp.cubature_jacobians,
                 cubature_weights: inp.cubature_weights,
+                vertex_strain: inp.vertex_strain,
                 material: inp.material,
                 contact_basis: &[],
                 contact_rest: &[],

@@ -244,6 +244,7 @@ impl BodyBlock {
             gravity: [0.0, 0.0, -9.81],
             cubature_jacobians: &self.cubature_jacobians,
             cubature_weights: &self.cubature_weights,
+            vertex_strain: None,
             material: self.material,
             contact_basis: &self.contact_basis,
             contact_rest: &self.contact_rest,

@@ -11,11 +11,11 @@
 
 use faer::Accum;
 
-use crate::dense::{mirror_lower, offset_rows_dot, syrk_columns};
+use crate::dense::{mirror_lower, offset_rows_dot, rows_dot, syrk_columns};
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
-use super::layout::widened_at;
+use super::layout::{lanes_at, widened_at, VertexLayout};
 use super::{ReducedSystem, Workspace};
 
 /// A quadratic stand-in for the elastic energy about `origin`:
@@ -93,10 +93,31 @@ impl ReducedSystem {
         dispatch(ElasticKernel { sys: self, q, ws: with_gradient.then_some(ws) })
     }
 
-    /// Elastic energy and, when `grad` is not empty, its gradient added to
-    /// `grad`, eight points at a time; `lane_grad` is scratch.
+    /// Elastic energy and, with `ws`, its gradient into `ws.elastic_grad` and
+    /// added to `ws.grad`: through the vertices where the system has their
+    /// form, else through the Jacobians.
     #[inline(always)]
-    pub(super) fn elastic_impl<M: Madd>(&self, q: &[f64], lane_grad: &mut [F8], grad: &mut [f64]) -> f64 {
+    pub(super) fn elastic_impl<M: Madd>(&self, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
+        let e = match &self.vertices {
+            Some(vertices) => self.elastic_vertices::<M>(vertices, q, ws.as_deref_mut()),
+            None => self.elastic_points::<M>(q, ws.as_deref_mut()),
+        };
+        if let Some(ws) = ws {
+            for (g, e) in ws.grad.iter_mut().zip(&ws.elastic_grad) {
+                *g += e;
+            }
+        }
+        e
+    }
+
+    /// [`Self::elastic_impl`] through the Jacobians, eight points at a time;
+    /// the gradient into `ws.elastic_grad`.
+    #[inline(always)]
+    fn elastic_points<M: Madd>(&self, q: &[f64], ws: Option<&mut Workspace>) -> f64 {
+        let (lane_grad, grad): (&mut [F8], &mut [f64]) = match ws {
+            Some(ws) => (&mut ws.lane_grad, &mut ws.elastic_grad),
+            None => (&mut [], &mut []),
+        };
         let cub = &self.cubature;
         let nv = cub.var_cols.len();
         let with_gradient = !grad.is_empty();
@@ -135,7 +156,83 @@ impl ReducedSystem {
             }
         }
         if with_gradient {
+            grad.fill(0.0);
             reduce_lane_gradient(lane_grad, &cub.var_cols, &cub.const_cols, grad);
+        }
+        lane_sum(&elastic)
+    }
+
+    /// [`Self::elastic_impl`] through the vertices ([`VertexLayout`]): `u_v =
+    /// W_v q` of the used vertices, each point's F from its tet's four, and the
+    /// gradient `sum_v W_v^T f_v` from the vertex forces `f_v` of the points'
+    /// stresses (into `ws.elastic_grad`). Without `ws` the `u_v` are formed per
+    /// point, by the same products, so the energy is the same to the last bit.
+    #[inline(always)]
+    fn elastic_vertices<M: Madd>(&self, vertices: &VertexLayout, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
+        let n = self.n;
+        let u_of = |v: usize| rows_dot::<M, 3>(&vertices.basis[3 * n * v..3 * n * (v + 1)], q);
+        if let Some(ws) = ws.as_deref_mut() {
+            for (v, u) in ws.vertex_u.chunks_exact_mut(3).enumerate() {
+                u.copy_from_slice(&u_of(v));
+            }
+            ws.vertex_force.fill(0.0);
+        }
+        let mut elastic = [0.0; LANES];
+        for (g, weights) in self.cubature.weights.chunks_exact(LANES).enumerate() {
+            let tets = &vertices.tets[g * 4 * LANES..(g + 1) * 4 * LANES];
+            let grads = &vertices.grads[g * 12 * LANES..(g + 1) * 12 * LANES];
+            let mut f = [[0.0; LANES]; 9];
+            for a in [0, 4, 8] {
+                f[a] = [1.0; LANES];
+            }
+            for (t, vs) in tets.chunks_exact(LANES).enumerate() {
+                let mut u = [[0.0; LANES]; 3];
+                for (l, &v) in vs.iter().enumerate() {
+                    let uv = match ws.as_deref() {
+                        Some(ws) => [ws.vertex_u[3 * v as usize], ws.vertex_u[3 * v as usize + 1], ws.vertex_u[3 * v as usize + 2]],
+                        None => u_of(v as usize),
+                    };
+                    for i in 0..3 {
+                        u[i][l] = uv[i];
+                    }
+                }
+                for i in 0..3 {
+                    for j in 0..3 {
+                        f[3 * i + j] = M::madd8(&u[i], lanes_at(grads, (3 * t + j) * LANES), f[3 * i + j]);
+                    }
+                }
+            }
+            let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            for l in 0..LANES {
+                elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
+            }
+            let Some(ws) = ws.as_deref_mut() else { continue };
+            for row in p.iter_mut() {
+                for l in 0..LANES {
+                    row[l] *= weights[l];
+                }
+            }
+            for (t, vs) in tets.chunks_exact(LANES).enumerate() {
+                for i in 0..3 {
+                    let mut fi = [0.0; LANES];
+                    for j in 0..3 {
+                        fi = M::madd8(&p[3 * i + j], lanes_at(grads, (3 * t + j) * LANES), fi);
+                    }
+                    for (l, &v) in vs.iter().enumerate() {
+                        ws.vertex_force[3 * v as usize + i] += fi[l];
+                    }
+                }
+            }
+        }
+        if let Some(ws) = ws {
+            ws.elastic_grad.fill(0.0);
+            for (rows, force) in vertices.basis.chunks_exact(3 * n).zip(ws.vertex_force.chunks_exact(3)) {
+                for (row, &fi) in rows.chunks_exact(n).zip(force) {
+                    for (g, w) in ws.elastic_grad.iter_mut().zip(row) {
+                        *g = M::madd(fi, *w, *g);
+                    }
+                }
+            }
         }
         lane_sum(&elastic)
     }
@@ -271,9 +368,6 @@ impl WithMadd for ElasticKernel<'_> {
     type Output = f64;
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
-        match self.ws {
-            Some(ws) => self.sys.elastic_impl::<M>(self.q, &mut ws.lane_grad, &mut ws.grad),
-            None => self.sys.elastic_impl::<M>(self.q, &mut [], &mut []),
-        }
+        self.sys.elastic_impl::<M>(self.q, self.ws)
     }
 }

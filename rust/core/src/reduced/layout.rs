@@ -28,6 +28,7 @@
 use nalgebra::Vector3;
 
 use crate::contact::Plane;
+use crate::error::{check_finite, LicromError, Result};
 use crate::real::LANES;
 use crate::simd::{Madd, F8};
 
@@ -42,6 +43,11 @@ pub(super) fn lanes_at(s: &[f64], at: usize) -> &F8 {
 pub(super) fn widened_at(s: &[f32], at: usize) -> F8 {
     let v: &[f32; LANES] = s[at..at + LANES].try_into().expect("eight lanes");
     v.map(f64::from)
+}
+
+/// The points of positive weight, in packing order.
+pub(super) fn kept_points(weights: &[f64]) -> Vec<usize> {
+    (0..weights.len()).filter(|&i| weights[i] > 0.0).collect()
 }
 
 /// The cubature Jacobians `G_k` of the points with `w_k > 0`, packed by lanes.
@@ -64,7 +70,7 @@ pub(super) struct CubatureLayout {
 impl CubatureLayout {
     /// Packs the K x 9 x n Jacobians (row-major) of the points of positive weight.
     pub(super) fn new(jacobians: &[f64], weights: &[f64], n: usize) -> Self {
-        let kept: Vec<usize> = (0..weights.len()).filter(|&i| weights[i] > 0.0).collect();
+        let kept = kept_points(weights);
         let column = |point: usize, c: usize| -> [f64; 9] { std::array::from_fn(|a| f64::from(jacobians[9 * n * point + a * n + c] as f32)) };
         let (mut var_cols, mut const_cols) = (Vec::new(), Vec::new());
         for c in 0..n {
@@ -232,5 +238,114 @@ impl ContactLayout {
             }
         }
         x
+    }
+}
+
+/// The cubature points' deformation gradients as the linear-tet gradient of
+/// vertex values (the `"mesh"` strain): `F_k = I + sum_a u_{v_a} grad N_a^T`,
+/// `u_v = W_v q`, the tet's four vertices v_a and shape gradients.
+#[derive(Debug, Clone, Copy)]
+pub struct VertexStrainInputs<'a> {
+    /// Basis rows `W_v` at the mesh vertices, V x 3 x n.
+    pub vertex_basis: &'a [f64],
+    /// The four vertices of each cubature point's tet, K x 4 (indices into the V rows).
+    pub tet_vertices: &'a [usize],
+    /// Gradients of the tet's four linear shape functions, K x 4 x 3, 1/m.
+    pub shape_gradients: &'a [f64],
+}
+
+/// [`VertexStrainInputs`] packed for the points of [`CubatureLayout`], in its
+/// order: the rows `W_v` of the vertices that those tets use (renumbered), and
+/// per group of LANES points their vertices `[a][lane]` and shape gradients
+/// `[a][j][lane]` (padding lanes: vertex 0, zero gradients).
+///
+/// **Why.** `G_k` holds 9 n values per point; the vertex rows hold 3 n per
+/// vertex, and the cubature tets of a mesh share their vertices (a tet mesh has
+/// about five tets per vertex). So `u = W q` over the used vertices, F from
+/// four of them per point, and the gradient `sum_v W_v^T f_v` from the
+/// points' vertex forces take a fraction of the multiply-adds of `G_k q` and
+/// `G_k^T P_k`, in f64 rows that fit in cache where the f32 Jacobians did
+/// not: measured on the tumbling cheese of docs/results.md section 10 (learned
+/// body model, r = 60, 501 fitted cubature tets on 288 vertices), see the
+/// module documentation of [`super::elastic`].
+#[derive(Debug, Clone)]
+pub(super) struct VertexLayout {
+    /// `W_v` of the used vertices, U x 3 x n row-major.
+    pub(super) basis: Vec<f64>,
+    pub(super) tets: Vec<u32>,
+    pub(super) grads: Vec<f64>,
+}
+
+impl VertexLayout {
+    /// Packs the vertex data of the kept points (`kept`, in packing order) of
+    /// the K given, after checking shapes, indices and finiteness; they must
+    /// reproduce the given Jacobians (K x 9 x n) to a relative 1e-9 of their
+    /// largest entry.
+    pub(super) fn new(inp: &VertexStrainInputs<'_>, jacobians: &[f64], kept: &[usize], k: usize, n: usize) -> Result<Self> {
+        if !inp.vertex_basis.len().is_multiple_of(3 * n) {
+            return Err(LicromError::shape("cubature_vertex_basis", format!("(V, 3, {n})"), format!("{} values", inp.vertex_basis.len())));
+        }
+        let n_vertices = inp.vertex_basis.len() / (3 * n);
+        if inp.tet_vertices.len() != 4 * k {
+            return Err(LicromError::shape("cubature_tet_vertices", format!("({k}, 4)"), format!("{} values", inp.tet_vertices.len())));
+        }
+        if inp.shape_gradients.len() != 12 * k {
+            return Err(LicromError::shape("cubature_shape_gradients", format!("({k}, 4, 3)"), format!("{} values", inp.shape_gradients.len())));
+        }
+        check_finite("cubature_vertex_basis", inp.vertex_basis)?;
+        check_finite("cubature_shape_gradients", inp.shape_gradients)?;
+        if let Some(v) = inp.tet_vertices.iter().find(|&&v| v >= n_vertices) {
+            return Err(LicromError::invalid(
+                "cubature_tet_vertices",
+                format!("must be below the {n_vertices} rows of cubature_vertex_basis, found {v}"),
+            ));
+        }
+        let scale = jacobians.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        for p in 0..k {
+            for a in 0..9 {
+                let (i, j) = (a / 3, a % 3);
+                for c in 0..n {
+                    let g: f64 = (0..4)
+                        .map(|t| inp.vertex_basis[(3 * inp.tet_vertices[4 * p + t] + i) * n + c] * inp.shape_gradients[12 * p + 3 * t + j])
+                        .sum();
+                    if (g - jacobians[9 * n * p + a * n + c]).abs() > 1e-9 * scale {
+                        return Err(LicromError::invalid(
+                            "cubature_vertex_basis",
+                            format!("with cubature_tet_vertices and cubature_shape_gradients must reproduce cubature_jacobians; point {p} differs"),
+                        ));
+                    }
+                }
+            }
+        }
+        // The used vertices, renumbered in order of first use.
+        let mut local = vec![u32::MAX; n_vertices];
+        let mut used = Vec::new();
+        for &p in kept {
+            for &v in &inp.tet_vertices[4 * p..4 * p + 4] {
+                if local[v] == u32::MAX {
+                    local[v] = used.len() as u32;
+                    used.push(v);
+                }
+            }
+        }
+        let basis = used.iter().flat_map(|&v| inp.vertex_basis[3 * n * v..3 * n * (v + 1)].iter().copied()).collect();
+        let groups = kept.len().div_ceil(LANES);
+        let mut tets = vec![0u32; groups * 4 * LANES];
+        let mut grads = vec![0.0; groups * 12 * LANES];
+        for (slot, &p) in kept.iter().enumerate() {
+            let (g, l) = (slot / LANES, slot % LANES);
+            for t in 0..4 {
+                tets[(g * 4 + t) * LANES + l] = local[inp.tet_vertices[4 * p + t]];
+                for j in 0..3 {
+                    grads[(g * 12 + 3 * t + j) * LANES + l] = inp.shape_gradients[12 * p + 3 * t + j];
+                }
+            }
+        }
+        Ok(Self { basis, tets, grads })
+    }
+
+    /// Number of vertices used.
+    pub(super) fn n_vertices(&self, n: usize) -> usize {
+        self.basis.len() / (3 * n)
     }
 }

@@ -41,7 +41,8 @@ use crate::dense::{dot, offset_rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
 use crate::simd::{dispatch, Madd, WithMadd};
-use layout::{ContactLayout, CubatureLayout};
+pub use layout::VertexStrainInputs;
+use layout::{kept_points, ContactLayout, CubatureLayout, VertexLayout};
 
 /// Borrowed description of a reduced model; all arrays row-major (C order).
 #[derive(Debug, Clone, Copy)]
@@ -54,6 +55,10 @@ pub struct ReducedInputs<'a> {
     pub cubature_jacobians: &'a [f64],
     /// Cubature weights w_k >= 0, K, m^3.
     pub cubature_weights: &'a [f64],
+    /// The same Jacobians as the linear-tet gradient of vertex values, where
+    /// they are that (the `"mesh"` strain): energy and gradient then go
+    /// through the vertices when that is cheaper ([`VertexStrainInputs`]).
+    pub vertex_strain: Option<VertexStrainInputs<'a>>,
     /// Material of the solid.
     pub material: StableNeoHookean,
     /// Basis rows W_j at the C contact points, C x 3 x n.
@@ -84,6 +89,9 @@ pub struct ReducedSystem {
     n_cubature: usize,
     /// The cubature points of positive weight, packed by lanes.
     cubature: CubatureLayout,
+    /// Their vertex form, where given and cheaper than the Jacobians for the
+    /// energy and gradient (the Hessian always uses the Jacobians).
+    vertices: Option<VertexLayout>,
     material: StableNeoHookean,
     /// Contact points as given: basis rows (C x 3 x n), rest positions (C x 3)
     /// and areas (C).
@@ -169,12 +177,20 @@ impl ReducedSystem {
         }
         let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
         let mass = symmetrized_spd(inp.mass, n)?;
+        let kept = kept_points(inp.cubature_weights);
+        let vertices = match &inp.vertex_strain {
+            Some(vs) => Some(VertexLayout::new(vs, inp.cubature_jacobians, &kept, k, n)?),
+            None => None,
+        };
+        // Per point the Jacobians cost 9 n multiply-adds each way, the vertex form 3 n per used vertex.
+        let vertices = vertices.filter(|v| 3 * v.n_vertices(n) < 9 * kept.len());
         Ok(Self {
             n,
             mass,
             gravity: inp.gravity_force.to_vec(),
             n_cubature: k,
             cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, n),
+            vertices,
             material: inp.material,
             contact_basis: inp.contact_basis.to_vec(),
             contact_rest: inp.contact_rest.to_vec(),
@@ -296,8 +312,7 @@ impl ReducedSystem {
         let mut e = 0.5 * inertia * inv_h2 - work;
         let elastic_energy = match (model, ws.as_deref_mut()) {
             (Some(m), ws) => m.evaluate::<M>(q, ws.map(|ws| &mut ws.grad[..])),
-            (None, Some(ws)) => self.elastic_impl::<M>(q, &mut ws.lane_grad, &mut ws.grad),
-            (None, None) => self.elastic_impl::<M>(q, &mut [], &mut []),
+            (None, ws) => self.elastic_impl::<M>(q, ws),
         };
         e += elastic_energy;
         (e + self.contact_energy_impl::<M>(start, q, ws), elastic_energy)

@@ -316,3 +316,92 @@ fn elastic_term_alone_matches_its_part_of_e_and_finite_differences() {
     let fd = fd_gradient(|x| sys.elastic(x, false, &mut sys.workspace()), &q, 1e-8);
     assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-5, "gradient vs FD: {}", rel_err(&ws.grad, &fd, 1e-6));
 }
+
+/// The six tets of a unit cube (vertex i at the corner of bits x, y, z of i,
+/// the corners moved by up to 0.1) on its diagonal 0-7, and their shape
+/// gradients, K x 4 x 3.
+fn cube_tets(rng: &mut Rng) -> (Vec<usize>, Vec<f64>) {
+    let corners: Vec<Vector3<f64>> =
+        (0..8).map(|i| Vector3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64) + Vector3::from_vec(rng.vec(3, 0.1))).collect();
+    let tets = [[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]];
+    let mut grads = Vec::new();
+    for t in &tets {
+        let dm = nalgebra::Matrix3::from_columns(&[corners[t[1]] - corners[t[0]], corners[t[2]] - corners[t[0]], corners[t[3]] - corners[t[0]]]);
+        let inv = dm.try_inverse().unwrap();
+        let rows: Vec<Vector3<f64>> = (0..3).map(|r| inv.row(r).transpose()).collect();
+        grads.extend((-(rows[0] + rows[1] + rows[2])).iter());
+        for r in &rows {
+            grads.extend(r.iter());
+        }
+    }
+    (tets.iter().flatten().copied().collect(), grads)
+}
+
+#[test]
+fn vertex_form_of_the_cubature_matches_its_jacobians_and_finite_differences() {
+    let model = small_block(3, 11, 9);
+    let n = model.n_dofs();
+    let mut rng = Rng::new(21);
+    let (tet_vertices, shape_gradients) = cube_tets(&mut rng);
+    let vertex_basis = rng.vec(8 * 3 * n, 0.05);
+    // G_k = sum_a W_{v_a} (x) grad N_a, row 3 i + j of the 9.
+    let k = tet_vertices.len() / 4;
+    let mut jacobians = vec![0.0; k * 9 * n];
+    for p in 0..k {
+        for a in 0..9 {
+            for c in 0..n {
+                jacobians[9 * n * p + a * n + c] =
+                    (0..4).map(|t| vertex_basis[(3 * tet_vertices[4 * p + t] + a / 3) * n + c] * shape_gradients[12 * p + 3 * t + a % 3]).sum();
+            }
+        }
+    }
+    // One point of zero weight, dropped by both forms.
+    let weights: Vec<f64> = (0..k).map(|p| if p == 2 { 0.0 } else { 1e-3 * (1.0 + 0.1 * p as f64) }).collect();
+    let vertex_strain = VertexStrainInputs { vertex_basis: &vertex_basis, tet_vertices: &tet_vertices, shape_gradients: &shape_gradients };
+    let base = ReducedInputs { cubature_jacobians: &jacobians, cubature_weights: &weights, ..model.inputs() };
+    let by_points = ReducedSystem::new(&base).unwrap();
+    let by_vertices = ReducedSystem::new(&ReducedInputs { vertex_strain: Some(vertex_strain), ..base }).unwrap();
+    assert!(by_points.vertices.is_none() && by_vertices.vertices.is_some(), "8 vertices for 5 points: the vertex form is cheaper");
+    let q = rng.vec(n, 0.3);
+    let (mut ws_p, mut ws_v) = (by_points.workspace(), by_vertices.workspace());
+    let e_p = by_points.elastic(&q, true, &mut ws_p);
+    let e_v = by_vertices.elastic(&q, true, &mut ws_v);
+    // The Jacobians are held in f32 (relative 6e-8), the vertex rows in f64.
+    assert!(e_v > 0.0 && (e_v - e_p).abs() < 1e-6 * e_v, "energy {e_v} vs {e_p}");
+    assert!(rel_err(&ws_v.grad, &ws_p.grad, 1e-9) < 1e-6, "gradient vs the Jacobians': {}", rel_err(&ws_v.grad, &ws_p.grad, 1e-9));
+    let mut g_el = vec![0.0; n];
+    ws_v.elastic_gradient(&mut g_el);
+    assert_eq!(g_el, ws_v.grad);
+    // Without a workspace the vertex displacements are formed per point, by the same products.
+    assert_eq!(by_vertices.elastic(&q, false, &mut by_vertices.workspace()), e_v);
+    let fd = fd_gradient(|x| by_vertices.elastic(x, false, &mut by_vertices.workspace()), &q, 1e-7);
+    assert!(rel_err(&ws_v.grad, &fd, 1e-6) < 1e-6, "gradient vs FD: {}", rel_err(&ws_v.grad, &fd, 1e-6));
+    // Through E too: the same total gradient as the Jacobians give, and E's elastic part.
+    let (start, _, _) = sliding_start(&model, &by_points);
+    by_points.evaluate(&start, &q, true, &mut ws_p);
+    by_vertices.evaluate(&start, &q, true, &mut ws_v);
+    assert!(rel_err(&ws_v.grad, &ws_p.grad, 1e-9) < 1e-6 && (ws_v.elastic_energy - e_v).abs() <= 1e-14 * e_v);
+}
+
+#[test]
+fn vertex_form_that_does_not_reproduce_the_jacobians_is_rejected() {
+    let model = small_block(3, 11, 9);
+    let n = model.n_dofs();
+    let mut rng = Rng::new(22);
+    let (tet_vertices, shape_gradients) = cube_tets(&mut rng);
+    let vertex_basis = rng.vec(8 * 3 * n, 0.05);
+    let jacobians = rng.vec(6 * 9 * n, 0.05);
+    let weights = vec![1e-3; 6];
+    let inputs = |vertex_basis: &'_ [f64], tet_vertices: &'_ [usize]| {
+        let vs = VertexStrainInputs { vertex_basis, tet_vertices, shape_gradients: &shape_gradients };
+        ReducedSystem::new(&ReducedInputs { cubature_jacobians: &jacobians, cubature_weights: &weights, vertex_strain: Some(vs), ..model.inputs() })
+    };
+    let err = inputs(&vertex_basis, &tet_vertices).unwrap_err().to_string();
+    assert!(err.contains("cubature_vertex_basis") && err.contains("reproduce"), "{err}");
+    let mut far = tet_vertices.clone();
+    far[5] = 8;
+    let err = inputs(&vertex_basis, &far).unwrap_err().to_string();
+    assert!(err.contains("cubature_tet_vertices") && err.contains("8"), "{err}");
+    let err = inputs(&vertex_basis[..10], &tet_vertices).unwrap_err().to_string();
+    assert!(err.contains("cubature_vertex_basis"), "{err}");
+}

@@ -3,7 +3,6 @@
 use crate::contact::RankOneTerms;
 use crate::real::LANES;
 
-use super::elastic::reduce_lane_gradient;
 use super::ReducedSystem;
 
 /// Preallocated buffers of the evaluation, sized once per system.
@@ -46,17 +45,19 @@ pub struct Workspace {
     /// Per-lane partial sums of the elastic gradient: one per varying column
     /// of G, then the nine components of `sum_k w_k P_k` (for the constant ones).
     pub(super) lane_grad: Vec<[f64; LANES]>,
-    /// The columns of G split as in the system (for `elastic_gradient`).
-    var_cols: Vec<usize>,
-    const_cols: Vec<(usize, [f64; 9])>,
+    /// The elastic part of the gradient of the last evaluation with gradient, n.
+    pub(super) elastic_grad: Vec<f64>,
+    /// Vertex displacements `u_v` and vertex forces of the vertex form of the
+    /// cubature (3 per used vertex; empty without it).
+    pub(super) vertex_u: Vec<f64>,
+    pub(super) vertex_force: Vec<f64>,
 }
 
 impl Workspace {
     /// The elastic part of the gradient of the last [`ReducedSystem::evaluate`]
     /// with gradient into `out` (n).
     pub fn elastic_gradient(&self, out: &mut [f64]) {
-        out.fill(0.0);
-        reduce_lane_gradient(&self.lane_grad, &self.var_cols, &self.const_cols, out);
+        out.copy_from_slice(&self.elastic_grad);
     }
 
     /// The exact Hessian `hess - hess_clamped` into `out` (n x n).
@@ -78,6 +79,7 @@ impl ReducedSystem {
         let points = self.contacts.points.len();
         let n_planes = self.planes.len();
         let contact_rows = 3 * points * n_planes;
+        let vertices = self.vertices.as_ref().map_or(0, |v| 3 * v.n_vertices(n));
         Workspace {
             grad: vec![0.0; n],
             hess: vec![0.0; n * n],
@@ -97,8 +99,9 @@ impl ReducedSystem {
             contact_dx: vec![[0.0; 3]; points],
             contact_lane_grad: vec![[0.0; LANES]; n],
             lane_grad: vec![[0.0; LANES]; self.cubature.var_cols.len() + 9],
-            var_cols: self.cubature.var_cols.clone(),
-            const_cols: self.cubature.const_cols.clone(),
+            elastic_grad: vec![0.0; n],
+            vertex_u: vec![0.0; vertices],
+            vertex_force: vec![0.0; vertices],
         }
     }
 }
