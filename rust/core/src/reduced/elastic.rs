@@ -11,7 +11,7 @@
 
 use faer::Accum;
 
-use crate::dense::{mirror_lower, offset_rows_dot, rows_dot, syrk_columns};
+use crate::dense::{mirror_lower, offset_rows_dot, syrk_columns};
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
@@ -170,10 +170,9 @@ impl ReducedSystem {
     #[inline(always)]
     fn elastic_vertices<M: Madd>(&self, vertices: &VertexLayout, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
         let n = self.n;
-        let u_of = |v: usize| rows_dot::<M, 3>(&vertices.basis[3 * n * v..3 * n * (v + 1)], q);
         if let Some(ws) = ws.as_deref_mut() {
             for (v, u) in ws.vertex_u.chunks_exact_mut(3).enumerate() {
-                u.copy_from_slice(&u_of(v));
+                u.copy_from_slice(&vertices.displacement::<M>(v, q, n));
             }
             ws.vertex_force.fill(0.0);
         }
@@ -190,7 +189,7 @@ impl ReducedSystem {
                 for (l, &v) in vs.iter().enumerate() {
                     let uv = match ws.as_deref() {
                         Some(ws) => [ws.vertex_u[3 * v as usize], ws.vertex_u[3 * v as usize + 1], ws.vertex_u[3 * v as usize + 2]],
-                        None => u_of(v as usize),
+                        None => vertices.displacement::<M>(v as usize, q, n),
                     };
                     for i in 0..3 {
                         u[i][l] = uv[i];
