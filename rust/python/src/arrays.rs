@@ -46,18 +46,19 @@ pub struct Array {
     pub shape: Vec<usize>,
 }
 
-/// Checks that `obj` is a finite float64 numpy array of shape `dims` and copies
-/// it in C order (non-contiguous inputs are accepted).
-pub fn read(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Array> {
+/// Checks that `obj` is a numpy array of element type `T` (`type_name`, with its
+/// article, in the messages) and shape `dims`, and copies it in C order (non-contiguous inputs
+/// are accepted).
+fn read_typed<T: numpy::Element + Copy>(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim], type_name: &str) -> PyResult<(Vec<T>, Vec<usize>)> {
     let py = obj.py();
     let expected = expected_text(dims);
     let Ok(untyped) = obj.cast::<PyUntypedArray>() else {
-        let type_name = obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
-        return Err(error(py, Kind::Shape, format!("{name} must be a float64 numpy array of shape {expected}, got a {type_name}")));
+        let given = obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
+        return Err(error(py, Kind::Shape, format!("{name} must be {type_name} numpy array of shape {expected}, got a {given}")));
     };
     let dtype = untyped.dtype();
-    let Ok(array) = obj.cast::<PyArrayDyn<f64>>() else {
-        return Err(error(py, Kind::Shape, format!("{name} must be a float64 array of shape {expected}, got dtype {dtype}")));
+    let Ok(array) = obj.cast::<PyArrayDyn<T>>() else {
+        return Err(error(py, Kind::Shape, format!("{name} must be {type_name} array of shape {expected}, got dtype {dtype}")));
     };
     let shape = untyped.shape().to_vec();
     let matches = shape.len() == dims.len()
@@ -71,44 +72,31 @@ pub fn read(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Array>
     let readonly = array.try_readonly().map_err(|e| error(py, Kind::Shape, format!("{name} cannot be read: {e}")))?;
     // `as_slice` also accepts Fortran order, so test for C order explicitly; other
     // layouts are copied in logical (C) order.
-    let data: Vec<f64> = match readonly.as_slice() {
+    let data: Vec<T> = match readonly.as_slice() {
         Ok(slice) if untyped.is_c_contiguous() => slice.to_vec(),
         _ => readonly.as_array().iter().copied().collect(),
     };
+    Ok((data, shape))
+}
+
+/// Checks that `obj` is a finite float64 numpy array of shape `dims` and copies
+/// it in C order (non-contiguous inputs are accepted).
+pub fn read(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Array> {
+    let (data, shape) = read_typed::<f64>(obj, name, dims, "a float64")?;
     if !data.iter().all(|v| v.is_finite()) {
-        return Err(error(py, Kind::Shape, format!("{name} holds NaN or inf values")));
+        return Err(error(obj.py(), Kind::Shape, format!("{name} holds NaN or inf values")));
     }
     Ok(Array { data, shape })
 }
 
 /// Checks that `obj` is an int64 numpy array of shape `dims` with values >= 0
 /// and copies it in C order (as indices: their upper bound is the caller's to check).
-pub fn read_indices(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<(Vec<usize>, Vec<usize>)> {
-    let py = obj.py();
-    let expected = expected_text(dims);
-    let Ok(untyped) = obj.cast::<PyUntypedArray>() else {
-        let type_name = obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
-        return Err(error(py, Kind::Shape, format!("{name} must be an int64 numpy array of shape {expected}, got a {type_name}")));
-    };
-    let dtype = untyped.dtype();
-    let Ok(array) = obj.cast::<PyArrayDyn<i64>>() else {
-        return Err(error(py, Kind::Shape, format!("{name} must be an int64 array of shape {expected}, got dtype {dtype}")));
-    };
-    let shape = untyped.shape().to_vec();
-    let matches = shape.len() == dims.len()
-        && shape.iter().zip(dims).all(|(s, d)| match d {
-            Dim::Is(n) => s == n,
-            Dim::Any(_) => true,
-        });
-    if !matches {
-        return Err(error(py, Kind::Shape, format!("{name} must have shape {expected}, got {}", shape_text(&shape))));
-    }
-    let readonly = array.try_readonly().map_err(|e| error(py, Kind::Shape, format!("{name} cannot be read: {e}")))?;
-    let values: Vec<i64> = readonly.as_array().iter().copied().collect();
+pub fn read_indices(obj: &Bound<'_, PyAny>, name: &str, dims: &[Dim]) -> PyResult<Vec<usize>> {
+    let (values, _) = read_typed::<i64>(obj, name, dims, "an int64")?;
     if let Some(v) = values.iter().find(|v| **v < 0) {
-        return Err(error(py, Kind::Shape, format!("{name} must hold indices >= 0, found {v}")));
+        return Err(error(obj.py(), Kind::Shape, format!("{name} must hold indices >= 0, found {v}")));
     }
-    Ok((values.into_iter().map(|v| v as usize).collect(), shape))
+    Ok(values.into_iter().map(|v| v as usize).collect())
 }
 
 /// A new numpy array of `shape` owning `data` (C order).

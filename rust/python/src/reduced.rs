@@ -234,7 +234,7 @@ impl VertexForm {
             (None, None, None) => Ok(None),
             (Some(basis), Some(tets), Some(grads)) => Ok(Some(Self {
                 basis: read(basis, "cubature_vertex_basis", &[Dim::Any("V"), Dim::Is(3), Dim::Is(n)])?,
-                tets: read_indices(tets, "cubature_tet_vertices", &[Dim::Is(k), Dim::Is(4)])?.0,
+                tets: read_indices(tets, "cubature_tet_vertices", &[Dim::Is(k), Dim::Is(4)])?,
                 grads: read(grads, "cubature_shape_gradients", &[Dim::Is(k), Dim::Is(4), Dim::Is(3)])?,
             })),
             (basis, ..) => {

@@ -69,9 +69,9 @@ pub(super) struct CubatureLayout {
 }
 
 impl CubatureLayout {
-    /// Packs the K x 9 x n Jacobians (row-major) of the points of positive weight.
-    pub(super) fn new(jacobians: &[f64], weights: &[f64], n: usize) -> Self {
-        let kept = kept_points(weights);
+    /// Packs the K x 9 x n Jacobians (row-major) of the points of positive
+    /// weight (`kept`, from [`kept_points`]).
+    pub(super) fn new(jacobians: &[f64], weights: &[f64], kept: &[usize], n: usize) -> Self {
         let column = |point: usize, c: usize| -> [f64; 9] { std::array::from_fn(|a| f64::from(jacobians[9 * n * point + a * n + c] as f32)) };
         let (mut var_cols, mut const_cols) = (Vec::new(), Vec::new());
         for c in 0..n {

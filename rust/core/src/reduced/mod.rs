@@ -189,7 +189,7 @@ impl ReducedSystem {
             mass,
             gravity: inp.gravity_force.to_vec(),
             n_cubature: k,
-            cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, n),
+            cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, &kept, n),
             vertices,
             material: inp.material,
             contact_basis: inp.contact_basis.to_vec(),

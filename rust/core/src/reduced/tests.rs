@@ -318,9 +318,9 @@ fn elastic_term_alone_matches_its_part_of_e_and_finite_differences() {
 }
 
 /// The six tets of a unit cube (vertex i at the corner of bits x, y, z of i,
-/// the corners moved by up to 0.1) on its diagonal 0-7, and their shape
-/// gradients, K x 4 x 3.
-fn cube_tets(rng: &mut Rng) -> (Vec<usize>, Vec<f64>) {
+/// the corners moved by up to 0.1) on its diagonal 0-7, their shape
+/// gradients (K x 4 x 3) and random basis rows at the 8 vertices (8 x 3 x n).
+fn cube_tets(rng: &mut Rng, n: usize) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
     let corners: Vec<Vector3<f64>> =
         (0..8).map(|i| Vector3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64) + Vector3::from_vec(rng.vec(3, 0.1))).collect();
     let tets = [[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]];
@@ -334,7 +334,7 @@ fn cube_tets(rng: &mut Rng) -> (Vec<usize>, Vec<f64>) {
             grads.extend(r.iter());
         }
     }
-    (tets.iter().flatten().copied().collect(), grads)
+    (tets.iter().flatten().copied().collect(), grads, rng.vec(8 * 3 * n, 0.05))
 }
 
 #[test]
@@ -342,8 +342,7 @@ fn vertex_form_of_the_cubature_matches_its_jacobians_and_finite_differences() {
     let model = small_block(3, 11, 9);
     let n = model.n_dofs();
     let mut rng = Rng::new(21);
-    let (tet_vertices, shape_gradients) = cube_tets(&mut rng);
-    let vertex_basis = rng.vec(8 * 3 * n, 0.05);
+    let (tet_vertices, shape_gradients, vertex_basis) = cube_tets(&mut rng, n);
     // G_k = sum_a W_{v_a} (x) grad N_a, row 3 i + j of the 9.
     let k = tet_vertices.len() / 4;
     let mut jacobians = vec![0.0; k * 9 * n];
@@ -388,8 +387,7 @@ fn vertex_form_that_does_not_reproduce_the_jacobians_is_rejected() {
     let model = small_block(3, 11, 9);
     let n = model.n_dofs();
     let mut rng = Rng::new(22);
-    let (tet_vertices, shape_gradients) = cube_tets(&mut rng);
-    let vertex_basis = rng.vec(8 * 3 * n, 0.05);
+    let (tet_vertices, shape_gradients, vertex_basis) = cube_tets(&mut rng, n);
     let jacobians = rng.vec(6 * 9 * n, 0.05);
     let weights = vec![1e-3; 6];
     let inputs = |vertex_basis: &'_ [f64], tet_vertices: &'_ [usize]| {
