@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 # shadow it. The module is numpy-only, so this costs nothing.
 from .compare import compare
 from .errors import (
+    AccuracyWarning,
     ConcurrencyError,
     ConfigError,
     FileFormatError,
@@ -74,6 +75,7 @@ __all__ = [
     "MissingDependencyError",
     "LicromWarning",
     "PhysicsWarning",
+    "AccuracyWarning",
     "Mesh",
     "MeshQuality",
     "Material",

@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
+from .error_estimate import ErrorMonitor, running_estimate, warn_estimate
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .reduced_sim import sampling, step_many, step_or_record
@@ -233,6 +234,8 @@ class BodyFrameSim:
             **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
+        self._modal_mass = np.einsum("klii->kl", products)
+        self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene)
         self.time = 0.0
         self.set_state(*scene.initial.apply(mesh.vertices, self._masses))
 
@@ -359,24 +362,38 @@ class BodyFrameSim:
         a plane are recorded, with a :class:`~licrom.errors.PhysicsWarning` where they leave
         the valid range (:mod:`licrom.validity`).
         """
-        rec = record_run(
-            lambda: step_or_record(self), lambda: (self.positions, self.velocities, self.q), lambda: self.time, steps, record_every, progress,
-            "body frame",
-        )
-        positions = np.array([x for x, _, _ in rec.frames])
-        min_det_f = cubature_min_det(self._jacobians, np.array([q for _, _, q in rec.frames]))
+        monitor = self._monitor
+        monitor.start(self._previous_positions()[monitor.vertices], self.positions[monitor.vertices])
+
+        def step() -> tuple[int, float, bool]:
+            outcome = step_or_record(self)
+            monitor.observe(monitor.sample_positions(self.q, self.center, self.rotation))
+            return outcome
+
+        def snapshot() -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+            q = self.q
+            return self.positions, self.velocities, q, monitor.weighted_error(q, self.center, self.rotation)
+
+        rec = record_run(step, snapshot, lambda: self.time, steps, record_every, progress, "body frame")
+        positions = np.array([x for x, _, _, _ in rec.frames])
+        qs = np.array([q for _, _, q, _ in rec.frames]).reshape(len(positions), -1)
+        min_det_f = cubature_min_det(self._jacobians, qs)
         planes = self.scene.plane_array()
         depth = np.array([penetration(x, planes) for x in positions])
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation")
+        estimate = running_estimate(np.array([e for _, _, _, e in rec.frames]), np.einsum("fk,kl,fl->f", qs, self._modal_mass, qs),
+                                    monitor.contact_start(positions))
+        warn_estimate(estimate, "the body-frame simulation")
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
             displacements=positions - self.mesh.vertices,
-            velocities=np.array([v for _, v, _ in rec.frames]),
+            velocities=np.array([v for _, v, _, _ in rec.frames]),
             scene=self.scene,
             min_det_f=min_det_f,
             penetration=depth,
+            error_estimate=estimate,
             **arrays,
             info={
                 "source": "reduced",

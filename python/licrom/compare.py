@@ -209,6 +209,9 @@ class Comparison:
         full_step_ms, reduced_step_ms: median wall time per step, ms.
         full_iterations, reduced_iterations: mean Newton iterations per step.
         object_size: bounding-box diagonal of the rest shape, m.
+        error_estimate: the reduced run's own estimate of its non-rigid error, computed
+            online without the full run (last frame of ``Trajectory.error_estimate``, see
+            :mod:`licrom.error_estimate`); NaN when the run has none.
     """
 
     times: np.ndarray
@@ -233,6 +236,7 @@ class Comparison:
     full_iterations: float
     reduced_iterations: float
     object_size: float
+    error_estimate: float = math.nan
 
     __repr__ = concise_repr
 
@@ -258,6 +262,7 @@ class Comparison:
             ("mean relative displacement error", f"{100 * self.mean_error:.2f} %"),
             ("final centre-of-mass error / size", f"{100 * self.final_com_error:.2f} %"),
             (f"non-rigid deformation error (from {self.nonrigid_start_time:.3g} s)", f"{100 * self.nonrigid_error:.2f} %"),
+            ("estimated non-rigid error (online, no full run)", f"{100 * self.error_estimate:.2f} %"),
             ("peak non-rigid deformation / size full / reduced",
              f"{100 * self.peak_deformation_full:.2f} % / {100 * self.peak_deformation_reduced:.2f} %"),
             ("total rotation full / reduced", f"{self.rotation_full:.1f} deg / {self.rotation_reduced:.1f} deg"),
@@ -318,6 +323,7 @@ def compare(full: Trajectory, reduced: Trajectory) -> Comparison:
         full_iterations=float(full.iterations.mean()) if len(full.iterations) else math.nan,
         reduced_iterations=float(reduced.iterations.mean()) if len(reduced.iterations) else math.nan,
         object_size=size,
+        error_estimate=float(reduced.error_estimate[-1]) if len(reduced.error_estimate) else math.nan,
     )
 
 

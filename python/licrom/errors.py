@@ -12,6 +12,7 @@ import importlib
 from types import ModuleType
 
 __all__ = [
+    "AccuracyWarning",
     "ConcurrencyError",
     "ConfigError",
     "FileFormatError",
@@ -73,6 +74,14 @@ class PhysicsWarning(LicromWarning):
     """A simulation left the range where its physics holds: inverted elements, contact
     penetration deeper than ``licrom.validity.PENETRATION_LIMIT`` of the object's size,
     or a start inside a plane (see :mod:`licrom.validity`)."""
+
+
+class AccuracyWarning(LicromWarning):
+    """A reduced run's online error estimate (``Trajectory.error_estimate``) passed
+    ``licrom.error_estimate.ERROR_THRESHOLD``: its subspace likely misses the motion
+    (see :mod:`licrom.error_estimate`)."""
+
+
 class OutputError(LicromError, OSError):
     """An output cannot be written: the disk is full, the folder is read-only, or the path is a directory.
 

@@ -25,8 +25,10 @@ import numpy as np
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
+from .error_estimate import ErrorMonitor, running_estimate, warn_estimate
 from .errors import ConfigError, ShapeError, SolverError
 from .mesh import Mesh
+from .rigid import body_frame_displacements
 from .scene import Scene
 from .stepping import check_run_arguments, record_run
 from .trajectory import Trajectory
@@ -195,6 +197,7 @@ class ReducedSim:
             **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
+        self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene)
         self.time = 0.0
         positions, velocities = scene.initial.apply(mesh.vertices, self._masses)
         self.set_state(positions, velocities)
@@ -282,10 +285,22 @@ class ReducedSim:
         where they leave the valid range (:mod:`licrom.validity`).
         """
         before = self._core.stats()
-        rec = record_run(lambda: step_or_record(self), lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced")
+        monitor = self._monitor
+        monitor.start(monitor.sample_positions(self.q - self.scene.dt * self.qdot), monitor.sample_positions(self.q))
+
+        def step() -> tuple[int, float, bool]:
+            outcome = step_or_record(self)
+            monitor.observe(monitor.sample_positions(self.q))
+            return outcome
+
+        def snapshot() -> tuple[np.ndarray, np.ndarray, float]:
+            q = self.q
+            return q, self.qdot, monitor.weighted_error(q)
+
+        rec = record_run(step, snapshot, lambda: self.time, steps, record_every, progress, "reduced")
         work = {k: v - before[k] for k, v in sorted(self._core.stats().items())}
-        qs = np.array([q for q, _ in rec.frames])
-        qdots = np.array([qd for _, qd in rec.frames])
+        qs = np.array([q for q, _, _ in rec.frames])
+        qdots = np.array([qd for _, qd, _ in rec.frames])
         w = self._values.reshape(-1, self._values.shape[2])
         n = self.mesh.n_vertices
         displacements = (qs @ w.T).reshape(-1, n, 3)
@@ -294,6 +309,11 @@ class ReducedSim:
         depth = np.array([penetration(self.mesh.vertices + d, planes) for d in displacements])
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation")
+        positions = self.mesh.vertices + displacements
+        bent = body_frame_displacements(positions, self.mesh.vertices, self._masses)
+        estimate = running_estimate(np.array([e for _, _, e in rec.frames]), np.einsum("fni,fni,n->f", bent, bent, self._masses),
+                                    monitor.contact_start(positions))
+        warn_estimate(estimate, "the reduced simulation")
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
@@ -302,6 +322,7 @@ class ReducedSim:
             scene=self.scene,
             min_det_f=min_det_f,
             penetration=depth,
+            error_estimate=estimate,
             **arrays,
             info={
                 "source": "reduced",

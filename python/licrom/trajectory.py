@@ -42,6 +42,9 @@ class Trajectory:
             inverted elements (see :mod:`licrom.validity`).
         penetration: (f,) deepest penetration of a vertex into a plane at each frame, m, or
             empty when not measured.
+        error_estimate: (f,) a reduced run's online estimate of its non-rigid error, running
+            from the first contact (dimensionless; see :mod:`licrom.error_estimate`), or empty
+            (full runs, and files written before it existed).
         info: free-form JSON-ready metadata (source, mesh name, sweep parameters, ...).
     """
 
@@ -57,6 +60,7 @@ class Trajectory:
     step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
     min_det_f: np.ndarray = field(default_factory=lambda: np.zeros(0))
     penetration: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    error_estimate: np.ndarray = field(default_factory=lambda: np.zeros(0))
     info: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -83,7 +87,7 @@ class Trajectory:
         self.residuals = np.asarray(self.residuals, dtype=np.float64)
         self.converged = np.asarray(self.converged, dtype=bool)
         self.step_seconds = np.asarray(self.step_seconds, dtype=np.float64)
-        for name in ("min_det_f", "penetration"):
+        for name in ("min_det_f", "penetration", "error_estimate"):
             a = np.asarray(getattr(self, name), dtype=np.float64)
             if a.shape not in ((0,), (f,)):
                 raise ShapeError(f"Trajectory.{name} must have shape (frames,) = ({f},) or be empty, got {a.shape}")
@@ -164,6 +168,7 @@ class Trajectory:
             "step_seconds": self.step_seconds,
             "min_det_f": self.min_det_f,
             "penetration": self.penetration,
+            "error_estimate": self.error_estimate,
         }
         save_npz(p, arrays, header)
         return p

@@ -1,0 +1,134 @@
+"""Does the online error estimate rank reduced runs by their true non-rigid error, and flag the bad ones?
+
+    python examples/error_estimate_validation.py [--work out/body_frame] [--r 2 4 8 20 60] [--small]
+
+For every held-out run of the families of ``examples/body_frame_experiments.py`` (cheese:
+new slopes, friction and azimuth; box: tipping and tumbling; sphere: rolling), plus the
+first held-out cheese scene with a softer material (E = 10 kPa) and on a finer mesh of the
+cheese (resolution 10, the res-8 POD modes interpolated onto it), the script runs the
+body-frame model with POD(r) modes of the family's training runs for each r, and compares
+
+* the true error, :func:`licrom.compare.nonrigid_error` against the full run, with
+* the run-level estimate, the last frame of ``Trajectory.error_estimate``.
+
+It prints the table, Spearman's rho over all runs and within each family, the flagging
+confusion at :data:`licrom.error_estimate.ERROR_THRESHOLD` against true errors above 15 %,
+and the estimate's cost against the step's (median over the steps of one run of the cheese),
+and writes ``--work/error_estimate.json``. Full runs are cached under ``--work/full`` (shared
+with ``body_frame_experiments.py``). ``--small`` runs tiny meshes for a few steps (a smoke
+test, under a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+from pathlib import Path
+
+import licrom
+import numpy as np
+from body_frame_experiments import FAMILIES, Case, Setting, _on_plane, full_run, incline
+from licrom import Material, MeshBasis, meshes
+from licrom._io import atomic_path
+from licrom.body_frame import BodyFrameSim
+from licrom.compare import nonrigid_error
+from licrom.error_estimate import ERROR_THRESHOLD
+from scipy.stats import spearmanr
+
+BAD = 0.15  # a run whose true non-rigid error exceeds this must be flagged
+
+
+def interpolated_basis(basis: MeshBasis, mesh: licrom.Mesh) -> MeshBasis:
+    """``basis`` (bound to its mesh) carried onto another mesh of the object by linear interpolation."""
+    tets, bary = basis.mesh.locate(mesh.vertices)
+    values = basis.values(basis.mesh.vertices)
+    return MeshBasis(mesh, np.einsum("pa,paik->pik", bary, values[basis.mesh.tets[tets]]))
+
+
+def reduced_row(family: str, kind: str, r: int, full: licrom.Trajectory, sim: BodyFrameSim, steps: int) -> dict:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", licrom.LicromWarning)
+        red = sim.run(steps)
+    return {"family": family, "kind": kind, "r": r, "true": nonrigid_error(full, red), "estimate": float(red.error_estimate[-1]),
+            "step_ms": 1e3 * float(np.median(red.step_seconds))}
+
+
+def cost_ratio(sim: BodyFrameSim, steps: int) -> tuple[float, float]:
+    """Median wall time of a step and of the estimate's work per step (observe + residual), s."""
+    mon = sim._monitor
+    mon.start(sim._previous_positions()[mon.vertices], sim.positions[mon.vertices])
+    step_s, est_s = [], []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        sim.step()
+        t1 = time.perf_counter()
+        mon.observe(mon.sample_positions(sim.q, sim.center, sim.rotation))
+        mon.weighted_error(sim.q, sim.center, sim.rotation)
+        t2 = time.perf_counter()
+        step_s.append(t1 - t0)
+        est_s.append(t2 - t1)
+    return float(np.median(step_s)), float(np.median(est_s))
+
+
+def confusion(rows: list[dict]) -> dict:
+    flagged = [row["estimate"] > ERROR_THRESHOLD for row in rows]
+    bad = [row["true"] > BAD for row in rows]
+    return {"bad": sum(bad), "flagged": sum(flagged), "bad_flagged": sum(f and b for f, b in zip(flagged, bad)),
+            "missed": sum(b and not f for f, b in zip(flagged, bad)), "false_alarms": sum(f and not b for f, b in zip(flagged, bad))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--work", type=Path, default=Path("out/body_frame"))
+    ap.add_argument("--r", type=int, nargs="+", default=[2, 4, 8, 20, 60], help="POD modes of the reduced runs")
+    ap.add_argument("--small", action="store_true", help="tiny meshes, few steps: a smoke test")
+    args = ap.parse_args()
+    work = args.work / "small" if args.small else args.work
+    sizes = [1, 4] if args.small else args.r
+    rows, t_start = [], time.perf_counter()
+    for name, make in FAMILIES.items():
+        fam = make(args.small)
+        train = [full_run(work, c.name, fam.mesh, c.scene, fam.steps) for c in fam.training]
+        setting = Setting(fam, train, work / "models", 1)
+        cases = [(c, fam.mesh) for c in fam.held_out]
+        if name == "cheese":
+            first = fam.held_out[0]
+            soft = first.scene.replace(material=Material(youngs_modulus=1.0e4, poisson_ratio=0.3, density=1000.0))
+            cases.append((Case(f"{first.name}_E10k", f"softer (E = 10 kPa): {first.kind}", True, soft), fam.mesh))
+            fine = meshes.cheese(resolution=6 if args.small else 10)
+            plane = first.scene.planes[0]
+            scene = _on_plane(fine, first.scene, incline(plane.slope_deg, 0.0, plane.friction), 0.06, (0.15, 0.1, 0.0))
+            cases.append((Case(f"{first.name}_res{6 if args.small else 10}", f"finer mesh: {first.kind}", True, scene), fine))
+        for case, mesh in cases:
+            full = full_run(work, case.name, mesh, case.scene, fam.steps)
+            for r in sizes:
+                pod = setting.body_pod(r)
+                basis = setting.body_basis(pod if mesh is fam.mesh else interpolated_basis(pod, mesh))
+                basis = basis if mesh is fam.mesh else basis.on(mesh)
+                rows.append(reduced_row(name, case.kind, r, full, BodyFrameSim(basis, mesh, case.scene), fam.steps))
+                print(f"{name:7s} {case.kind[:46]:46s} r={r:3d}  true {100 * rows[-1]['true']:7.2f} %  "
+                      f"estimate {100 * rows[-1]['estimate']:7.2f} %", flush=True)
+        if name == "cheese":
+            sim = BodyFrameSim(setting.body_basis(setting.body_pod(sizes[-1])), fam.mesh, fam.held_out[0].scene)
+            step_s, est_s = cost_ratio(sim, fam.steps)
+    true = np.array([row["true"] for row in rows])
+    est = np.array([row["estimate"] for row in rows])
+    rho = {"all": float(spearmanr(true, est)[0])}
+    for name in FAMILIES:
+        sel = [i for i, row in enumerate(rows) if row["family"] == name]
+        rho[name] = float(spearmanr(true[sel], est[sel])[0]) if len(sel) > 2 else float("nan")
+    conf = confusion(rows)
+    cost = {"step_ms": 1e3 * step_s, "estimate_ms": 1e3 * est_s, "ratio": est_s / step_s}
+    print("Spearman rho: " + ", ".join(f"{k} {v:.3f}" for k, v in rho.items()))
+    print(f"threshold {100 * ERROR_THRESHOLD:.0f} %: {conf}")
+    print(f"cost per step: step {cost['step_ms']:.3f} ms, estimate {cost['estimate_ms']:.3f} ms, ratio {100 * cost['ratio']:.1f} %")
+    with atomic_path(work / "error_estimate.json") as tmp:
+        tmp.write_text(json.dumps({"rows": rows, "spearman": rho, "confusion": conf, "threshold": ERROR_THRESHOLD, "bad": BAD,
+                                   "cost": cost, "wall_s": time.perf_counter() - t_start}, indent=1))
+    print(f"wrote {work / 'error_estimate.json'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""The online error estimate of reduced runs (licrom.error_estimate)."""
+
+from __future__ import annotations
+
+import warnings
+
+import licrom
+import numpy as np
+import pytest
+from licrom import AccuracyWarning, Material, MeshBasis, Plane, ReducedSim, Scene, SolverParams, Trajectory, _core, meshes
+from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+from licrom.compare import nonrigid_error
+from licrom.cubature import Cubature
+from licrom.error_estimate import ERROR_THRESHOLD, ErrorMonitor
+from licrom.placement import drop_state, initial_state_on_plane
+
+STEPS = 30
+
+
+def _scene(mesh: licrom.Mesh, slope: float = 30.0) -> Scene:
+    """The mesh dropped 2 cm onto an incline: it lands, deforms and slides."""
+    base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01,
+                 solver=SolverParams(tolerance=1e-10, max_iterations=100))
+    plane = Plane.incline(slope, friction=0.3)
+    flat = drop_state(mesh, 1000.0, 0.02, rotation=(0.15, 0.1, 0.0))
+    return base.replace(planes=(plane,), initial=initial_state_on_plane(flat, plane, mesh, 1000.0))
+
+
+@pytest.fixture(scope="module")
+def mesh() -> licrom.Mesh:
+    return meshes.cheese(resolution=4)
+
+
+def test_full_space_basis_has_no_residual(mesh):
+    sim = ReducedSim(MeshBasis.identity(mesh), mesh, _scene(mesh), cubature=Cubature.full(mesh))
+    traj = sim.run(STEPS)
+    assert traj.error_estimate.shape == (traj.n_frames,)
+    assert np.all(np.isfinite(traj.error_estimate))
+    # The full space solves the full equations: only the Newton tolerance is left.
+    assert traj.error_estimate[-1] < 1e-4
+
+
+@pytest.fixture(scope="module")
+def one_mode_run(mesh):
+    """A body-frame run with the affine modes and one bending mode, and the full run of the scene."""
+    scene = _scene(mesh)
+    full = licrom.FullSim(mesh, scene).run(STEPS)
+    x = mesh.vertices - mesh.vertices.mean(axis=0)
+    bend = np.zeros((mesh.n_vertices, 3, 1))
+    bend[:, 2, 0] = x[:, 0] ** 2
+    sim = BodyFrameSim(BodyFrameBasis(mesh, MeshBasis(mesh, bend)), mesh, scene, cubature=Cubature.full(mesh))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reduced = sim.run(STEPS)
+    return full, reduced, [w for w in caught if issubclass(w.category, AccuracyWarning)]
+
+
+def test_one_mode_basis_has_a_large_estimate(one_mode_run):
+    full, reduced, _ = one_mode_run
+    assert nonrigid_error(full, reduced) > 0.3
+    assert reduced.error_estimate[-1] > ERROR_THRESHOLD
+
+
+def test_accuracy_warning_is_raised_once(one_mode_run):
+    _, _, caught = one_mode_run
+    assert len(caught) == 1
+    assert "more modes" in str(caught[0].message)
+    assert issubclass(AccuracyWarning, licrom.LicromWarning)
+
+
+def test_elastic_force_matches_finite_differences(mesh):
+    monitor = ErrorMonitor(mesh, np.zeros((mesh.n_vertices, 3, 0)), mesh.vertices, _scene(mesh), count=4)
+    x = mesh.vertices + 0.02 * mesh.size * np.random.default_rng(0).standard_normal(mesh.vertices.shape)
+    mu, lam = _scene(mesh).material.snh_parameters
+
+    def energy(pos: np.ndarray) -> float:
+        return float(mesh.rest_volumes @ _core.snh_energy(np.ascontiguousarray(mesh.deformation_gradients(pos)), mu, lam))
+
+    forces = monitor.elastic_forces(x[monitor.near])
+    eps = 1e-7 * mesh.size
+    for s, v in enumerate(monitor.vertices):
+        for i in range(3):
+            plus, minus = x.copy(), x.copy()
+            plus[v, i] += eps
+            minus[v, i] -= eps
+            fd = -(energy(plus) - energy(minus)) / (2 * eps)
+            assert forces[s, i] == pytest.approx(fd, rel=1e-5, abs=1e-6 * np.abs(forces).max())
+
+
+def test_error_estimate_saves_and_loads(one_mode_run, tmp_path):
+    _, reduced, _ = one_mode_run
+    back = Trajectory.load(reduced.save(tmp_path / "run.npz"))
+    np.testing.assert_array_equal(back.error_estimate, reduced.error_estimate)
+
+
+def test_file_without_error_estimate_still_loads(one_mode_run, tmp_path):
+    _, reduced, _ = one_mode_run
+    path = reduced.save(tmp_path / "run.npz")
+    with np.load(path) as f:
+        arrays = {k: f[k] for k in f.files if k != "error_estimate"}
+    np.savez(path, **arrays)  # a file written before the estimate existed
+    back = Trajectory.load(path)
+    assert back.error_estimate.shape == (0,)
+    np.testing.assert_array_equal(back.displacements, reduced.displacements.astype(np.float32))
+
+
+def test_error_estimate_must_match_the_frames(one_mode_run):
+    _, reduced, _ = one_mode_run
+    with pytest.raises(licrom.ShapeError):
+        Trajectory(reduced.rest_positions, reduced.tets, reduced.displacements, reduced.velocities, reduced.times, reduced.scene,
+                   error_estimate=np.zeros(3))
