@@ -3,7 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 from licrom import ConfigError, ShapeError, meshes
-from licrom.cubature import ContactPoints, Cubature
+from licrom.cubature import FIT_TOLERANCE, ContactPoints, Cubature
 
 
 def test_full_and_naive_weights_sum_to_volume():
@@ -56,8 +56,12 @@ def test_cubature_for_a_trained_model_fits_its_training_forces(tiny_demo):
     runs = [traj for _, traj in load_trajectories(out / "data")]
     cubature = Cubature.for_model(model, runs, count=40)
     assert cubature.scheme == "optimized" and 1 <= cubature.count <= 40
-    assert cubature.fit_error < 1e-3 or cubature.count == 40
-    assert summary["model"]["cubature_points"] == cubature.count  # what the demo simulates with
+    assert cubature.fit_error < FIT_TOLERANCE or cubature.count == 40
+    # training fitted and stored one the same way (other poses), and the demo simulated with it
+    stored = model.cubature
+    assert stored.scheme == "optimized" and 1 <= stored.count <= 40 and (stored.fit_error < FIT_TOLERANCE or stored.count == 40)
+    assert summary["model"]["cubature_points"] == stored.count
+    assert model.metadata["cubature"]["count"] == stored.count and model.metadata["cubature"]["fit_seconds"] > 0
     # A held-out run with the fitted tets stays with the run that takes every tet (the exact elastic energy):
     # 1 % apart in their deformation with 26 fitted tets, where 40 random ones (naive) leave 10 %.
     full = Trajectory.load(sorted((out / "runs").glob("full_*.npz"))[0])
@@ -68,3 +72,72 @@ def test_cubature_for_a_trained_model_fits_its_training_forces(tiny_demo):
         Cubature.for_model(model, [])
     with pytest.raises(ShapeError, match="rest mesh"):
         Cubature.for_model(model, [dataclasses.replace(runs[0], rest_positions=runs[0].rest_positions + 0.01)])
+
+
+def test_the_model_file_carries_its_fitted_cubature_and_simulations_use_it(tiny_demo, tmp_path):
+    from licrom import BodyFrameSim, Model, ReducedSim, meshes
+    from licrom.reduced_sim import CUBATURES
+
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    stored = model.cubature
+    assert stored is not None and stored.scheme == "optimized"
+    model.save(tmp_path / "again.lcm")
+    again = Model.load(tmp_path / "again.lcm")
+    np.testing.assert_array_equal(again.cubature.tets, stored.tets)
+    np.testing.assert_array_equal(again.cubature.weights, stored.weights)
+    assert again.cubature.fit_error == stored.fit_error
+    # the default of every reduced simulation of the model, by name too; the others by name
+    sim = ReducedSim(model)
+    assert isinstance(sim, BodyFrameSim) and sim.cubature is stored
+    assert ReducedSim(model, cubature="fitted").cubature is stored
+    assert ReducedSim(model, cubature="full").cubature.count == model.mesh.n_tets
+    naive = ReducedSim(model, cubature="naive").cubature
+    assert naive.scheme in ("naive", "full") and naive.count == min(1000, model.mesh.n_tets)
+    with pytest.raises(ConfigError, match="one of"):
+        ReducedSim(model, cubature="optimal")
+    assert CUBATURES == ("fitted", "naive", "full")
+    # another mesh of the object: refitted there to the same poses, within the stored tolerance; transfer uses it
+    other = meshes.cheese(resolution=5)
+    refit = model.cubature_for(other)
+    assert refit.scheme == "optimized" and refit.tets.max() < other.n_tets
+    assert refit.fit_error < model.metadata["cubature"]["tolerance"] or refit.count == model.metadata["cubature"]["max_count"]
+    assert model.cubature_for(other) is refit  # kept for the same mesh
+    moved = sim.transfer(other)
+    np.testing.assert_array_equal(moved.cubature.tets, refit.tets)
+
+
+def test_a_model_without_a_fitted_cubature_says_it_runs_naive_tets():
+    from pathlib import Path
+
+    from licrom import Model, ReducedSim
+    from licrom.errors import LicromWarning
+
+    model = Model.load(Path(__file__).parent / "data" / "world_v1.lcm")  # written before the cubature was stored
+    assert model.cubature is None and model.cubature_for() is None
+    with pytest.warns(LicromWarning, match="no fitted cubature"):
+        sim = ReducedSim(model)
+    assert sim.cubature.scheme in ("naive", "full")
+    with pytest.raises(ConfigError, match="fitted cubature"):
+        ReducedSim(model, cubature="fitted")
+
+
+def test_a_corrupt_stored_cubature_is_a_file_format_error(tiny_demo, tmp_path):
+    import json
+
+    from licrom import Model
+    from licrom.errors import FileFormatError
+
+    out, _ = tiny_demo
+    with np.load(out / "model.lcm", allow_pickle=False) as f:
+        arrays = {k: f[k] for k in f.files}
+    for member, value, says in (("cubature/tets", arrays["cubature/tets"] + 10**6, "cubature/tets is not"),
+                                ("cubature/weights", -arrays["cubature/weights"], "weights must be finite and >= 0"),
+                                ("cubature/samples", np.full_like(arrays["cubature/samples"], np.nan), "samples must be finite")):
+        bad = dict(arrays, **{member: value})
+        path = tmp_path / "bad.lcm"
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, **bad)
+        with pytest.raises(FileFormatError, match=says):
+            Model.load(path)
+    assert json.loads(str(arrays["header_json"]))["version"] == 3

@@ -24,7 +24,7 @@ from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, running_estimate, warn_estimate
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .reduced_sim import sampling, step_many, step_or_record
+from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import record_run
@@ -159,7 +159,8 @@ class BodyFrameSim:
             columns carry no linear or angular momentum on ``mesh``).
         mesh: the mesh to simulate (default: the basis' mesh).
         scene: the scene (default: the learned model's default scene).
-        cubature: cubature tets and weights (default: as ReducedSim).
+        cubature: cubature tets and weights, or a name (default: as ReducedSim, the learned
+            model's fitted cubature).
         contact_points: where contact acts (default: every boundary vertex).
         strain: ``"mesh"`` (default) or ``"field"``, as in ReducedSim
             (:func:`licrom.basis.strain_jacobians`).
@@ -176,7 +177,7 @@ class BodyFrameSim:
         basis: Basis,
         mesh: Mesh | None = None,
         scene: Scene | None = None,
-        cubature: Cubature | None = None,
+        cubature: Cubature | str | None = None,
         contact_points: ContactPoints | None = None,
         strain: str = "mesh",
     ) -> None:
@@ -189,7 +190,7 @@ class BodyFrameSim:
             if scene is None:
                 raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
         self.basis, self.mesh, self.scene = basis, mesh, scene
-        self.cubature, self.contact_points = sampling(mesh, cubature, contact_points)
+        self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
         k = int(basis.n_modes)
         n = mesh.n_vertices
         self._masses = mesh.vertex_masses(scene.material.density)
@@ -412,12 +413,12 @@ class BodyFrameSim:
 
         The new simulation has the new mesh's own ``Xbar`` and ``W`` (a
         :class:`BodyFrameBasis` is orthogonalised again on it); ``c``, ``R``, ``q``,
-        ``v``, ``w`` and ``q_dot`` carry over (cubature: the naive scheme with as many
-        points as this one, unless given).
+        ``v``, ``w`` and ``q_dot`` carry over (cubature: the learned model's fitted one refitted
+        on ``mesh``, else the naive scheme with as many points as this one, unless given).
         """
-        if cubature is None:
-            cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
         basis = self.basis.on(mesh) if isinstance(self.basis, BodyFrameBasis) else self.basis
+        if cubature is None and _fitted_cubature(basis, mesh) is None:
+            cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
         other = BodyFrameSim(basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, strain=self.strain)
         other._core.set_state(self.center, self.rotation, self.q, self.velocity, self.angular_velocity, self.qdot)
         other.time = self.time

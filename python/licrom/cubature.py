@@ -24,7 +24,11 @@ if TYPE_CHECKING:
     from .model import Model
     from .trajectory import Trajectory
 
-__all__ = ["ContactPoints", "Cubature"]
+__all__ = ["FIT_TOLERANCE", "ContactPoints", "Cubature", "model_basis", "model_samples"]
+
+
+FIT_TOLERANCE = 1e-2
+"""Default relative force residual of a fitted cubature (:meth:`Cubature.fitted`), chosen by measurement (see docs/results.md)."""
 
 
 def _count(name: str, value: int, upper: int) -> int:
@@ -173,16 +177,13 @@ class Cubature:
         return cls(tets[order], weights[nz][order], mesh.centroids[tets[order]], "optimized", float(error))
 
     @classmethod
-    def for_model(cls, model: Model, runs: Sequence[Trajectory], count: int = 1000, frame_stride: int = 5, tolerance: float = 1e-3,
+    def for_model(cls, model: Model, runs: Sequence[Trajectory], count: int = 1000, frame_stride: int = 5, tolerance: float = FIT_TOLERANCE,
                   strain: str = "mesh") -> Cubature:
         """:meth:`optimized` cubature for a trained model, fitted to the poses of its training runs.
 
-        The basis and samples are those the simulation of ``model`` uses: the model itself
-        and the projections of the frames' displacements for a world-frame model; the
-        :class:`licrom.BodyFrameBasis` around it and the projections of the frames'
-        body-frame displacements for a body-frame one. Measured on the demo (864-tet
-        cheese, body frame, r = 8): 63 tets fitted to 1e-3 left 5.7 / 7.9 % non-rigid error
-        on its held-out runs, 400 naive tets 46 / 39 % and every tet 4.4 / 6.8 %.
+        The basis and samples are those the simulation of ``model`` uses (:func:`model_basis`,
+        :func:`model_samples`). :func:`licrom.train` already fits one and stores it in the model
+        (:attr:`licrom.Model.cubature`); this refits it with other settings or runs.
 
         Args:
             model: a trained :class:`licrom.Model`.
@@ -196,26 +197,66 @@ class Cubature:
             ShapeError: a run is not on the model's mesh.
             ConfigError: no run, a bad stride, or no sample with elastic forces.
         """
-        from .basis import SubspaceProjector
-        from .body_frame import BodyFrameBasis
         from .rigid import body_frame_displacements
 
         if not runs:
             raise ConfigError("Cubature.for_model needs at least one run")
         step = _count("frame_stride", frame_stride, 2**31)
-        mesh, scene = model.mesh, model.default_scene
+        mesh = model.mesh
         for i, run in enumerate(runs):
             if run.rest_positions.shape != mesh.vertices.shape or not np.allclose(run.rest_positions, mesh.vertices):
                 raise ShapeError(f"runs[{i}] is not on the model's rest mesh ({mesh.n_vertices} vertices)")
         frames = np.concatenate([run.displacements[::step] for run in runs])
         if model.frame == "body":
-            basis = BodyFrameBasis(mesh, learned=model, density=scene.material.density)
-            masses = mesh.vertex_masses(scene.material.density)
-            u = body_frame_displacements(mesh.vertices + frames, mesh.vertices, masses)
-            samples = SubspaceProjector(basis.values(mesh.vertices), masses).project(u)
-        else:
-            basis, samples = model, model.project(frames)
-        return cls.optimized(mesh, basis, scene.material, samples, count=count, tolerance=tolerance, strain=strain)
+            frames = body_frame_displacements(mesh.vertices + frames, mesh.vertices, mesh.vertex_masses(model.default_scene.material.density))
+        return cls.fitted(model, model_samples(model, frames), count=count, tolerance=tolerance, strain=strain)
+
+    @classmethod
+    def fitted(cls, model: Model, samples: np.ndarray, mesh: Mesh | None = None, count: int = 1000, tolerance: float = FIT_TOLERANCE,
+               strain: str = "mesh") -> Cubature:
+        """:meth:`optimized` cubature of ``model`` on ``mesh`` (default its own) for reduced coordinates ``samples``.
+
+        The reduced coordinates of a pose mean the same on every mesh of the object (the
+        basis is continuous), so the samples of the training poses refit the cubature on
+        another mesh (:meth:`licrom.Model.cubature_for`).
+
+        Args:
+            model: a trained :class:`licrom.Model`.
+            samples: (S, n) reduced coordinates of :func:`model_basis` (see :func:`model_samples`).
+            mesh: the mesh of the cubature tets (default: the model's).
+            count: maximum number of cubature tets.
+            tolerance: stop when the relative force residual falls below this.
+            strain: as in :meth:`optimized`.
+        """
+        mesh = model.mesh if mesh is None else mesh
+        return cls.optimized(mesh, model_basis(model, mesh), model.default_scene.material, samples, count=count, tolerance=tolerance, strain=strain)
+
+
+def model_basis(model: Model, mesh: Mesh | None = None) -> Basis:
+    """The basis the reduced simulation of ``model`` runs on ``mesh`` (default its own): the model itself
+    (world frame) or :class:`licrom.BodyFrameBasis` around it (body frame)."""
+    mesh = model.mesh if mesh is None else mesh
+    if model.frame != "body":
+        return model
+    from .body_frame import BodyFrameBasis
+
+    return BodyFrameBasis(mesh, learned=model, density=model.default_scene.material.density)
+
+
+def model_samples(model: Model, displacements: np.ndarray) -> np.ndarray:
+    """(S, n) reduced coordinates of :func:`model_basis` for (S, n_vertices, 3) displacements of the model's mesh in its frame.
+
+    A world-frame model projects world-frame displacements; a body-frame model the body-frame
+    displacements ``R^T (x - c) - Xbar`` (:func:`licrom.rigid.body_frame_displacements`).
+    """
+    from .basis import SubspaceProjector
+
+    u = np.asarray(displacements, dtype=np.float64)
+    if model.frame != "body":
+        return model.project(u)
+    mesh = model.mesh
+    masses = mesh.vertex_masses(model.default_scene.material.density)
+    return SubspaceProjector(model_basis(model).values(mesh.vertices), masses).project(u)
 
 
 @dataclass(frozen=True)

@@ -46,9 +46,9 @@ class DemoConfig:
         frame: ``"body"`` or ``"world"`` (LiCROM's world-frame model, for comparison).
         epochs: training epochs (30 reach the POD bound of the same size on this data,
             see :func:`licrom.training.subspace_report`).
-        cubature_points: most cubature tets of the reduced model: optimised cubature
-            (:meth:`licrom.Cubature.for_model`, fitted to the training runs' forces), which
-            stops earlier once it matches them (63 tets on the built-in scene).
+        cubature_points: most cubature tets of the reduced model: the cubature that training
+            fits to the training runs' forces (:attr:`licrom.TrainConfig.cubature_points`), which
+            stops earlier once it matches them.
         device: warp device of the full simulations.
     """
 
@@ -99,12 +99,10 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     ``progress=False`` hides the progress bars; the stage lines and the summary are printed.
     """
     from .compare import run_comparison
-    from .cubature import Cubature
     from .export import write_vtu_series
     from .model import ModelConfig
     from .render import pick_renderer, pictures, plot_errors
     from .training import TrainConfig, train
-    from .training_data import load_trajectories
 
     scene_file = demo_scene(config)
     out = make_dir(config.out_dir)
@@ -126,7 +124,7 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     t = time.perf_counter()
     model = train(
         out / "data", out / "model.lcm",
-        TrainConfig(epochs=config.epochs, progress=progress, device="auto"),
+        TrainConfig(epochs=config.epochs, progress=progress, device="auto", cubature_points=config.cubature_points),
         ModelConfig(latent_dim=config.modes, frame=config.frame),
     )
     t_train = time.perf_counter() - t
@@ -138,13 +136,11 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
         say(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
     comparisons = {}
     rows = []
-    # Fitted to the training poses: 63 tets left the held-out runs 5.7 / 7.9 % off in their deformation,
-    # where 400 random ones (the report's naive scheme) left 46 / 39 %.
-    cubature = Cubature.for_model(model, [traj for _, traj in load_trajectories(out / "data")], count=config.cubature_points)
+    cubature = model.cubature  # fitted to the training poses by train(), the reduced runs' default
     for label, scene in cases:
         slope, mu = scene.planes[0].slope_deg, scene.planes[0].friction
         cmp, full, reduced = run_comparison(model, scene, mesh, steps=scene_file.steps, device=config.device,
-                                            progress=progress, cubature=cubature)
+                                            progress=progress)
         tag = f"slope{slope:g}_mu{mu:g}"
         comparisons[label] = cmp
         pictures([full, reduced], ["full", "reduced"], out, tag, title=label, renderer=renderer)

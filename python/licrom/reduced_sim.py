@@ -17,6 +17,7 @@ either kind in one call, spread over Rust threads without the GIL.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -26,7 +27,7 @@ from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, running_estimate, warn_estimate
-from .errors import ConfigError, ShapeError, SolverError
+from .errors import ConfigError, LicromWarning, ShapeError, SolverError
 from .mesh import Mesh
 from .rigid import body_frame_displacements
 from .scene import Scene
@@ -34,7 +35,7 @@ from .stepping import check_run_arguments, record_run
 from .trajectory import Trajectory
 from .validity import check_start, cubature_min_det, penetration, warn_frames
 
-__all__ = ["SOLVERS", "ReducedSim", "step_many"]
+__all__ = ["CUBATURES", "SOLVERS", "ReducedSim", "step_many"]
 
 SOLVERS = ("newton", "prefactored")
 _DEFAULT_CUBATURE_POINTS = 1000
@@ -111,8 +112,9 @@ class ReducedSim:
         basis: a basis (``n_modes``, ``values``, ``jacobians``) or a trained ``licrom.Model``.
         mesh: the mesh to simulate (default: the model's mesh).
         scene: the scene (default: the model's default scene).
-        cubature: cubature tets and weights (default: the naive scheme with 1000 tets,
-            or every tet on smaller meshes).
+        cubature: cubature tets and weights, or a name of :data:`CUBATURES` (default: the
+            model's fitted cubature, refitted on another mesh; the naive scheme with 1000 tets
+            for a basis without one).
         contact_points: where contact acts (default: every boundary vertex).
         solver: ``"newton"`` (dense Newton, Cholesky, line search) or ``"prefactored"``
             (the report's scheme: the elastic stiffness kept at rest, ``M_r/h^2 + K_r(rest)``
@@ -142,7 +144,7 @@ class ReducedSim:
         basis: Basis,
         mesh: Mesh | None = None,
         scene: Scene | None = None,
-        cubature: Cubature | None = None,
+        cubature: Cubature | str | None = None,
         contact_points: ContactPoints | None = None,
         solver: str = "newton",
         strain: str = "mesh",
@@ -162,7 +164,7 @@ class ReducedSim:
         self.mesh = mesh
         self.scene = scene
         self.solver = solver
-        self.cubature, self.contact_points = sampling(mesh, cubature, contact_points)
+        self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
 
         k = int(basis.n_modes)
         n = mesh.n_vertices
@@ -341,10 +343,10 @@ class ReducedSim:
         """The same state (q, q_dot) on another mesh of the same object.
 
         The subspace is continuous, so the reduced state carries over unchanged; the
-        new simulation samples the basis on ``mesh`` (cubature: the naive scheme with as
-        many points as this one, unless given).
+        new simulation samples the basis on ``mesh`` (cubature: the model's fitted one refitted
+        on ``mesh``, else the naive scheme with as many points as this one, unless given).
         """
-        if cubature is None:
+        if cubature is None and _fitted_cubature(self.basis, mesh) is None:
             cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
         other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver, strain=self.strain)
         other._core.set_state(self.q, self.qdot)
@@ -352,9 +354,48 @@ class ReducedSim:
         return other
 
 
-def sampling(mesh: Mesh, cubature: Cubature | None, contact_points: ContactPoints | None) -> tuple[Cubature, ContactPoints]:
-    """The reduced simulations' defaults (naive cubature, every boundary vertex), checked against the mesh."""
-    cubature = cubature if cubature is not None else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
+CUBATURES = ("fitted", "naive", "full")
+"""Cubatures by name: the model's fitted one (:meth:`licrom.Model.cubature_for`), the report's naive
+random tets (:meth:`Cubature.naive`, 1000 tets) and every tet (:meth:`Cubature.full`)."""
+
+
+def _model_behind(basis: Any) -> Any:
+    """The trained model behind ``basis`` (itself, or a BodyFrameBasis' ``learned``), or None."""
+    return next((o for o in (basis, getattr(basis, "learned", None)) if callable(getattr(o, "cubature_for", None))), None)
+
+
+def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:
+    """The fitted cubature on ``mesh`` of the model behind ``basis``, if it has one."""
+    model = _model_behind(basis)
+    return None if model is None else model.cubature_for(mesh)
+
+
+def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: ContactPoints | None, basis: Any = None) -> tuple[Cubature, ContactPoints]:
+    """The reduced simulations' cubature and contact points, checked against the mesh.
+
+    ``cubature`` is a :class:`Cubature`, a name of :data:`CUBATURES`, or None: the fitted
+    cubature of the model behind ``basis`` when it has one (models trained since format 3),
+    else the naive scheme with 1000 tets (a :class:`~licrom.errors.LicromWarning` says so for
+    a model without one). Contact points default to every boundary vertex.
+
+    Raises:
+        ConfigError: an unknown name, ``"fitted"`` for a basis without a fitted cubature, or
+            tets / vertices that do not belong to ``mesh``.
+    """
+    if cubature is None or isinstance(cubature, str):
+        if cubature is not None and cubature not in CUBATURES:
+            raise ConfigError(f"cubature must be a licrom.Cubature or one of {CUBATURES}, got {cubature!r}")
+        fitted = _fitted_cubature(basis, mesh) if cubature in (None, "fitted") else None
+        if cubature == "fitted" and fitted is None:
+            raise ConfigError("cubature='fitted' needs a trained model that stores a fitted cubature (format version 3); "
+                              "fit one with licrom.Cubature.for_model(model, runs)")
+        if cubature is None and fitted is None and _model_behind(basis) is not None:
+            warnings.warn("this model stores no fitted cubature (saved before model format 3): using "
+                          f"{_DEFAULT_CUBATURE_POINTS} naive random tets, which can double the error; fit one with "
+                          "licrom.Cubature.for_model(model, runs) or retrain", LicromWarning, stacklevel=3)
+        cubature = fitted if fitted is not None else Cubature.full(mesh) if cubature == "full" else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
+    if not isinstance(cubature, Cubature):
+        raise ConfigError(f"cubature must be a licrom.Cubature or one of {CUBATURES}, got {type(cubature).__name__}")
     contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
     if cubature.count and int(cubature.tets.max()) >= mesh.n_tets:
         raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
@@ -385,7 +426,7 @@ def _body_frame_sim(
     model: Any,
     mesh: Mesh | None = None,
     scene: Scene | None = None,
-    cubature: Cubature | None = None,
+    cubature: Cubature | str | None = None,
     contact_points: ContactPoints | None = None,
     solver: str = "newton",
     strain: str = "mesh",

@@ -8,7 +8,7 @@ import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -22,11 +22,14 @@ from .config import _CHUNK, ModelConfig
 from .finalize import _Finalization
 from .networks import LicromNet, state_size
 
+if TYPE_CHECKING:
+    from ..cubature import Cubature
+
 __all__ = ["MODEL_FORMAT_VERSION", "Model"]
 
-# Version 2 records the frame; version 1 files are world-frame models.
-MODEL_FORMAT_VERSION = 2
-_READABLE_VERSIONS = (1, 2)
+# Version 3 adds the fitted cubature, version 2 the frame; version 1 files are world-frame models.
+MODEL_FORMAT_VERSION = 3
+_READABLE_VERSIONS = (1, 2, 3)
 
 
 def _as_points(points: Any, name: str = "points") -> np.ndarray:
@@ -66,6 +69,9 @@ class Model:
         scenes: the scenes of the training trajectories.
         default_scene: the scene a reduced simulation of this model uses by default.
         metadata: JSON-ready training information (data, split, losses, timings, ...).
+        cubature: the cubature fitted at the end of training on the model's mesh
+            (:meth:`licrom.Cubature.fitted`), which a reduced simulation uses by default;
+            None for models saved before it was stored (format versions 1 and 2).
     """
 
     def __init__(
@@ -99,6 +105,9 @@ class Model:
         self._net32 = net  # as trained (float32), kept for saving
         self._build_eval_net()
         self._vertex_cache: dict[str, Any] = {}
+        self.cubature: Cubature | None = None
+        self._cubature_samples: np.ndarray | None = None
+        self._cubature_cache: dict[int, tuple[Mesh, Cubature]] = {}
 
     # --- construction helpers -------------------------------------------------------
     def _build_eval_net(self) -> None:
@@ -347,6 +356,53 @@ class Model:
             z = (self._Tinv @ z_raw).cpu().numpy()
         return np.concatenate([a, z])
 
+    # --- cubature -------------------------------------------------------------------------
+    def set_cubature(self, cubature: Cubature, samples: np.ndarray) -> None:
+        """Store the cubature a reduced simulation of this model uses by default, with the reduced
+        coordinates ``samples`` (S, n) it was fitted to (they refit it on other meshes, :meth:`cubature_for`).
+
+        Raises:
+            ShapeError: tets not of the model's mesh, or samples of the wrong shape or not finite.
+        """
+        from ..cubature import Cubature
+
+        if not isinstance(cubature, Cubature):
+            raise ShapeError(f"cubature must be a licrom.Cubature, got {type(cubature).__name__}")
+        tets = np.asarray(cubature.tets)
+        if tets.ndim != 1 or not np.issubdtype(tets.dtype, np.integer) or (len(tets) and (tets.min() < 0 or tets.max() >= self.mesh.n_tets)):
+            raise ShapeError(f"cubature tets must be integer indices in [0, {self.mesh.n_tets}) of the model's mesh")
+        n = self.n_modes + (6 if self.frame == "body" else 0)
+        q = np.asarray(samples, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != n or not np.all(np.isfinite(q)):
+            raise ShapeError(f"cubature samples must be finite with shape (S, {n}), got {q.shape}")
+        self.cubature = cubature
+        self._cubature_samples = q
+        self._cubature_cache = {}
+
+    def cubature_for(self, mesh: Mesh | None = None) -> Cubature | None:
+        """The fitted cubature on ``mesh`` (default: the model's mesh); None when the model has none.
+
+        On the model's own mesh this is :attr:`cubature`. On another mesh of the object it is
+        refitted (:meth:`licrom.Cubature.fitted`) to the same training poses, whose reduced
+        coordinates carry over unchanged, with the tolerance and size of the stored fit; the
+        result is kept for the next call with the same mesh object.
+        """
+        if self.cubature is None or self._cubature_samples is None:
+            return None
+        if mesh is None or mesh is self.mesh or (mesh.vertices.shape == self.mesh.vertices.shape and mesh.tets.shape == self.mesh.tets.shape
+                                                  and np.array_equal(mesh.vertices, self.mesh.vertices) and np.array_equal(mesh.tets, self.mesh.tets)):
+            return self.cubature
+        hit = self._cubature_cache.get(id(mesh))
+        if hit is not None and hit[0] is mesh:
+            return hit[1]
+        from ..cubature import FIT_TOLERANCE, Cubature
+
+        info = self.metadata.get("cubature", {})
+        refit = Cubature.fitted(self, self._cubature_samples, mesh, count=int(info.get("max_count", 1000)),
+                                tolerance=float(info.get("tolerance", FIT_TOLERANCE)))
+        self._cubature_cache = {id(mesh): (mesh, refit)}
+        return refit
+
     # --- file ---------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Write the model to one file atomically (``.npz`` container, JSON header, no pickle).
@@ -364,6 +420,10 @@ class Model:
             mode_transform_inv=self._fin.transform_inv,
             mode_variance=self._fin.mode_variance,
         )
+        if self.cubature is not None and self._cubature_samples is not None:
+            arrays.update({"cubature/tets": np.asarray(self.cubature.tets, dtype=np.int64),
+                           "cubature/weights": np.asarray(self.cubature.weights, dtype=np.float64),
+                           "cubature/samples": self._cubature_samples})
         header = {
             "kind": "model",
             "version": MODEL_FORMAT_VERSION,
@@ -376,6 +436,7 @@ class Model:
             "default_scene": self._default_index,
             "state_keys": sorted(state.keys()),
             "metadata": self.metadata,
+            "cubature": None if self.cubature is None else {"scheme": self.cubature.scheme, "fit_error": self.cubature.fit_error},
             "saved_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "torch_version": torch.__version__,
         }
@@ -386,7 +447,8 @@ class Model:
     def load(cls, path: str | os.PathLike) -> Model:
         """Read a model written by :meth:`save` (no training data needed).
 
-        Version 1 files (before the frame was recorded) load as world-frame models.
+        Version 1 files (before the frame was recorded) load as world-frame models; files
+        before version 3 have no fitted cubature (:attr:`cubature` is None).
 
         Raises:
             FileFormatError: missing, truncated or foreign file, unknown format version,
@@ -422,7 +484,18 @@ class Model:
                 np.asarray(arrays.get("mode_variance", np.zeros(config.latent_dim)), dtype=np.float64),
             )
             net.eval()
-            return cls(net, mesh, scenes, finalization=fin, default_scene_index=int(header.get("default_scene", 0)), metadata=header.get("metadata", {}))
+            model = cls(net, mesh, scenes, finalization=fin, default_scene_index=int(header.get("default_scene", 0)), metadata=header.get("metadata", {}))
+            cub = header.get("cubature")
+            if version >= 3 and cub is not None:
+                from ..cubature import Cubature
+
+                tets = np.asarray(arrays["cubature/tets"])
+                if tets.ndim != 1 or not np.issubdtype(tets.dtype, np.integer) or (len(tets) and (tets.min() < 0 or tets.max() >= mesh.n_tets)):
+                    raise FileFormatError(f"model '{path}' member cubature/tets is not a list of tet indices of its mesh")
+                fit_error = cub.get("fit_error")
+                model.set_cubature(Cubature(tets, np.asarray(arrays["cubature/weights"], dtype=np.float64), mesh.centroids[tets], str(cub["scheme"]),
+                                            None if fit_error is None else float(fit_error)), arrays["cubature/samples"])
+            return model
         except FileFormatError:
             raise
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError, LicromError) as exc:
