@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
-from .error_estimate import ErrorMonitor, running_estimate, warn_estimate
+from .error_estimate import ErrorMonitor, contact_start, warn_estimate
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
@@ -368,29 +368,24 @@ class BodyFrameSim:
 
         def step() -> tuple[int, float, bool]:
             outcome = step_or_record(self)
-            monitor.observe(monitor.sample_positions(self.q, self.center, self.rotation))
+            monitor.after_step(lambda: (self.q, self.center, self.rotation), lambda q: float(q @ self._modal_mass @ q))
             return outcome
 
-        def snapshot() -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-            q = self.q
-            return self.positions, self.velocities, q, monitor.weighted_error(q, self.center, self.rotation)
-
-        rec = record_run(step, snapshot, lambda: self.time, steps, record_every, progress, "body frame")
-        positions = np.array([x for x, _, _, _ in rec.frames])
-        qs = np.array([q for _, _, q, _ in rec.frames]).reshape(len(positions), -1)
-        min_det_f = cubature_min_det(self._jacobians, qs)
+        rec = record_run(step, lambda: (self.positions, self.velocities, self.q), lambda: self.time, steps, record_every, progress, "body frame")
+        positions = np.array([x for x, _, _ in rec.frames])
+        min_det_f = cubature_min_det(self._jacobians, np.array([q for _, _, q in rec.frames]))
         planes = self.scene.plane_array()
         depth = np.array([penetration(x, planes) for x in positions])
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation")
-        estimate = running_estimate(np.array([e for _, _, _, e in rec.frames]), np.einsum("fk,kl,fl->f", qs, self._modal_mass, qs),
-                                    monitor.contact_start(positions))
+        start = contact_start(positions, planes, self.mesh.size)
+        estimate = monitor.estimate(record_every * np.arange(len(positions)), None if start is None else record_every * start)
         warn_estimate(estimate, "the body-frame simulation")
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
             displacements=positions - self.mesh.vertices,
-            velocities=np.array([v for _, v, _, _ in rec.frames]),
+            velocities=np.array([v for _, v, _ in rec.frames]),
             scene=self.scene,
             min_det_f=min_det_f,
             penetration=depth,

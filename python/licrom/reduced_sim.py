@@ -26,7 +26,7 @@ import numpy as np
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
-from .error_estimate import ErrorMonitor, running_estimate, warn_estimate
+from .error_estimate import ErrorMonitor, contact_start, warn_estimate
 from .errors import ConfigError, LicromWarning, ShapeError, SolverError
 from .mesh import Mesh
 from .rigid import body_frame_displacements
@@ -290,19 +290,19 @@ class ReducedSim:
         monitor = self._monitor
         monitor.start(monitor.sample_positions(self.q - self.scene.dt * self.qdot), monitor.sample_positions(self.q))
 
+        def deformation(q: np.ndarray) -> float:
+            bent = body_frame_displacements(self._reconstruction.positions(q), self.mesh.vertices, self._masses)
+            return float(np.einsum("ni,ni,n->", bent, bent, self._masses))
+
         def step() -> tuple[int, float, bool]:
             outcome = step_or_record(self)
-            monitor.observe(monitor.sample_positions(self.q))
+            monitor.after_step(lambda: (self.q, None, None), deformation)
             return outcome
 
-        def snapshot() -> tuple[np.ndarray, np.ndarray, float]:
-            q = self.q
-            return q, self.qdot, monitor.weighted_error(q)
-
-        rec = record_run(step, snapshot, lambda: self.time, steps, record_every, progress, "reduced")
+        rec = record_run(step, lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced")
         work = {k: v - before[k] for k, v in sorted(self._core.stats().items())}
-        qs = np.array([q for q, _, _ in rec.frames])
-        qdots = np.array([qd for _, qd, _ in rec.frames])
+        qs = np.array([q for q, _ in rec.frames])
+        qdots = np.array([qd for _, qd in rec.frames])
         w = self._values.reshape(-1, self._values.shape[2])
         n = self.mesh.n_vertices
         displacements = (qs @ w.T).reshape(-1, n, 3)
@@ -311,10 +311,8 @@ class ReducedSim:
         depth = np.array([penetration(self.mesh.vertices + d, planes) for d in displacements])
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation")
-        positions = self.mesh.vertices + displacements
-        bent = body_frame_displacements(positions, self.mesh.vertices, self._masses)
-        estimate = running_estimate(np.array([e for _, _, e in rec.frames]), np.einsum("fni,fni,n->f", bent, bent, self._masses),
-                                    monitor.contact_start(positions))
+        start = contact_start(self.mesh.vertices + displacements, planes, self.mesh.size)
+        estimate = monitor.estimate(record_every * np.arange(len(qs)), None if start is None else record_every * start)
         warn_estimate(estimate, "the reduced simulation")
         return Trajectory(
             rest_positions=self.mesh.vertices,
