@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from licrom import AccuracyWarning, Material, MeshBasis, Plane, ReducedSim, Scene, SolverParams, Trajectory, _core, meshes
 from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.compare import nonrigid_error
+from licrom.compare import compare, nonrigid_error
 from licrom.cubature import Cubature
 from licrom.error_estimate import ERROR_THRESHOLD, ErrorMonitor
 from licrom.placement import drop_state, initial_state_on_plane
@@ -109,3 +109,12 @@ def test_error_estimate_must_match_the_frames(one_mode_run):
     with pytest.raises(licrom.ShapeError):
         Trajectory(reduced.rest_positions, reduced.tets, reduced.displacements, reduced.velocities, reduced.times, reduced.scene,
                    error_estimate=np.zeros(3))
+
+
+def test_comparison_reports_the_estimate(one_mode_run):
+    full, reduced, _ = one_mode_run
+    c = compare(full, reduced)
+    assert c.error_estimate == reduced.error_estimate[-1]
+    assert c.summary()["error_estimate"] == pytest.approx(reduced.error_estimate[-1])
+    assert "estimated non-rigid error" in c.table()
+    assert np.isnan(compare(full, full).error_estimate)  # a full run has none
