@@ -17,10 +17,10 @@ the full one, from the run's first contact on:
     ``e(t) = ERROR_SCALE * sqrt(sum_{s<=t} M/M_S sum_v m_v |du_v(s)|^2 / sum_{s<=t} |u(s)|_M^2)``
 
 over every ``ERROR_STRIDE``-th step s (``M/M_S``: total mass over the sample's, so the
-sample stands for the body). It is
-recorded per frame in ``Trajectory.error_estimate``, and its last value is the run-level
-estimate; an :class:`~licrom.errors.AccuracyWarning` is issued once when it passes
-:data:`ERROR_THRESHOLD`.
+sample stands for the body). It is recorded per frame in ``Trajectory.error_estimate``,
+and its last value is the run-level estimate; an :class:`~licrom.errors.AccuracyWarning`
+is issued once per run when it passes :data:`ERROR_THRESHOLD`. ``step()`` and
+``step_many()`` alone do not compute it: it is a property of a run.
 
 Why a residual at vertices outside the solve: the reduced solver's own residual is zero by
 construction (it is projected onto the subspace); the full-space residual sees what the
@@ -28,9 +28,9 @@ subspace cannot represent. The sample is spread over the body by farthest-point 
 which puts most of it on the surface, and that is where it must be: a smooth deformation the
 subspace misses leaves unbalanced traction on the free surface (the natural boundary
 condition), while at interior vertices only its divergence shows, smaller by the element
-size over the deformation's wavelength. With interior vertices alone, the estimate of the
+size over the deformation's wavelength. With interior vertices alone, the raw ratio on the
 cheese (all 32 of its interior vertices) stayed at 3-4 % for true errors of 38-103 %
-(r = 2..8); with the surface included it follows them (cheese, r = 2: 18-19 %). Samples
+(r = 2..8); with the surface included it follows them (13-19 % at r = 2). Samples
 inside a plane, now or at the start of the step (friction is lagged), feel contact forces
 that are not modelled, and are left out of that frame. The sample's basis rows, one-ring
 shape gradients and volumes are taken once, so a frame costs a few small numpy calls.
@@ -140,8 +140,11 @@ class ErrorMonitor:
         self._gradient = csr_matrix((grads[t, a, j].ravel(), ((9 * t + 3 * i + j).ravel(), (3 * corners[t, a] + i).ravel())),
                                     shape=(9 * len(ring), 3 * len(self.near)))
         volumes = mesh.rest_volumes[ring]
-        self._force_rows = -volumes[:, None] * own_grad  # f_v = sum_t P_t (-V_t grad_v)
-        self._gather = csr_matrix((np.ones(len(ring)), (owner, np.arange(len(ring)))), shape=(len(self.vertices), len(ring)))
+        # f_v = sum_t P_t (-V_t grad_v) as one sparse map from the stresses (T*9) to the forces (s*3):
+        # entry (3 v + i, 9 t + 3 i + j) = -V_t grad_v[j].
+        t, i, j = np.meshgrid(np.arange(len(ring)), np.arange(3), np.arange(3), indexing="ij")
+        self._stress_to_force = csr_matrix(((-volumes[:, None] * own_grad)[t, j].ravel(), ((3 * owner[t] + i).ravel(), (9 * t + 3 * i + j).ravel())),
+                                           shape=(3 * len(self.vertices), 9 * len(ring)))
         self._basis = np.ascontiguousarray(values[self.near].reshape(3 * len(self.near), k))
         self._rest = np.ascontiguousarray(rest[self.near])
         self._sample_basis = np.ascontiguousarray(values[self.vertices].reshape(3 * len(self.vertices), k))
@@ -153,7 +156,8 @@ class ErrorMonitor:
         mu, lam = scene.material.lame
         gg = own_grad[:, :, None] * own_grad[:, None, :]
         block = volumes[:, None, None] * (mu * np.einsum("tkk->t", gg)[:, None, None] * np.eye(3) + (mu + lam) * gg)
-        stiffness = (self._gather @ block.reshape(-1, 9)).reshape(-1, 3, 3)
+        stiffness = np.zeros((len(self.vertices), 3, 3))
+        np.add.at(stiffness, owner, block)
         self._jacobi = np.linalg.inv(stiffness + (self._m / h**2)[:, None, None] * np.eye(3))
         self._snh = scene.material.snh_parameters
         self._h2 = h * h
@@ -173,7 +177,7 @@ class ErrorMonitor:
         """(s, 3) elastic force ``-dE/dx_v`` on each sample vertex, N, from (u, 3) positions of
         the vertices ``near`` (the samples' one-ring tets' corners)."""
         stress = _core.snh_pk1((self._gradient @ near_positions.ravel()).reshape(-1, 3, 3), *self._snh)
-        return self._gather @ np.einsum("tij,tj->ti", stress, self._force_rows)
+        return (self._stress_to_force @ stress.ravel()).reshape(-1, 3)
 
     def start(self, previous: np.ndarray, current: np.ndarray) -> None:
         """Begin a run from the (s, 3) sample positions of the previous and the current state."""
