@@ -80,7 +80,8 @@ def test_model_config_rejects_bad_values(kwargs):
 
 
 def test_model_config_defaults_are_licrom():
-    c = ModelConfig()
+    assert ModelConfig().latent_dim == "auto"  # r chosen from the data by licrom.train
+    c = ModelConfig(latent_dim=20)
     assert (c.field_layers, c.field_width, c.affine, c.frame) == (5, 256, True, "body")
     net = LicromNet(c)
     linears = [m for m in net.field.mlp if isinstance(m, torch.nn.Linear)]
@@ -89,7 +90,7 @@ def test_model_config_defaults_are_licrom():
     # the field's last hidden layer is what its output layer combines
     x = torch.rand(7, 3)
     torch.testing.assert_close(net.field(x), net.field.mlp[-1](net.field.hidden(x)).reshape(7, 3, c.latent_dim))
-    plain = LicromNet(ModelConfig(fourier_features=0))  # LiCROM's plain input
+    plain = LicromNet(ModelConfig(latent_dim=20, fourier_features=0))  # LiCROM's plain input
     assert plain.field.mlp[0].in_features == 3
     assert all(isinstance(m, (torch.nn.Linear, torch.nn.ELU)) for m in net.field.mlp)
     assert ModelConfig.from_dict(c.to_dict()) == c
@@ -378,6 +379,6 @@ def test_absurd_header_sizes_are_refused_before_the_network_is_built(mesh, tmp_p
     with pytest.raises(FileFormatError, match=r"latent_dim=1000000.*needs \d+ weights, the file holds \d+"):
         Model.load(tmp_path / "huge.lcm.npz")
     # the size it checks is the network's own
-    for cfg in (ModelConfig(), ModelConfig(latent_dim=3, field_layers=2, field_width=7, fourier_features=0,
+    for cfg in (ModelConfig(latent_dim=20), ModelConfig(latent_dim=3, field_layers=2, field_width=7, fourier_features=0,
                                            encoder_point_widths=(5,), encoder_fc_widths=())):
         assert state_size(cfg) == sum(v.numel() for v in LicromNet(cfg).state_dict().values())

@@ -206,12 +206,36 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
         raise click.ClickException(f"{len(failed)} trajectories failed (see {manifest_path}); rerun to retry them")
 
 
+class _Rank(click.ParamType):
+    """``-r``: an integer >= 1 or ``auto``."""
+
+    name = "INTEGER|auto"
+
+    def convert(self, value, param, ctx):
+        if value == "auto" or (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            return value
+        try:
+            r = int(value)
+        except (TypeError, ValueError):
+            self.fail(f"must be an integer >= 1 or auto, got {value!r}", param, ctx)
+        if r < 1:
+            self.fail(f"must be an integer >= 1 or auto, got {r}", param, ctx)
+        return r
+
+
+RANK = _Rank()
+
+
 @cli.command("train")
 @click.argument("data", type=click.Path(exists=True, path_type=Path))
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Model file to write (.lcm); the loss CSV/PNG and checkpoints go beside it.")
-@click.option("--modes", "-r", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame).")
+@click.option("--modes", "-r", type=RANK, default="auto", show_default=True,
+              help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame), "
+                   "or auto: the smallest r whose leave-runs-out projection error meets --rank-tolerance.")
+@click.option("--rank-tolerance", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
+              help="With -r auto: held-out relative projection error to meet [0.05].")
+@click.option("--max-rank", type=click.IntRange(min=1), default=None, help="With -r auto: the largest r [120].")
 @click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
@@ -234,20 +258,23 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, batch_frames, points, val_fraction, width,
-                  layers, projection_weight, fourier, resume, quiet) -> None:
+def train_command(data, output, modes, rank_tolerance, max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, batch_frames,
+                  points, val_fraction, width, layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
-    Prints the held-out errors and writes the model, OUTPUT.losses.csv, OUTPUT.losses.png
-    and the checkpoints in OUTPUT.checkpoints/.
+    Prints the choice of r (with -r auto), the held-out errors and the learned subspace against
+    POD of its size, and writes the model, OUTPUT.losses.csv, OUTPUT.losses.png and the
+    checkpoints in OUTPUT.checkpoints/.
     """
     from .model import ModelConfig
     from .training import TrainConfig, output_paths, train
+    from .training.rank import RankChoice
 
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("pod_weighting", pod_weighting), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
-                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes)):
+                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes),
+                       ("rank_tolerance", rank_tolerance), ("max_rank", max_rank)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}
@@ -268,6 +295,8 @@ def train_command(data, output, modes, frame, objective, pod_weighting, epochs, 
     on_top = f"+{model.n_affine} affine" if model.frame == "world" else "+6 affine and the rigid motion"
     click.echo(f"trained r = {model.n_learned} ({on_top}, {model.frame} frame) on {len(split.get('train', []))} trajectories "
                f"({split.get('train_frames')} frames), held out {len(split.get('validation', []))} ({split.get('validation_frames')} frames)")
+    if "candidates" in meta.get("rank", {}):
+        click.echo(RankChoice.from_dict(meta["rank"]).describe())
     click.echo(f"epochs            {meta.get('epochs_trained')}")
     click.echo(f"final train loss  {final.get('train_loss', float('nan')):.4e}")
     for key, label in (("val_proj_residual", "held-out projection error (residual)"), ("val_enc_residual", "held-out encoder error (residual)"),
@@ -275,6 +304,11 @@ def train_command(data, output, modes, frame, objective, pod_weighting, epochs, 
         value = final.get(key)
         if value is not None and value == value:
             click.echo(f"{label:<38} {100 * value:.3f} %")
+    sub = meta.get("subspace")
+    if sub:
+        extended = (f", {sub['ratio_before_extension']:.3f}x before {sub['extended_epochs']} more epochs" if "extended_epochs" in sub else "")
+        click.echo(f"learned subspace  {100 * sub['model']:.3f} % projection error of the {sub['split']} frames, "
+                   f"{sub['ratio']:.3f}x POD({sub['r']}) it was trained towards ({100 * sub['pod']:.3f} %){extended}; plain POD {100 * sub['plain_pod']:.3f} %")
     if meta.get("mean_train_seconds_per_epoch") is not None:
         click.echo(f"time per epoch    {meta['mean_train_seconds_per_epoch']:.3f} s (training only, mean)")
     paths = output_paths(output)

@@ -21,7 +21,10 @@ class ModelConfig:
     """Sizes of the LiCROM networks.
 
     Attributes:
-        latent_dim: r, the number of learned modes (the latent size), >= 1.
+        latent_dim: r, the number of learned modes (the latent size), an integer >= 1, or
+            ``"auto"`` (the default): :func:`licrom.train` chooses r from its training data
+            (:func:`licrom.training.rank.choose_rank`) before it builds the networks, which
+            need an integer.
         field_layers: number of linear layers of the neural field W(X) (input 3, then
             ``field_layers - 1`` hidden ELU layers, then the 3 r output), >= 2.
             5 layers of width 60 is LiCROM's network.
@@ -49,7 +52,7 @@ class ModelConfig:
             world-frame displacement modes.
     """
 
-    latent_dim: int = 20
+    latent_dim: int | str = "auto"
     field_layers: int = 5
     field_width: int = 256
     fourier_features: int = 32
@@ -65,7 +68,8 @@ class ModelConfig:
                 raise ConfigError(f"ModelConfig.{name} must be an integer >= {minimum}, got {v!r}")
             return int(v)
 
-        object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
+        if self.latent_dim != "auto":
+            object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
         object.__setattr__(self, "field_layers", positive_int("field_layers", self.field_layers, 2))
         object.__setattr__(self, "field_width", positive_int("field_width", self.field_width))
         object.__setattr__(self, "fourier_features", positive_int("fourier_features", self.fourier_features, 0))

@@ -11,6 +11,7 @@ import torch
 from torch import nn
 
 from ..affine import N_AFFINE, affine_values
+from ..errors import ConfigError
 from .config import ModelConfig
 
 __all__ = ["LicromNet", "NeuralField", "PointNetEncoder", "state_size"]
@@ -107,6 +108,9 @@ class LicromNet(nn.Module):
     """
 
     def __init__(self, config: ModelConfig) -> None:
+        if config.latent_dim == "auto":
+            raise ConfigError("ModelConfig.latent_dim is 'auto': the network needs r, chosen from the data by licrom.train "
+                              "(licrom.training.rank.choose_rank); give an integer to build it directly")
         super().__init__()
         self.config = config
         self.encoder = PointNetEncoder(config.latent_dim, config.encoder_point_widths, config.encoder_fc_widths)

@@ -37,7 +37,10 @@ Several GPUs train through Lightning's DDP (one process per GPU). Lightning
 starts the other processes by re-running the command that called ``train``, so
 call it from a script or the ``licrom train`` command, once per process.
 
-Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.sampling` (points drawn uniformly
+r is chosen from the data by default (``ModelConfig.latent_dim="auto"``): the smallest r whose
+leave-runs-out POD projection error meets ``TrainConfig.rank_tolerance`` (:mod:`.rank`).
+
+Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.rank` (:func:`choose_rank`), :mod:`.sampling` (points drawn uniformly
 in volume), :mod:`.objectives` (the POD objective), :mod:`.evaluation` (:func:`evaluate`,
 :func:`subspace_report`), :mod:`.lightning` (the Lightning module), :mod:`.checkpoints` (weights-only,
 atomic checkpoints resumed only into their own run) and :mod:`.run` (:func:`train`).
@@ -45,6 +48,7 @@ atomic checkpoints resumed only into their own run) and :mod:`.run` (:func:`trai
 
 from .config import OBJECTIVES, TrainConfig, output_paths
 from .evaluation import evaluate, subspace_report
+from .rank import RankChoice, choose_rank
 from .run import plot_losses, train
 
-__all__ = ["OBJECTIVES", "TrainConfig", "evaluate", "output_paths", "plot_losses", "subspace_report", "train"]
+__all__ = ["OBJECTIVES", "RankChoice", "TrainConfig", "choose_rank", "evaluate", "output_paths", "plot_losses", "subspace_report", "train"]

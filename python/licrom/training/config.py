@@ -14,6 +14,7 @@ import numpy as np
 
 from .._io import atomic_path
 from ..errors import ConfigError
+from .rank import DEFAULT_MAX_RANK, DEFAULT_TOLERANCE
 
 OBJECTIVES = ("pod", "autoencoder")
 POD_WEIGHTINGS = ("run", "frame")
@@ -75,6 +76,13 @@ class TrainConfig:
         num_threads: CPU threads for torch (None: leave torch's setting).
         max_time_s: stop (gracefully, after the current step) when training has run this
             many seconds; None: no limit. The schedule still assumes ``epochs``.
+        rank_tolerance: with ``ModelConfig.latent_dim="auto"``, r is the smallest whose
+            held-out relative projection error (leave training runs out) is at most this
+            (:func:`licrom.training.rank.choose_rank`).
+        max_rank: the largest r chosen automatically.
+        extension: when the learned subspace's projection error ends above 1.05x that of
+            the POD it is trained towards, training goes on once for ``extension * epochs``
+            more epochs (at least 1); 0: never.
     """
 
     objective: str = "pod"
@@ -105,9 +113,13 @@ class TrainConfig:
     progress: bool = True
     num_threads: int | None = None
     max_time_s: float | None = None
+    rank_tolerance: float = DEFAULT_TOLERANCE
+    max_rank: int = DEFAULT_MAX_RANK
+    extension: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes"):
+        for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes",
+                     "max_rank"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"TrainConfig.{name} must be an integer >= 1, got {v!r}")
@@ -116,10 +128,13 @@ class TrainConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(f"TrainConfig.{name} must be a positive number, got {v!r}")
-        for name in ("weight_decay", "projection_weight"):
+        for name in ("weight_decay", "projection_weight", "extension"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not 0 <= v < math.inf:
                 raise ConfigError(f"TrainConfig.{name} must be a number >= 0, got {v!r}")
+        tol = self.rank_tolerance
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 < tol < 1:
+            raise ConfigError(f"TrainConfig.rank_tolerance must be a relative error in (0, 1), got {tol!r}")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ConfigError(f"TrainConfig.val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if self.val_indices is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import os
+import tempfile
 import time
 import warnings
 from collections.abc import Sequence
@@ -15,23 +16,25 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError
-from ..model import Model, ModelConfig
+from ..model import LicromNet, Model, ModelConfig
 from ..model.finalize import finalize_basis
 from ..render import pyplot, save_png
 from ..rigid import check_frame
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, output_paths, write_csv
-from .evaluation import _evaluate_tensors
+from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
 from .lightning import _lightning_classes
-from .objectives import _refit_output_layer
+from .objectives import _refit_output_layer, pod_targets
+from .rank import RankChoice, choose_rank
 
 
-def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: str = "") -> Path:
-    """PNG of the loss curves (train/val MSE and held-out relative errors) per epoch."""
+def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: str = "", rank: RankChoice | None = None) -> Path:
+    """PNG of the loss curves (train/val MSE and held-out relative errors) per epoch, and with
+    ``rank`` a third panel: the leave-runs-out error curve against r, the tolerance and the chosen r."""
     plt = pyplot()
     ep = [r["epoch"] for r in rows]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 3 if rank is not None else 2, figsize=(16.5 if rank is not None else 11, 4))
     ax = axes[0]
     ax.semilogy(ep, [r["train_loss"] for r in rows], label="train")
     if any(np.isfinite(r["val_loss"]) for r in rows):
@@ -51,6 +54,16 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
     ax.set_ylabel("held-out relative L2 error")
     ax.legend()
     ax.grid(True, which="both", alpha=0.3)
+    if rank is not None:
+        ax = axes[2]
+        ax.semilogy(rank.candidates, rank.errors, "o-", label="RMS over held-out runs")
+        ax.semilogy(rank.candidates, rank.worst_errors, ".--", label="worst held-out run")
+        ax.axhline(rank.tolerance, color="k", lw=0.8, ls="--", label=f"tolerance {100 * rank.tolerance:g} %")
+        ax.axvline(rank.rank, color="C3", lw=1.0, label=f"chosen r = {rank.rank}" + (" (cap)" if rank.capped else ""))
+        ax.set_xlabel("r (learned modes)")
+        ax.set_ylabel("POD projection error, leave runs out")
+        ax.legend()
+        ax.grid(True, which="both", alpha=0.3)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -60,6 +73,38 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
 # ----------------------------------------------------------------------------------------
 # the entry point
 # ----------------------------------------------------------------------------------------
+SUBSPACE_RATIO = 1.05
+"""Largest ratio of the learned subspace's projection error to that of the POD it is trained towards, before training goes on."""
+
+
+def _trained_net(module: Any, data: TrainingData, cfg: TrainConfig) -> LicromNet:
+    """The trained network on the CPU in float32, its output layer solved exactly for the ``"pod"`` objective."""
+    net = copy.deepcopy(module.net).to("cpu").float().eval()
+    if cfg.objective == "pod":
+        _refit_output_layer(net, data, module._pod[0])
+    return net
+
+
+def _subspace_ratio(net: LicromNet, data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, targets: np.ndarray | None) -> dict[str, Any]:
+    """Projection errors of the held-out frames (the training frames when none are held out) onto the learned
+    subspace, onto the POD of its size that the objective trains towards (``cfg.pod_weighting``; plain POD for
+    the autoencoder; ``targets``, its modes (r, n, 3) when known) and onto plain POD (:func:`subspace_report`'s
+    bound), each the relative mass-weighted error of the full displacement in the model's frame, and ``ratio`` =
+    learned over trained-towards POD."""
+    split, frames = ("validation", data.val) if len(data.val) else ("training", data.train)
+    r = mcfg.latent_dim
+    with torch.no_grad():
+        learned = _orthogonalized_vertex_field(net, torch.tensor(data.rest), torch.tensor(data.masses), mcfg.affine).numpy()
+    total = max(float(frames.norm2_full.sum()), 1e-300)
+    err = lambda basis: float(np.sqrt(_projection_error2(frames.residuals, basis, data.masses) / total))  # noqa: E731
+    weighting = cfg.pod_weighting if cfg.objective == "pod" else "frame"
+    out = {"split": split, "r": r, "pod_weighting": weighting, "model": err(learned.reshape(-1, 3, r))}
+    out["pod"] = err(np.moveaxis(pod_targets(data, r, weighting)[0] if targets is None else targets, 0, 2))
+    out["plain_pod"] = out["pod"] if weighting == "frame" else err(np.moveaxis(pod_targets(data, r, "frame")[0], 0, 2))
+    out["ratio"] = out["model"] / out["pod"] if out["pod"] > 0 else 1.0
+    return out
+
+
 def _accelerator(cfg: TrainConfig) -> tuple[str, Any]:
     if cfg.device == "cpu":
         return "cpu", 1
@@ -88,7 +133,12 @@ def train(
             loss plot and the checkpoint directory beside it (see :func:`output_paths`).
             ``None`` writes nothing (checkpoints off, no resume).
         config: training options.
-        model_config: network sizes (r is ``model_config.latent_dim``) and the frame.
+        model_config: network sizes and the frame; r is ``model_config.latent_dim``, by default
+            ``"auto"``: the smallest r whose leave-runs-out projection error meets
+            ``config.rank_tolerance`` (:func:`~licrom.training.rank.choose_rank`, recorded in
+            ``metadata["rank"]``). After training, the learned subspace's held-out projection
+            error is compared with the POD it was trained towards; above :data:`SUBSPACE_RATIO`
+            times it, training goes on once (``config.extension``; ``metadata["subspace"]``).
         frame: ``"body"`` or ``"world"``; when given it replaces ``model_config.frame``
             (default ``"body"``: the non-rigid deformation in the body frame).
 
@@ -116,6 +166,10 @@ def train(
         tdata = TrainingData(data, val_fraction=cfg.val_fraction, seed=cfg.seed, val_indices=cfg.val_indices,
                              affine=mcfg.affine, frame_stride=cfg.frame_stride, frame=mcfg.frame)
     t_data = time.perf_counter() - t_start
+    rank = None
+    if mcfg.latent_dim == "auto":
+        rank = choose_rank(tdata, cfg.rank_tolerance, cfg.max_rank)
+        mcfg = dataclasses.replace(mcfg, latent_dim=rank.rank)
 
     L = _lightning_classes()
     pl = L["pl"]
@@ -160,24 +214,27 @@ def train(
         warnings.filterwarnings("ignore", message=".*number of training batches.*")
         warnings.filterwarnings("ignore", message=".*LeafSpec.*")
         warnings.filterwarnings("ignore", message=".*no `val_dataloader`.*")
-        trainer = pl.Trainer(
-            accelerator=accelerator,
-            devices=devices,
-            num_nodes=cfg.nodes,
-            strategy="auto",
-            precision=cfg.precision,
-            max_epochs=cfg.epochs,
-            callbacks=callbacks,
-            plugins=plugins,
-            logger=False,
-            enable_checkpointing=ckpt_dir is not None,
-            enable_progress_bar=cfg.progress,
-            enable_model_summary=False,
-            num_sanity_val_steps=0,
-            default_root_dir=str(ckpt_dir) if ckpt_dir else None,
-            log_every_n_steps=1,
-            max_time=None if cfg.max_time_s is None else {"seconds": float(cfg.max_time_s)},
-        )
+        def make_trainer(max_epochs: int) -> Any:
+            return pl.Trainer(
+                accelerator=accelerator,
+                devices=devices,
+                num_nodes=cfg.nodes,
+                strategy="auto",
+                precision=cfg.precision,
+                max_epochs=max_epochs,
+                callbacks=callbacks,
+                plugins=plugins,
+                logger=False,
+                enable_checkpointing=ckpt_dir is not None,
+                enable_progress_bar=cfg.progress,
+                enable_model_summary=False,
+                num_sanity_val_steps=0,
+                default_root_dir=str(ckpt_dir) if ckpt_dir else None,
+                log_every_n_steps=1,
+                max_time=None if cfg.max_time_s is None else {"seconds": float(cfg.max_time_s)},
+            )
+
+        trainer = make_trainer(cfg.epochs)
         n_train = len(tdata.train)
         from torch.utils.data import DataLoader
 
@@ -190,15 +247,33 @@ def train(
         t_fit = time.perf_counter()
         try:
             trainer.fit(module, train_dataloaders=train_loader, val_dataloaders=val_loader, ckpt_path=ckpt_path, weights_only=True)
+            net = _trained_net(module, tdata, cfg)
+            targets = module._pod[0] if module._pod is not None else None
+            subspace = _subspace_ratio(net, tdata, cfg, mcfg, targets)
+            # One extension, from a checkpoint of this fit (epochs, optimiser, schedule and loss rows go on). A time
+            # limit is the user's and stops it; several processes need the checkpoint where all of them read.
+            if (subspace["ratio"] > SUBSPACE_RATIO and cfg.extension > 0 and cfg.max_time_s is None
+                    and (ckpt_dir is not None or trainer.world_size == 1)):
+                extra = max(1, round(cfg.extension * cfg.epochs))
+                with tempfile.TemporaryDirectory() as tmp:
+                    before = (Path(tmp) if trainer.world_size == 1 else ckpt_dir) / "before_extension.ckpt"
+                    trainer.save_checkpoint(before)
+                    trainer = make_trainer(cfg.epochs + extra)
+                    trainer.fit(module, train_dataloaders=train_loader, val_dataloaders=val_loader, ckpt_path=str(before), weights_only=True)
+                    if trainer.is_global_zero:
+                        before.unlink(missing_ok=True)  # last.ckpt holds the extended run
+                net = _trained_net(module, tdata, cfg)
+                subspace = {**_subspace_ratio(net, tdata, cfg, mcfg, targets), "ratio_before_extension": subspace["ratio"], "extended_epochs": extra}
         finally:
             torch.set_float32_matmul_precision(old_matmul)
             for lg, level in zip(quiet_loggers, old_levels):
                 lg.setLevel(level)
         t_fit = time.perf_counter() - t_fit
 
-    net = copy.deepcopy(module.net).to("cpu").float().eval()
-    if cfg.objective == "pod":
-        _refit_output_layer(net, tdata, module._pod[0])
+    if subspace["ratio"] > SUBSPACE_RATIO:
+        warnings.warn(f"the learned subspace's projection error is {subspace['ratio']:.2f}x that of the POD it was trained towards "
+                      f"(r = {mcfg.latent_dim}, {subspace['split']} frames; target <= {SUBSPACE_RATIO}x): train longer "
+                      "(TrainConfig.epochs) or widen the field (ModelConfig.field_width)", stacklevel=2)
     fin = finalize_basis(net, tdata.mesh, tdata.train.residuals)
     rows = history.rows
     last = rows[-1] if rows else {}
@@ -213,6 +288,8 @@ def train(
         "mean_train_seconds_per_epoch": float(np.mean(train_secs)) if train_secs else None,
         "fit_seconds": t_fit,
         "data_seconds": t_data,
+        "rank": rank.to_dict() if rank is not None else {"rank": mcfg.latent_dim, "method": "given (ModelConfig.latent_dim)"},
+        "subspace": subspace,
         "accelerator": accelerator,
         "world_size": trainer.world_size,
         "torch_version": torch.__version__,
@@ -231,7 +308,8 @@ def train(
         if rows:
             write_csv(paths["csv"], rows)
             try:
-                plot_losses(rows, paths["png"], title=f"LiCROM r={mcfg.latent_dim}, {len(tdata.train_indices)} train / {len(tdata.val_indices)} held-out trajectories")
+                plot_losses(rows, paths["png"], title=f"LiCROM r={mcfg.latent_dim}, {len(tdata.train_indices)} train / {len(tdata.val_indices)} held-out trajectories",
+                            rank=rank)
             except Exception as exc:  # a plot must never lose a trained model
                 warnings.warn(f"could not write the loss plot: {exc}", stacklevel=2)
     return model
