@@ -58,7 +58,10 @@ SAMPLE_COUNT = 48
 
 ERROR_STRIDE = 10
 """Steps between two evaluations of the residual. The run-level estimate is a sum over the
-run, so every tenth step measures it as well as every step, at a tenth of the cost."""
+run, so every tenth step measures it as well as every step, at a tenth of the cost: on the
+864-tet cheese (every tet cubature) the estimate's work was 5 % of the step's at r = 60
+(0.019 ms of 0.37 ms per step, median of 7 runs of 150 steps; 3-8 % per run on a shared
+2-core machine) and 4 % at r = 20 (one evaluation: under 0.1 ms)."""
 
 ERROR_SCALE = 4.0
 """Factor from the Jacobi displacement ratio to the non-rigid error (dimensionless).
