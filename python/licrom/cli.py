@@ -212,15 +212,11 @@ class _Rank(click.ParamType):
     name = "INTEGER|auto"
 
     def convert(self, value, param, ctx):
-        if value == "auto" or (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+        if value == "auto":
             return value
-        try:
-            r = int(value)
-        except (TypeError, ValueError):
-            self.fail(f"must be an integer >= 1 or auto, got {value!r}", param, ctx)
-        if r < 1:
-            self.fail(f"must be an integer >= 1 or auto, got {r}", param, ctx)
-        return r
+        if isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
+            self.fail(f"{value!r} is neither auto nor an integer.", param, ctx)
+        return click.IntRange(min=1).convert(value, param, ctx)  # its range message, as the other flags'
 
 
 RANK = _Rank()
