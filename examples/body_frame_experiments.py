@@ -131,9 +131,12 @@ def _label(plane: Plane, azimuth: float) -> str:
     return f"{plane.slope_deg:.0f} deg az {azimuth:g}, mu {plane.friction:g}"
 
 
+CHEESE_RESOLUTION = 8  # 864 tets (10: 1638); set by --cheese-resolution
+
+
 def cheese_family(small: bool) -> Family:
     """Soft cheese on inclines along x and off-axis: 2 slopes x 2 friction coefficients x 5 azimuths in training."""
-    mesh = meshes.cheese(resolution=5 if small else 8)
+    mesh = meshes.cheese(resolution=5 if small else CHEESE_RESOLUTION)
     # E = 20 kPa and a 6 cm drop: peak non-rigid deformation 5-14 % of the size where it slides or sticks (measured).
     base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01)
     height, tilt = 0.06, (0.15, 0.1, 0.0)
@@ -552,13 +555,13 @@ def training_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def write_section(docs: Path, text: str) -> None:
-    """Put ``text`` in place of section 10 of ``docs/results.md`` (appended if absent), atomically.
+def write_section(docs: Path, text: str, title: str = SECTION_TITLE) -> None:
+    """Put ``text`` in place of the section headed ``title`` (default section 10) of ``docs/results.md`` (appended if absent), atomically.
 
-    A ``### Reading`` subsection of the old section 10 (written by hand) is kept after the new tables.
+    A ``### Reading`` subsection of the old section (written by hand) is kept after the new tables.
     """
     path = docs / "results.md"
-    before, found, after = (path.read_text() if path.exists() else "").partition(SECTION_TITLE)
+    before, found, after = (path.read_text() if path.exists() else "").partition(title)
     end = after.find("\n## ") if found else -1
     old, rest = (after, "") if end < 0 else (after[:end], after[end:])
     reading = old[old.find(READING):].rstrip("\n") + "\n" if found and READING in old else ""
@@ -665,7 +668,9 @@ def main() -> None:
                     help="only make the training runs and train the models of these frames (none: the runs alone), then stop; writes nothing under --docs")
     ap.add_argument("--device", default="auto", help="training device: auto, cpu or cuda")
     ap.add_argument("--small", action="store_true", help="tiny meshes, few steps: a smoke test that writes nothing under --docs")
+    ap.add_argument("--cheese-resolution", type=int, default=CHEESE_RESOLUTION, help="cheese mesh resolution (8: 864 tets, 10: 1638)")
     args = ap.parse_args()
+    globals()["CHEESE_RESOLUTION"] = args.cheese_resolution
     work = args.work / "small" if args.small else args.work
     sizes = [min(r, 4) for r in args.r] if args.small else args.r
     pod_sizes = (4,) if args.small else POD_SIZES

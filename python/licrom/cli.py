@@ -30,6 +30,25 @@ def cli() -> None:
     """licrom: reduced-order simulation of elastic solids in frictional contact."""
 
 
+def _cubature_option(value: str, model, mesh):
+    """``--cubature``: a name of ``licrom.reduced_sim.CUBATURES`` or a count of naive tets (a model without a
+    fitted cubature falls back to the naive default, with a warning, for ``fitted``)."""
+    from .cubature import Cubature
+    from .reduced_sim import CUBATURES
+
+    if value == "fitted" and model.cubature is None:
+        return None
+    if value in CUBATURES:
+        return value
+    try:
+        count = int(value)
+    except ValueError:
+        raise click.BadParameter(f"must be one of {', '.join(CUBATURES)} or a number of naive tets >= 1, got {value!r}", param_hint="--cubature") from None
+    if count < 1:
+        raise click.BadParameter(f"a number of naive tets must be >= 1, got {count}", param_hint="--cubature")
+    return Cubature.naive(mesh, count)
+
+
 def _print_mesh_summary(mesh, seconds: float | None = None) -> None:
     q = mesh.quality()
     lo, hi = mesh.bounds
@@ -307,6 +326,11 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
                    f"{sub['ratio']:.3f}x POD({sub['r']}) it was trained towards ({100 * sub['pod']:.3f} %){extended}; plain POD {100 * sub['plain_pod']:.3f} %")
     if meta.get("mean_train_seconds_per_epoch") is not None:
         click.echo(f"time per epoch    {meta['mean_train_seconds_per_epoch']:.3f} s (training only, mean)")
+    cub = meta.get("cubature")
+    if cub:
+        click.echo(f"cubature          {cub['count']} of {model.mesh.n_tets} tets fitted to {cub['samples']} training poses, "
+                   f"force residual {100 * cub['fit_error']:.2f} % (tolerance {100 * cub['tolerance']:g} %), {cub['fit_seconds']:.1f} s; "
+                   "stored in the model, the reduced runs' default")
     paths = output_paths(output)
     click.echo(f"wrote {paths['model']}, {paths['csv'].name}, {paths['png'].name}")
     click.echo(f"wall time {time.perf_counter() - start:.1f} s")
@@ -321,7 +345,8 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
 @click.option("--mesh", "mesh_source", default=None,
               help="Mesh to run on: a tet mesh file, or cheese:RES / sphere:RES / box:RES [the scene's, else the model's].")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps [the scene's; 150 without --scene].")
-@click.option("--cubature", type=click.IntRange(min=1), default=1000, show_default=True, help="Cubature tets (naive scheme).")
+@click.option("--cubature", default="fitted", show_default=True,
+              help="Cubature: fitted (the model's, refitted on another mesh), full (every tet), naive (1000 random tets) or a number N (N naive tets).")
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
 @click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
@@ -340,7 +365,6 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
 
     from ._io import make_dir
     from .compare import run_comparison
-    from .cubature import Cubature
     from .model import Model
     from .placement import initial_state_between_planes
     from .scene import Plane
@@ -352,6 +376,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
         mesh = ObjectSpec.parse(mesh_source).build()
     else:
         mesh = model.mesh if scene_file is None else scene_file.object.build()
+    cubature_choice = _cubature_option(cubature, model, mesh)
     if scene_file is not None:
         cases = scene_file.cases(mesh, slope, friction)
         steps = steps or scene_file.steps
@@ -385,7 +410,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
             if bar is not None:
                 bar.set_postfix_str(label)
             cmp, full, reduced = run_comparison(model, scene, mesh, steps=steps, device=device, solver=solver,
-                                                cubature=Cubature.naive(mesh, cubature), progress=not quiet)
+                                                cubature=cubature_choice, progress=not quiet)
             echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} learned modes, {model.frame} frame)\n{cmp.table()}")
             results[label] = cmp.summary()
             comparisons[label] = cmp

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_path
+from ..cubature import FIT_TOLERANCE
 from ..errors import ConfigError
 from .rank import DEFAULT_MAX_RANK, DEFAULT_TOLERANCE
 
@@ -76,6 +77,11 @@ class TrainConfig:
         num_threads: CPU threads for torch (None: leave torch's setting).
         max_time_s: stop (gracefully, after the current step) when training has run this
             many seconds; None: no limit. The schedule still assumes ``epochs``.
+        cubature_tolerance: relative force residual at which the cubature fitted at the end
+            of training stops adding tets (:meth:`licrom.Cubature.fitted`).
+        cubature_points: most tets of that cubature.
+        cubature_samples: most training poses (frames, evenly spaced over the runs) it is
+            fitted to; its memory is ``8 * samples * (modes + 6) * min(tets, 20000)`` bytes.
         rank_tolerance: with ``ModelConfig.latent_dim="auto"``, r is the smallest whose
             held-out relative projection error (leave training runs out) is at most this
             (:func:`licrom.training.rank.choose_rank`).
@@ -113,13 +119,16 @@ class TrainConfig:
     progress: bool = True
     num_threads: int | None = None
     max_time_s: float | None = None
+    cubature_tolerance: float = FIT_TOLERANCE
+    cubature_points: int = 1000
+    cubature_samples: int = 256
     rank_tolerance: float = DEFAULT_TOLERANCE
     max_rank: int = DEFAULT_MAX_RANK
     extension: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes",
-                     "max_rank"):
+                     "cubature_points", "cubature_samples", "max_rank"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"TrainConfig.{name} must be an integer >= 1, got {v!r}")
@@ -132,6 +141,8 @@ class TrainConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not 0 <= v < math.inf:
                 raise ConfigError(f"TrainConfig.{name} must be a number >= 0, got {v!r}")
+        if not isinstance(self.cubature_tolerance, (int, float)) or not 0.0 < self.cubature_tolerance < 1.0:
+            raise ConfigError(f"TrainConfig.cubature_tolerance must be a number in (0, 1), got {self.cubature_tolerance!r}")
         tol = self.rank_tolerance
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 < tol < 1:
             raise ConfigError(f"TrainConfig.rank_tolerance must be a relative error in (0, 1), got {tol!r}")

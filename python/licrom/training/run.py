@@ -70,6 +70,33 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
     return save_png(fig, path)
 
 
+def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
+    """Fit the model's default cubature to the forces of its training poses and store it in the model.
+
+    The poses are at most ``cfg.cubature_samples`` frames, evenly spaced over every run of
+    ``data`` (training and held-out: the fit needs no held-out check, the more poses the
+    better), in the model's frame; the fit is :meth:`licrom.Cubature.fitted` with
+    ``cfg.cubature_tolerance`` and at most ``cfg.cubature_points`` tets. Its size, residual
+    and time go to ``model.metadata["cubature"]``.
+    """
+    from ..cubature import Cubature, model_samples
+
+    t0 = time.perf_counter()
+    frames = [f for f in (data.train, data.val) if len(f)]
+    total = sum(len(f) for f in frames)
+    keep = max(1, min(cfg.cubature_samples, total))
+    picks = np.unique(np.linspace(0, total - 1, keep).round().astype(np.int64))
+    offsets = np.cumsum([0] + [len(f) for f in frames])
+    u = np.concatenate([f.full_displacements(data.rest, picks[(picks >= lo) & (picks < hi)] - lo)
+                        for f, lo, hi in zip(frames, offsets[:-1], offsets[1:])])
+    samples = model_samples(model, u)
+    cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance)
+    model.set_cubature(cubature, samples)
+    model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
+                                  "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "samples": len(samples),
+                                  "fit_seconds": time.perf_counter() - t0}
+
+
 # ----------------------------------------------------------------------------------------
 # the entry point
 # ----------------------------------------------------------------------------------------
@@ -303,6 +330,7 @@ def train(
             net, torch.tensor(tdata.rest), torch.tensor(tdata.masses), torch.as_tensor(val.residuals),
             torch.as_tensor(val.norm2_residual), torch.as_tensor(val.norm2_full), mcfg.affine).items()})
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
+    fit_cubature(model, tdata, cfg)
     if paths is not None and trainer.is_global_zero:
         model.save(paths["model"])
         if rows:
