@@ -52,6 +52,9 @@ def test_compare_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
     assert capsys.readouterr().err.startswith("licrom: error:")
     assert main(["compare", str(tiny_demo[0] / "model.lcm"), "--mesh", "sphere:abc"]) == 2
     assert "needs an integer resolution" in capsys.readouterr().err
+    for value in ("optimal", "0", "-3"):
+        assert main(["compare", str(tiny_demo[0] / "model.lcm"), "--cubature", value]) == 2
+        assert "--cubature" in capsys.readouterr().err
 
 
 @pytest.fixture(scope="module")

@@ -170,12 +170,12 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
 
 
 def _markdown(summary: dict) -> str:
-    head = ("| scene | mean rel. error | non-rigid error | peak deformation / size full / reduced | "
+    head = ("| scene | mean rel. error | non-rigid error | estimated non-rigid error | peak deformation / size full / reduced | "
             "rotation full / reduced | final COM error / size | full | reduced | full ms/step | reduced ms/step | speedup |\n")
-    head += "|---|---|---|---|---|---|---|---|---|---|---|\n"
+    head += "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     for r in summary["cases"]:
         head += (
-            f"| {r['scene']} | {100 * r['mean_error']:.2f} % | {100 * r['nonrigid_error']:.2f} % | "
+            f"| {r['scene']} | {100 * r['mean_error']:.2f} % | {100 * r['nonrigid_error']:.2f} % | {100 * r['error_estimate']:.2f} % | "
             f"{100 * r['peak_deformation_full']:.2f} % / {100 * r['peak_deformation_reduced']:.2f} % | "
             f"{r['rotation_full']:.0f} deg / {r['rotation_reduced']:.0f} deg | {100 * r['final_com_error']:.2f} % | "
             f"{'slides' if r['slid_full'] else 'sticks'} | {'slides' if r['slid_reduced'] else 'sticks'} | "
@@ -186,6 +186,7 @@ def _markdown(summary: dict) -> str:
     extra = "+12 affine" if model["frame"] == "world" else "+6 symmetric affine, rigid motion exact"
     return (
         f"# licrom demo\n\n{summary['mesh']['object']}: {summary['mesh']['tets']} tets; {model['frame']}-frame model, r = {model['learned_modes']} ({extra}), "
-        f"{model['cubature_points']} optimised cubature tets\n\n{head}\n"
+        f"{model['cubature_points']} cubature tets fitted by the training\n\n{head}\n"
+        "Estimated non-rigid error: the reduced run's own online estimate (licrom.error_estimate), made without the full run.\n"
         f"full runs {s['full_runs']:.0f} s, training {s['training']:.0f} s, total {s['total']:.0f} s\n"
     )
