@@ -31,6 +31,10 @@ FIT_TOLERANCE = 1e-2
 """Default relative force residual of a fitted cubature (:meth:`Cubature.fitted`), chosen by measurement (see docs/results.md)."""
 
 
+FIT_MEMORY = 2**30
+"""Bytes of candidate forces :meth:`Cubature.fitted` may hold: on large meshes it draws fewer candidate tets."""
+
+
 def _count(name: str, value: int, upper: int) -> int:
     if not isinstance(value, (int, np.integer)) or value < 1:
         raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
@@ -241,7 +245,12 @@ class Cubature:
             strain: as in :meth:`optimized`.
         """
         mesh = model.mesh if mesh is None else mesh
-        return cls.optimized(mesh, model_basis(model, mesh), model.default_scene.material, samples, count=count, tolerance=tolerance, strain=strain)
+        q = np.asarray(samples)
+        width = q.shape[1] if q.ndim == 2 else 1
+        # the fit holds every candidate's force for every sample: at most FIT_MEMORY bytes of them
+        candidates = int(min(20000, max(1000, FIT_MEMORY // (8 * max(len(q), 1) * width))))
+        return cls.optimized(mesh, model_basis(model, mesh), model.default_scene.material, samples, count=count, candidates=candidates,
+                             tolerance=tolerance, strain=strain)
 
 
 def model_basis(model: Model, mesh: Mesh | None = None) -> Basis:

@@ -81,7 +81,8 @@ class TrainConfig:
             of training stops adding tets (:meth:`licrom.Cubature.fitted`).
         cubature_points: most tets of that cubature.
         cubature_samples: most training poses (frames, evenly spaced over the runs) it is
-            fitted to; its memory is ``8 * samples * (modes + 6) * min(tets, 20000)`` bytes.
+            fitted to; the fit holds ``8 * samples * (modes + 6)`` bytes per candidate tet, at most
+            :data:`licrom.cubature.FIT_MEMORY` (1 GiB) in all (fewer candidates on large meshes).
         rank_tolerance: with ``ModelConfig.latent_dim="auto"``, r is the smallest whose
             held-out relative projection error (leave training runs out) is at most this
             (:func:`licrom.training.rank.choose_rank`).
