@@ -108,6 +108,22 @@ def transfer_rows(model: Model, work: Path, small: bool) -> list[dict]:
     return rows
 
 
+def speed(model: Model, case: bfe.Case, mesh, rounds: int = 7) -> dict:
+    """Full against reduced step time on the same mesh and scene, interleaved rounds in one process (after both land)."""
+    from licrom import FullSim
+    from licrom.compare import time_steps
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full, reduced = FullSim(mesh, case.scene), ReducedSim(model, scene=case.scene)
+        time_steps(full, 1, warmup=14)
+        time_steps(reduced, 1, warmup=14)
+        times = [(time_steps(full, 3)[0], time_steps(reduced, 30)[0]) for _ in range(rounds)]
+    f, r = (float(np.median(x)) for x in zip(*times))
+    return {"scene": case.kind, "tets": mesh.n_tets, "r": model.n_learned, "cubature": reduced.cubature.count, "full_ms": f, "reduced_ms": r,
+            "ratio": f / r, "rounds": rounds, "ratios": [a / b for a, b in times]}
+
+
 def spearman(x: list[float], y: list[float]) -> float:
     from scipy.stats import spearmanr
 
@@ -189,13 +205,21 @@ def main() -> None:
             licrom.train(runs, path, TrainConfig(epochs=1, progress=False) if args.small else TrainConfig())
         models[name] = Model.load(path)
         rows += family_rows(name, models[name], work, args.small)
+    timing = None
     if "cheese" in models and not args.small:
         rows += transfer_rows(models["cheese"], args.other_mesh_work, args.small)
+        fam = bfe.FAMILIES["cheese"](False)
+        timing = speed(models["cheese"], fam.held_out[0], fam.mesh)
     wall = time.perf_counter() - t_start
     text = report(rows, models)
+    if timing is not None:
+        text += (f"\n\nSpeed, in one process on this machine (2 shared cores), {timing['rounds']} interleaved rounds of 3 full and 30 reduced "
+                 f"steps after both landed, {timing['scene']}, {timing['tets']} tets: full (warp, CPU) {timing['full_ms']:.1f} ms, "
+                 f"reduced (r = {timing['r']}, {timing['cubature']} fitted cubature tets, error estimate included) {timing['reduced_ms']:.3f} ms "
+                 f"a step (medians): {timing['ratio']:.0f}x (rounds {min(timing['ratios']):.0f}-{max(timing['ratios']):.0f}x).")
     print(text)
     with atomic_path(work / "defaults.json") as tmp:
-        tmp.write_text(json.dumps({"rows": rows, "wall_s": wall}, indent=1, default=float))
+        tmp.write_text(json.dumps({"rows": rows, "speed": timing, "wall_s": wall}, indent=1, default=float))
     if args.small:
         return
     bfe.write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/defaults_experiments.py` on "

@@ -55,6 +55,13 @@ def one_mode_run(mesh):
     return full, reduced, [w for w in caught if issubclass(w.category, AccuracyWarning)]
 
 
+def test_a_run_recorded_only_after_its_evaluations_has_a_zero_estimate(mesh):
+    # recorded at its end only: first contact is counted from the last frame, after every evaluation
+    sim = ReducedSim(MeshBasis.identity(mesh), mesh, _scene(mesh), cubature=Cubature.full(mesh))
+    traj = sim.run(12, record_every=12)
+    assert traj.n_frames == 2 and np.all(traj.error_estimate == 0.0)
+
+
 def test_one_mode_basis_has_a_large_estimate(one_mode_run):
     full, reduced, _ = one_mode_run
     assert nonrigid_error(full, reduced) > 0.3

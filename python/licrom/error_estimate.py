@@ -239,6 +239,8 @@ class ErrorMonitor:
             return out
         steps, weighted, deformation = (np.array(a) for a in zip(*self._evaluations))
         keep = steps >= (0 if start_step is None else start_step)
+        if not keep.any():  # every evaluation before the first contact (a run recorded at few frames)
+            return out
         steps, num, den = steps[keep], np.cumsum(weighted[keep]), np.cumsum(deformation[keep])
         last = np.searchsorted(steps, frame_steps, side="right") - 1
         ok = (last >= 0) & (den[last] > 0)
