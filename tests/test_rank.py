@@ -43,6 +43,16 @@ def test_tolerance_and_cap(mesh, rank4):
     assert choose_rank(few, tolerance=1e-9).max_rank == 6
 
 
+def test_where_no_r_meets_the_tolerance_r_stops_where_the_held_out_error_stops_falling(mesh):
+    # a run of 2 fields and one of 6: held out, the second is never spanned by the first's 2 dimensions
+    runs = [make_synthetic_trajectories(mesh, count=1, frames=24, seed=s, modes=m, rotation=False)[0] for s, m in ((11, 2), (12, 6))]
+    choice = choose_rank(TrainingData(runs, val_fraction=0.0, frame="world"), tolerance=1e-6, candidates=range(1, 11))
+    assert choice.capped and choice.max_rank == 48 and choice.rank <= 6  # not the cap: beyond 6 fields nothing is left to span
+    errors = dict(zip(choice.candidates, choice.errors))
+    assert errors[choice.rank] <= 1.01 * min(choice.errors) and errors[10] > 1e-3
+    assert "stops falling" in choice.describe()
+
+
 def test_single_run_and_no_deformation(mesh, rank4):
     single = choose_rank(TrainingData(rank4[:1], val_fraction=0.0, frame="world"), tolerance=1e-6, candidates=range(1, 7))
     assert single.method == "two halves of the single run" and single.rank == 4

@@ -39,6 +39,9 @@ meet its targets, and the reduced step's dense Newton system grows as (6 + r)^2 
 DEFAULT_CANDIDATES = (5, 10, 15, 20, 25, 30, 40, 50, 60, 70, 80, 100, 120)
 """r values tried by default (the cap is added when it is not among them)."""
 
+PLATEAU = 0.01
+"""Where no r meets the tolerance, r is the smallest whose held-out error is within this share of the curve's lowest."""
+
 MAX_FOLDS = 5
 """More training runs than this are held out in this many folds (a fifth each, as the default validation split)."""
 
@@ -63,7 +66,8 @@ class RankChoice:
         worst_errors: the worst run's, for the report.
         tolerance: the tolerance the choice met (or missed, when ``capped``).
         max_rank: the cap actually applied (``max_rank`` limited by frames and 3 n).
-        capped: no candidate met the tolerance, r is the cap.
+        capped: no candidate met the tolerance: r is the smallest within :data:`PLATEAU` of the
+            lowest error of the curve (the cap where it still falls there).
         method: how runs were held out (``"leave one run out"``, ``"5 folds of runs"``, ``"two halves
             of the single run"``, or ``"no deformation"``).
         runs: names of the runs in the aggregate.
@@ -99,7 +103,8 @@ class RankChoice:
         for r, e, w in zip(self.candidates, self.errors, self.worst_errors):
             mark = "  <- chosen" if r == self.rank else ""
             lines.append(f"  r = {r:4d}  {100 * e:6.2f} % / {100 * w:6.2f} %{mark}")
-        verdict = (f"no r up to the cap {self.max_rank} meets {100 * self.tolerance:g} %: r = {self.rank} (capped)" if self.capped
+        verdict = (f"no r up to the cap {self.max_rank} meets {100 * self.tolerance:g} %: r = {self.rank}, where the held-out error "
+                   f"stops falling (within {100 * PLATEAU:g} % of its lowest; capped)" if self.capped
                    else f"r = {self.rank}: the smallest tried with error <= {100 * self.tolerance:g} % (cap {self.max_rank})")
         return "\n".join([*lines, verdict])
 
@@ -228,6 +233,8 @@ def choose_rank(
     worst = per_run[:, counted].max(axis=1)
     errors = tuple(float(rms[r - 1]) for r in cands)
     met = [r for r, e in zip(cands, errors) if e <= tolerance]
-    rank = met[0] if met else cap
+    # None meets it: the smallest r within PLATEAU of the best held-out error, where more modes stop helping the
+    # runs held out (a single run of 101 frames: its halves of 50 frames flatten the curve from r = 50 on).
+    rank = met[0] if met else next(r for r, e in zip(cands, errors) if e <= (1.0 + PLATEAU) * min(errors))
     return RankChoice(rank, cands, errors, tuple(float(worst[r - 1]) for r in cands), tolerance, cap, not met, method,
                       tuple(n for n, c in zip(names, counted) if c), stride)

@@ -117,7 +117,7 @@ def _subspace_ratio(net: LicromNet, data: TrainingData, cfg: TrainConfig, mcfg: 
     subspace, onto the POD of its size that the objective trains towards (``cfg.pod_weighting``; plain POD for
     the autoencoder; ``targets``, its modes (r, n, 3) when known) and onto plain POD (:func:`subspace_report`'s
     bound), each the relative mass-weighted error of the full displacement in the model's frame, and ``ratio`` =
-    learned over trained-towards POD."""
+    learned over trained-towards POD (errors below 1e-4 count as 1e-4)."""
     split, frames = ("validation", data.val) if len(data.val) else ("training", data.train)
     r = mcfg.latent_dim
     with torch.no_grad():
@@ -128,7 +128,8 @@ def _subspace_ratio(net: LicromNet, data: TrainingData, cfg: TrainConfig, mcfg: 
     out = {"split": split, "r": r, "pod_weighting": weighting, "model": err(learned.reshape(-1, 3, r))}
     out["pod"] = err(np.moveaxis(pod_targets(data, r, weighting)[0] if targets is None else targets, 0, 2))
     out["plain_pod"] = out["pod"] if weighting == "frame" else err(np.moveaxis(pod_targets(data, r, "frame")[0], 0, 2))
-    out["ratio"] = out["model"] / out["pod"] if out["pod"] > 0 else 1.0
+    # Below 1e-4 (relative) both span the frames: no ratio of round-off (r as large as the frames' count).
+    out["ratio"] = max(out["model"], 1e-4) / max(out["pod"], 1e-4)
     return out
 
 
