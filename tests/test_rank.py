@@ -55,7 +55,7 @@ def test_where_no_r_meets_the_tolerance_r_stops_where_the_held_out_error_stops_f
 
 def test_single_run_and_no_deformation(mesh, rank4):
     single = choose_rank(TrainingData(rank4[:1], val_fraction=0.0, frame="world"), tolerance=1e-6, candidates=range(1, 7))
-    assert single.method == "two halves of the single run" and single.rank == 4
+    assert single.method == "the single run's own frames (nothing to hold out)" and single.rank == 4
     rigid = TrainingData(make_synthetic_trajectories(mesh, count=2, frames=5, amplitude=0.0), val_fraction=0.0)
     still = choose_rank(rigid, candidates=(3, 5))
     assert still.method == "no deformation" and still.rank == 3 and still.errors == (0.0, 0.0, 0.0)  # the cap, 10 frames, is tried too
