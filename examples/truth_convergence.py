@@ -224,6 +224,19 @@ def section(results: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def machine() -> str:
+    """The GPU (name and driver, from nvidia-smi) or else the CPU the runs are made on."""
+    import shutil
+    import subprocess
+
+    if shutil.which("nvidia-smi"):
+        q = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"], capture_output=True, text=True)
+        if q.returncode == 0 and q.stdout.strip():
+            name, _, driver = q.stdout.strip().splitlines()[0].partition(",")
+            return f"{name.strip()} (driver {driver.strip()}), {platform.machine()}"
+    return f"CPU {platform.processor() or platform.machine()}, {platform.node()}"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--work", type=Path, default=Path("out/truth_convergence"))
@@ -248,7 +261,7 @@ def main() -> None:
         return
     results_path = a.work / "results.json"
     results = json.loads(results_path.read_text()) if results_path.exists() else {"families": {}}
-    results["machine"] = f"{platform.node()}, {platform.processor() or platform.machine()}"
+    results["machine"] = machine()
     for family in a.families:
         spec = FAMILIES[family]
         duration = 0.2 if a.small else spec["duration"]
