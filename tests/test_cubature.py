@@ -141,3 +141,42 @@ def test_a_corrupt_stored_cubature_is_a_file_format_error(tiny_demo, tmp_path):
         with pytest.raises(FileFormatError, match=says):
             Model.load(path)
     assert json.loads(str(arrays["header_json"]))["version"] == 3
+
+
+def test_indices_must_be_non_negative_integers_and_weights_real():
+    m = meshes.box(0.1, 2)
+    pts = m.centroids[:2]
+    with pytest.raises(ConfigError, match="Cubature tets must be >= 0"):
+        Cubature(np.array([0, -1]), np.ones(2), pts, "naive")
+    with pytest.raises(ConfigError, match="Cubature tets must be integer"):
+        Cubature(np.array([0.0, 1.7]), np.ones(2), pts, "naive")
+    with pytest.raises(ShapeError, match="Cubature tets must be a 1-D"):
+        Cubature(np.array([[0, 1]]), np.ones(2), pts, "naive")
+    with pytest.raises(ShapeError, match="same length"):
+        Cubature(np.array([0, 1]), np.ones(3), pts, "naive")
+    with pytest.raises(ConfigError, match="Cubature weights must be finite and >= 0"):
+        Cubature(np.array([0, 1]), [1.0, -1.0], pts, "naive")
+    with pytest.raises(ConfigError, match="Cubature weights must be finite real"):
+        Cubature(np.array([0, 1]), np.ones(2) + 1j, pts, "naive")
+    listed = Cubature([0, 1], [1e-6, 2e-6], pts, "naive")  # plain lists work
+    assert listed.tets.dtype.kind == "i" and listed.weights.sum() == pytest.approx(3e-6)
+    with pytest.raises(ConfigError, match="ContactPoints indices must be >= 0"):
+        ContactPoints(np.array([-1]), np.ones(1))
+    with pytest.raises(ConfigError, match="ContactPoints indices must be integer"):
+        ContactPoints(np.array([0.5]), np.ones(1))
+    with pytest.raises(ConfigError, match="ContactPoints areas must be finite"):
+        ContactPoints(np.array([0]), np.array([np.nan]))
+    with pytest.raises(ConfigError, match="count must be an integer >= 1"):
+        Cubature.naive(m, count=True)
+    everyone = ContactPoints.all(m)
+    assert ContactPoints(everyone.indices, everyone.areas).indices is everyone.indices  # valid input kept as is
+
+
+def test_sampling_refuses_foreign_indices():
+    from licrom.reduced_sim import sampling
+
+    m = meshes.box(0.1, 2)
+    with pytest.raises(ConfigError, match=f"accepted 0 to {m.n_tets - 1}"):
+        sampling(m, Cubature(np.array([m.n_tets]), np.ones(1), m.centroids[:1], "naive"), None)
+    with pytest.raises(ConfigError, match=f"accepted 0 to {m.n_vertices - 1}"):
+        sampling(m, "full", ContactPoints(np.array([m.n_vertices]), np.ones(1)))

@@ -36,9 +36,43 @@ FIT_MEMORY = 2**30
 
 
 def _count(name: str, value: int, upper: int) -> int:
-    if not isinstance(value, (int, np.integer)) or value < 1:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
     return int(min(value, upper))
+
+
+def _indices(owner: str, name: str, value: object) -> np.ndarray:
+    """``value`` as a 1-D array of integer indices >= 0, else a named error."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{owner} {name} must be a 1-D array of integer indices >= 0: {exc}") from None
+    if arr.ndim != 1:
+        raise ShapeError(f"{owner} {name} must be a 1-D array of integer indices >= 0, got shape {arr.shape}")
+    if arr.size == 0 and arr.dtype.kind == "f":
+        arr = arr.astype(np.int64)
+    if arr.dtype.kind not in "iu":
+        raise ConfigError(f"{owner} {name} must be integer indices >= 0, got dtype {arr.dtype}")
+    if arr.size and int(arr.min()) < 0:
+        raise ConfigError(f"{owner} {name} must be >= 0 (negative indices would wrap), got minimum {int(arr.min())}")
+    return arr
+
+
+def _amounts(owner: str, name: str, value: object, unit: str) -> np.ndarray:
+    """``value`` as a 1-D array of finite reals >= 0, else a named error."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{owner} {name} must be a 1-D array of finite values >= 0 in {unit}: {exc}") from None
+    if arr.ndim != 1:
+        raise ShapeError(f"{owner} {name} must be a 1-D array of finite values >= 0 in {unit}, got shape {arr.shape}")
+    if arr.size == 0 and arr.dtype.kind not in "biuf":
+        arr = arr.astype(np.float64)
+    if arr.dtype.kind not in "iuf":
+        raise ConfigError(f"{owner} {name} must be finite real values >= 0 in {unit}, got dtype {arr.dtype}")
+    if np.any(~np.isfinite(arr)) or np.any(arr < 0):
+        raise ConfigError(f"{owner} {name} must be finite and >= 0 (in {unit})")
+    return arr
 
 
 @dataclass(frozen=True)
@@ -63,10 +97,17 @@ class Cubature:
     __repr__ = concise_repr
 
     def __post_init__(self) -> None:
-        if len(self.tets) != len(self.weights) or len(self.tets) != len(self.points):
-            raise ShapeError("Cubature tets, weights and points must have the same length")
-        if np.any(~np.isfinite(self.weights)) or np.any(self.weights < 0):
-            raise ConfigError("Cubature weights must be finite and >= 0")
+        tets = _indices("Cubature", "tets", self.tets)
+        weights = _amounts("Cubature", "weights", self.weights, "m^3")
+        try:
+            n_points = len(self.points)
+        except TypeError:
+            raise ShapeError(f"Cubature points must be a (K, 3) array, got {type(self.points).__name__}") from None
+        if len(tets) != len(weights) or len(tets) != n_points:
+            raise ShapeError("Cubature tets, weights and points must have the same length, got "
+                             f"{len(tets)}, {len(weights)} and {n_points}")
+        object.__setattr__(self, "tets", tets)
+        object.__setattr__(self, "weights", weights)
 
     @property
     def count(self) -> int:
@@ -295,10 +336,12 @@ class ContactPoints:
     __repr__ = concise_repr
 
     def __post_init__(self) -> None:
-        if len(self.indices) != len(self.areas):
-            raise ShapeError("ContactPoints indices and areas must have the same length")
-        if np.any(~np.isfinite(self.areas)) or np.any(self.areas < 0):
-            raise ConfigError("ContactPoints areas must be finite and >= 0")
+        indices = _indices("ContactPoints", "indices", self.indices)
+        areas = _amounts("ContactPoints", "areas", self.areas, "m^2")
+        if len(indices) != len(areas):
+            raise ShapeError(f"ContactPoints indices and areas must have the same length, got {len(indices)} and {len(areas)}")
+        object.__setattr__(self, "indices", indices)
+        object.__setattr__(self, "areas", areas)
 
     @property
     def count(self) -> int:

@@ -395,10 +395,13 @@ def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: Contac
     if not isinstance(cubature, Cubature):
         raise ConfigError(f"cubature must be a licrom.Cubature or one of {CUBATURES}, got {type(cubature).__name__}")
     contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
-    if cubature.count and int(cubature.tets.max()) >= mesh.n_tets:
-        raise ConfigError("cubature tets do not belong to this mesh (index out of range)")
-    if contact_points.count and int(contact_points.indices.max()) >= mesh.n_vertices:
-        raise ConfigError("contact points do not belong to this mesh (index out of range)")
+    if not isinstance(contact_points, ContactPoints):
+        raise ConfigError(f"contact_points must be a licrom.cubature.ContactPoints or None, got {type(contact_points).__name__}")
+    if cubature.count and (int(cubature.tets.max()) >= mesh.n_tets or int(cubature.tets.min()) < 0):
+        raise ConfigError(f"cubature tets do not belong to this mesh (index out of range: accepted 0 to {mesh.n_tets - 1})")
+    if contact_points.count and (int(contact_points.indices.max()) >= mesh.n_vertices or int(contact_points.indices.min()) < 0):
+        raise ConfigError("contact points do not belong to this mesh (index out of range: accepted 0 to "
+                          f"{mesh.n_vertices - 1})")
     return cubature, contact_points
 
 
