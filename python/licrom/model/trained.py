@@ -57,6 +57,35 @@ def _check_weights(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]
         )
 
 
+def _check_members(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]) -> None:
+    """Refuse weights and post-processing arrays that would make every value NaN or wrong, naming the member.
+
+    Every stored number must be real and finite, the coordinate and displacement scales > 0,
+    and the post-processing arrays of the shapes the header's ``latent_dim`` r gives.
+    """
+    r = config.latent_dim
+    shapes = {"affine_correction": (12, r), "mode_transform": (r, r), "mode_transform_inv": (r, r), "mode_variance": (r,),
+              "net/x_center": (3,), "net/x_scale": (), "net/u_scale": ()}
+    for key in sorted(arrays):
+        if not (key.startswith("net/") or key in shapes or key.startswith("cubature/") and key != "cubature/tets"):
+            continue
+        a = arrays[key]
+        if a.dtype.kind not in "iuf":
+            raise FileFormatError(f"model '{path}' member {key} must hold real numbers, it holds dtype {a.dtype}")
+        if key in shapes and a.shape != shapes[key]:
+            raise FileFormatError(f"model '{path}' member {key} has shape {a.shape}; latent_dim={r} needs {shapes[key]}")
+        if a.size and not np.all(np.isfinite(a)):
+            raise FileFormatError(f"model '{path}' member {key} holds NaN or inf; every value must be finite")
+    for key in ("net/x_scale", "net/u_scale"):
+        if key in arrays and not float(arrays[key]) > 0:
+            raise FileFormatError(f"model '{path}' member {key} is {float(arrays[key])!r}; it must be > 0 (a length in m)")
+    if "mode_variance" in arrays and np.any(arrays["mode_variance"] < 0):
+        raise FileFormatError(f"model '{path}' member mode_variance holds negative values; variances must be >= 0")
+    weights = arrays.get("cubature/weights")
+    if weights is not None and (weights.ndim != 1 or np.any(weights < 0)):
+        raise FileFormatError(f"model '{path}' member cubature/weights must be a 1-D array of weights >= 0 (m^3)")
+
+
 class Model:
     """A trained LiCROM subspace; also a basis for the reduced simulation.
 
@@ -470,6 +499,7 @@ class Model:
                 raise FileFormatError(f"model '{path}' header is inconsistent (n_learned/affine/frame vs model_config)")
             keys = header["state_keys"]
             _check_weights(path, config, arrays)
+            _check_members(path, config, arrays)
             net = LicromNet(config)
             state = {}
             for k in keys:
