@@ -86,3 +86,21 @@ def test_repr_is_one_short_line_not_every_array():
     text = repr(t)
     assert text == str(t) and "\n" not in text and len(text) < 200
     assert text.startswith("Trajectory(50 frames, t = 0..0.49 s, 27 vertices, 48 tets") and "slope 0 deg, mu 0.5" in text
+
+
+@pytest.mark.parametrize(("member", "edit", "message"), [
+    ("rest_positions", lambda a: np.where(np.arange(len(a))[:, None] == 0, np.nan, a), "member rest_positions holds NaN or inf"),
+    ("rest_positions", lambda a: a[:, :2].copy(), r"member rest_positions must have shape \(n, 3\), got \(\d+, 2\)"),
+    ("tets", lambda a: np.where(a == 0, 10**6, a), r"member tets holds vertex indices from 1 to 1000000; accepted 0 to \d+"),
+    ("tets", lambda a: np.where(a == 0, -1, a), r"member tets holds vertex indices from -1 to \d+; accepted 0 to"),
+    ("tets", lambda a: a[:, :3].copy(), r"member tets must have shape \(m, 4\), got \(\d+, 3\)"),
+    ("tets", lambda a: a + 0.5, "member tets must hold integer vertex indices"),
+    ("times", lambda a: a + 1j, "member times must hold real numbers, it holds dtype complex128"),
+])
+def test_load_validates_the_mesh_part_naming_the_member(tmp_path, member, edit, message):
+    from licrom._io import load_npz, save_npz
+
+    header, arrays = load_npz(_traj().save(tmp_path / "t.npz"), "trajectory")
+    save_npz(tmp_path / "bad.npz", {**arrays, member: edit(arrays[member])}, header)
+    with pytest.raises(FileFormatError, match=message):
+        Trajectory.load(tmp_path / "bad.npz")

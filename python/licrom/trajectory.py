@@ -185,6 +185,7 @@ class Trajectory:
         check_version(header.get("version"), TRAJECTORY_FORMAT_VERSION, f"trajectory '{path}'")
         if not isinstance(header.get("info", {}), dict):
             raise FileFormatError(f"trajectory '{path}' has a corrupt header: 'info' must be a JSON object")
+        _check_members(path, arrays)
         try:
             return cls(scene=Scene.from_dict(header["scene"]), info=header.get("info", {}), **arrays)
         except FileFormatError:
@@ -193,3 +194,27 @@ class Trajectory:
             raise FileFormatError(f"trajectory '{path}' is missing data: {exc}") from exc
         except (LicromError, ValueError) as exc:
             raise FileFormatError(f"trajectory '{path}' holds invalid data: {exc}") from exc
+
+
+def _check_members(path: Any, arrays: dict[str, np.ndarray]) -> None:
+    """Refuse a file whose arrays are not real numbers or whose mesh part is no mesh, naming the member."""
+    for key in sorted(arrays):
+        if arrays[key].dtype.kind not in "biuf":
+            raise FileFormatError(f"trajectory '{path}' member {key} must hold real numbers, it holds dtype {arrays[key].dtype}")
+    rest = arrays.get("rest_positions")
+    if rest is None:
+        return  # the constructor names the missing member
+    if rest.ndim != 2 or rest.shape[1] != 3:
+        raise FileFormatError(f"trajectory '{path}' member rest_positions must have shape (n, 3), got {rest.shape}")
+    if not np.all(np.isfinite(rest)):
+        raise FileFormatError(f"trajectory '{path}' member rest_positions holds NaN or inf; every position must be finite")
+    tets = arrays.get("tets")
+    if tets is None:
+        return
+    if tets.ndim != 2 or tets.shape[1] != 4:
+        raise FileFormatError(f"trajectory '{path}' member tets must have shape (m, 4), got {tets.shape}")
+    if tets.size and tets.dtype.kind not in "iu":
+        raise FileFormatError(f"trajectory '{path}' member tets must hold integer vertex indices, it holds dtype {tets.dtype}")
+    if tets.size and (int(tets.min()) < 0 or int(tets.max()) >= len(rest)):
+        raise FileFormatError(f"trajectory '{path}' member tets holds vertex indices from {int(tets.min())} to {int(tets.max())}; "
+                              f"accepted 0 to {len(rest) - 1} (its {len(rest)} rest positions)")
