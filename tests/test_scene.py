@@ -116,6 +116,9 @@ def test_unknown_scene_version():
     d["version"] = 99
     with pytest.raises(FileFormatError, match="version 99; this licrom reads version 1"):
         Scene.from_json(json.dumps(d))
+    d["version"] = True  # JSON true is not version 1
+    with pytest.raises(FileFormatError, match="version True; this licrom reads version 1"):
+        Scene.from_json(json.dumps(d))
     with pytest.raises(FileFormatError, match="not a licrom scene"):
         Scene.from_json('{"planes": []}')
     with pytest.raises(FileFormatError, match="not valid JSON"):

@@ -45,6 +45,7 @@ def test_defaults_of_a_minimal_file(tmp_path):
 @pytest.mark.parametrize("text, message", [
     ("[object]\nmesh = 'box'", r"version is required \(version = 1\)"),
     ("version = 2\n[object]\nmesh = 'box'", "version 2 is not supported; this licrom reads version 1"),
+    ("version = true\n[object]\nmesh = 'box'", "version True is not supported; this licrom reads version 1"),
     ("version = 1", "object is required"),
     (MINIMAL + "colour = 'red'", "unknown key object.colour; accepted keys in object: mesh, resolution, size, radius"),
     ("version = 1\ncolour = 1\n[object]\nmesh = 'box'", "unknown key colour"),

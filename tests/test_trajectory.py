@@ -104,3 +104,12 @@ def test_load_validates_the_mesh_part_naming_the_member(tmp_path, member, edit, 
     save_npz(tmp_path / "bad.npz", {**arrays, member: edit(arrays[member])}, header)
     with pytest.raises(FileFormatError, match=message):
         Trajectory.load(tmp_path / "bad.npz")
+
+
+def test_a_boolean_format_version_is_refused(tmp_path):
+    from licrom._io import load_npz, save_npz
+
+    header, arrays = load_npz(_traj().save(tmp_path / "t.npz"), "trajectory")
+    save_npz(tmp_path / "v.npz", arrays, {**header, "version": True})
+    with pytest.raises(FileFormatError, match="format version True; this licrom reads version 1 only"):
+        Trajectory.load(tmp_path / "v.npz")

@@ -222,8 +222,8 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
 
 
 def check_version(found: Any, supported: int, what: str) -> None:
-    """Raise FileFormatError unless ``found`` is the ``supported`` format version."""
-    if found != supported:
+    """Raise FileFormatError unless ``found`` is the ``supported`` format version (an integer; ``true`` is not 1)."""
+    if isinstance(found, bool) or found != supported:
         raise FileFormatError(
             f"{what} has format version {found!r}; this licrom reads version {supported} only"
         )

@@ -118,7 +118,7 @@ def load_manifest(out_dir: str | Path) -> dict[str, Any]:
         raise FileFormatError(f"dataset manifest '{p}' is nested too deeply to be a licrom manifest") from None
     if not isinstance(d, dict) or d.get("format") != "licrom.dataset":
         raise FileFormatError(f"'{p}' is not a licrom dataset manifest")
-    if d.get("version") != DATASET_FORMAT_VERSION:
+    if isinstance(d.get("version"), bool) or d.get("version") != DATASET_FORMAT_VERSION:
         raise FileFormatError(f"dataset manifest '{p}' has format version {d.get('version')!r}; this licrom reads version {DATASET_FORMAT_VERSION} only")
     entries = d.get("trajectories")
     if not isinstance(entries, list) or not all(isinstance(t, dict) and isinstance(t.get("file"), str) for t in entries):

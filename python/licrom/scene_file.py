@@ -489,7 +489,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
     version = top.raw("version", None)
     if version is None:
         raise ConfigError(f"version is required (version = {SCENE_FILE_VERSION})")
-    if version != SCENE_FILE_VERSION:
+    if isinstance(version, bool) or version != SCENE_FILE_VERSION:
         raise ConfigError(f"version {version!r} is not supported; this licrom reads version {SCENE_FILE_VERSION}")
     name = top.string("name", default_name)
     description = top.string("description", "")

@@ -485,7 +485,7 @@ class Model:
         """
         header, arrays = load_npz(path, "model")
         version = header.get("version")
-        if version not in _READABLE_VERSIONS:
+        if isinstance(version, bool) or version not in _READABLE_VERSIONS:
             raise FileFormatError(
                 f"model '{path}' has format version {version!r}; this licrom reads versions {', '.join(map(str, _READABLE_VERSIONS))}"
             )
