@@ -203,3 +203,19 @@ def test_cli_compare_runs_the_held_out_scenes_of_a_scene_file(tiny_demo, tiny_de
     captured = capsys.readouterr()
     assert "slope 20 deg, mu 0.1" in captured.out and "slope 20 deg, mu 0.9" in captured.out
     assert "compare: 100%" in captured.err  # the progress bar over the scenes
+
+
+def test_non_utf8_and_deeply_nested_files_are_named_file_format_errors(tmp_path):
+    latin1 = tmp_path / "latin1.toml"
+    text = "description = 'Käse'\n" + MINIMAL
+    latin1.write_bytes(text.encode("latin-1"))
+    utf16 = tmp_path / "utf16.toml"
+    utf16.write_bytes(MINIMAL.encode("utf-16"))
+    for path in (latin1, utf16):
+        with pytest.raises(FileFormatError, match=f"scene file '{path}' is not UTF-8 text.*must be UTF-8"):
+            load_scene(path)
+    deep = _write(tmp_path, MINIMAL + "[material]\ndensity = " + "[" * 5000 + "]" * 5000 + "\n", "deep.toml")
+    with pytest.raises((FileFormatError, ConfigError), match=f"scene file '{deep}'.*nested too deeply"):
+        load_scene(deep)
+    (tmp_path / "utf8.toml").write_text(text, encoding="utf-8")
+    assert load_scene(tmp_path / "utf8.toml").description == "Käse"

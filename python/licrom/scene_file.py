@@ -470,7 +470,14 @@ def load_scene(source: str | Path) -> SceneFile:
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
             raise FileFormatError(f"scene file not found: '{p}'")
-        text, where, base = p.read_text(encoding="utf-8"), f"'{p}'", p.resolve().parent
+        try:
+            text = p.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise FileFormatError(f"scene file '{p}' is not UTF-8 text (byte {exc.start} is {exc.object[exc.start:exc.start + 1]!r}); "
+                                  "TOML files must be UTF-8: re-save it as UTF-8") from None
+        except OSError as exc:
+            raise FileFormatError(f"scene file '{p}' cannot be read: {exc.strerror or exc}") from None
+        where, base = f"'{p}'", p.resolve().parent
         default_name = p.stem
     else:
         text, where, base, default_name = builtin_scene_text(str(source)), f"built-in {source}", None, str(source)
@@ -478,10 +485,16 @@ def load_scene(source: str | Path) -> SceneFile:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise FileFormatError(f"scene file {where} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise FileFormatError(f"scene file {where} is nested too deeply to be a scene file (arrays or tables within each other "
+                              "hundreds of levels deep)") from None
     try:
         return _parse(data, where, base, default_name)
     except ConfigError as exc:
         raise ConfigError(f"scene file {where}: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"scene file {where}: a value is nested too deeply (arrays within arrays); "
+                          "scene values are numbers, strings, lists of numbers and tables") from None
 
 
 def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: str) -> SceneFile:
