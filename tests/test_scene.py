@@ -132,3 +132,11 @@ def test_a_bool_is_not_a_count_and_deep_json_is_a_file_format_error():
     deep = '{"format": "licrom.scene", "version": 1, "material": ' + "[" * 100_000 + "]" * 100_000 + "}"
     with pytest.raises(FileFormatError, match="nested too deeply"):
         Scene.from_json(deep)
+
+
+def test_a_huge_rotation_vector_is_refused_with_the_accepted_length():
+    for rotation in ((1e300, 0, 0), (0, 2e6, 0), (1e154, 1e154, 1e154)):
+        with pytest.raises(ConfigError, match=r"InitialState.rotation must be a rotation vector of length <= 1e\+06 rad"):
+            InitialState(rotation=rotation)
+    turns = InitialState(rotation=(0, 0, 1000 * 2 * np.pi))  # many whole turns: still the identity
+    np.testing.assert_allclose(turns.rotation_matrix(), np.eye(3), atol=1e-9)

@@ -219,3 +219,12 @@ def test_non_utf8_and_deeply_nested_files_are_named_file_format_errors(tmp_path)
         load_scene(deep)
     (tmp_path / "utf8.toml").write_text(text, encoding="utf-8")
     assert load_scene(tmp_path / "utf8.toml").description == "Käse"
+
+
+@pytest.mark.parametrize("initial", ["drop_height = 0.1\nrotation = [1e300, 0, 0]", "translation = [0, 0, 1]\nrotation = [1e300, 0, 0]"])
+def test_a_huge_rotation_in_a_scene_file_is_refused_at_load(tmp_path, initial):
+    path = _write(tmp_path, MINIMAL + "[[initial]]\n" + initial + "\n")
+    with pytest.raises(ConfigError, match=r"initial\[0\].rotation must be a rotation vector of length <= 1e\+06 rad.*got length 1e\+300"):
+        load_scene(path)
+    with pytest.raises(ConfigError, match=r"DropSpec.rotation must be a rotation vector of length <= 1e\+06 rad"):
+        DropSpec(0.1, (1e300, 0, 0))

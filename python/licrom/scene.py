@@ -19,6 +19,7 @@ from .errors import ConfigError, FileFormatError
 
 __all__ = [
     "MAX_PLANE_OFFSET",
+    "ROTATION_LIMIT",
     "SCENE_FORMAT_VERSION",
     "ContactParams",
     "InitialState",
@@ -43,6 +44,20 @@ def _finite(name: str, value: float, *, positive: bool = False, nonnegative: boo
     if nonnegative and v < 0.0:
         raise ConfigError(f"{name} must be >= 0, got {v}")
     return v
+
+
+ROTATION_LIMIT = 1e6
+"""Largest accepted length of a rotation vector (axis times angle), rad: about 160,000 turns. Beyond it
+the angle's float64 spacing passes 1e-10 rad, and past about 1e154 its length overflows to inf."""
+
+
+def _rotation(name: str, value: tuple[float, float, float]) -> tuple[float, float, float]:
+    """``value`` (3 finite numbers) if its length is at most :data:`ROTATION_LIMIT`, else a ConfigError naming ``name``."""
+    angle = math.hypot(*value)
+    if not angle <= ROTATION_LIMIT:
+        raise ConfigError(f"{name} must be a rotation vector of length <= {ROTATION_LIMIT:g} rad (axis times angle), "
+                          f"got length {angle:.4g} rad")
+    return value
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
@@ -242,6 +257,7 @@ class InitialState:
     def __post_init__(self) -> None:
         for name in ("translation", "rotation", "velocity", "angular_velocity"):
             object.__setattr__(self, name, _vec3(f"InitialState.{name}", getattr(self, name)))
+        _rotation("InitialState.rotation", self.rotation)
 
     def rotation_matrix(self) -> np.ndarray:
         """The 3x3 rotation matrix of ``rotation`` (Rodrigues' formula)."""

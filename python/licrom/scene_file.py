@@ -60,7 +60,7 @@ from typing import Any
 
 from .errors import ConfigError, FileFormatError
 from .mesh import Mesh
-from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
+from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -269,6 +269,9 @@ class DropSpec:
     rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _rotation("DropSpec.rotation", _vec3("DropSpec.rotation", self.rotation))
 
     def state(self, mesh: Mesh, density: float) -> InitialState:
         """The state over the ground ``z = 0`` (see :func:`licrom.placement.drop_state`)."""
@@ -618,7 +621,7 @@ def _initial_states(tables: list[_Table], has_planes: bool) -> tuple[DropSpec, .
     for t in tables:
         height = t.number("drop_height", None, 0.0, unit="m")
         translation = t.vector("translation", None, "m")
-        rotation = t.vector("rotation", (0.0, 0.0, 0.0), "rad")
+        rotation = _rotation(t.key("rotation"), t.vector("rotation", (0.0, 0.0, 0.0), "rad"))
         velocity = t.vector("velocity", (0.0, 0.0, 0.0), "m/s")
         angular = t.vector("angular_velocity", (0.0, 0.0, 0.0), "rad/s")
         t.done()
