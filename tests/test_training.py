@@ -463,3 +463,19 @@ def test_checkpoint_writes_are_atomic_and_a_damaged_one_says_start_afresh(trajs,
     (folder / "last.ckpt").write_bytes(good[: len(good) // 2])  # cut short, as by a crash of an older version
     with pytest.raises(FileFormatError, match=r"last\.ckpt' is truncated, corrupt .*start afresh: run again without --resume"):
         train(trajs, out, TrainConfig(**TINY, seed=4, resume=True), ModelConfig(latent_dim=2))
+
+
+def test_runs_without_deformation_are_refused_naming_the_runs(mesh, tmp_path):
+    rigid = make_synthetic_trajectories(mesh, count=2, frames=4, seed=1, amplitude=0.0)  # rigid motion only
+    still = [Trajectory(mesh.vertices, mesh.tets, np.zeros((3, mesh.n_vertices, 3)), np.zeros((3, mesh.n_vertices, 3)),
+                        [0.0, 0.01, 0.02], rigid[0].scene) for _ in range(2)]
+    for k, t in enumerate(rigid):
+        t.save(tmp_path / f"rigid_{k}.npz", precision="float64")
+    for runs, frame in ((tmp_path, "body"), (still, "world")):
+        with pytest.raises(ConfigError, match=r"no training run holds any .*below 1e-09 of the object's size .*round-off only: "
+                                              r"(rigid_0 .*m\), rigid_1|.*, .*)"):
+            train(runs, None, TrainConfig(**TINY, val_fraction=0.0), ModelConfig(latent_dim=2), frame=frame)
+    # a run that deforms is enough: the data check passes
+    data = TrainingData([*still, make_synthetic_trajectories(mesh, count=1, frames=4, seed=2)[0]], val_fraction=0.0, frame="world")
+    data.check_deformation()
+    assert min(data.residual_rms().values()) == 0.0 and max(data.residual_rms().values()) > 1e-6 * mesh.size

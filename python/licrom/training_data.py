@@ -33,6 +33,7 @@ from .scene import InitialState, Plane, Scene
 from .trajectory import Trajectory
 
 __all__ = [
+    "ROUNDOFF_RESIDUAL",
     "FrameSet",
     "TrainingData",
     "TrajectorySource",
@@ -43,6 +44,11 @@ __all__ = [
 ]
 
 TrajectorySource = str | os.PathLike | Trajectory | Iterable[str | os.PathLike | Trajectory]
+
+ROUNDOFF_RESIDUAL = 1e-9
+"""A run whose mass-weighted RMS residual (what the networks learn: the body-frame deformation, or the
+world-frame displacement, less its affine part when that is removed) is below this fraction of the
+object's size holds nothing but round-off: a still object, or one moved rigidly only."""
 
 
 def load_trajectories(source: TrajectorySource) -> list[tuple[str, Trajectory]]:
@@ -254,6 +260,28 @@ class TrainingData:
     @property
     def rest(self) -> np.ndarray:
         return np.asarray(self.mesh.vertices)
+
+    def residual_rms(self) -> dict[str, float]:
+        """Mass-weighted RMS residual (m) of each training run: ``sqrt(sum_f sum_v m_v |r_v|^2 / (F M))``."""
+        frames, total = self.train, float(self.masses.sum())
+        return {frames.names[k]: float(np.sqrt(frames.norm2_residual[frames.trajectory == k].mean() / total))
+                for k in np.unique(frames.trajectory)}
+
+    def check_deformation(self) -> None:
+        """Refuse training data whose every training run holds round-off only (see :data:`ROUNDOFF_RESIDUAL`).
+
+        Raises:
+            ConfigError: naming the runs, their residual and the threshold.
+        """
+        rms = self.residual_rms()
+        limit = ROUNDOFF_RESIDUAL * self.mesh.size
+        if rms and max(rms.values()) < limit:
+            what = "deformation in the body frame" if self.frame == "body" else "displacement" + (" beyond its affine part" if self.affine else "")
+            shown = ", ".join(f"{name} ({value:.3g} m)" for name, value in list(rms.items())[:8]) + (", ..." if len(rms) > 8 else "")
+            raise ConfigError(
+                f"no training run holds any {what}: the mass-weighted RMS residual of every run is below "
+                f"{ROUNDOFF_RESIDUAL:g} of the object's size ({limit:.3g} m), round-off only: {shown}. A model trained on them "
+                "would be modes of round-off; train on runs that deform (a drop or a push onto a plane, a softer material)")
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready description (names, split, frame counts, statistics)."""

@@ -193,6 +193,7 @@ def train(
     else:
         tdata = TrainingData(data, val_fraction=cfg.val_fraction, seed=cfg.seed, val_indices=cfg.val_indices,
                              affine=mcfg.affine, frame_stride=cfg.frame_stride, frame=mcfg.frame)
+    tdata.check_deformation()
     t_data = time.perf_counter() - t_start
     rank = None
     if mcfg.latent_dim == "auto":
