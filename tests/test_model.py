@@ -393,14 +393,14 @@ def test_absurd_header_sizes_are_refused_before_the_network_is_built(mesh, tmp_p
 
 
 @pytest.mark.parametrize(("member", "edit", "message"), [
-    ("net/field.mlp.0.weight", lambda a: np.full_like(a, np.nan), "member net/field.mlp.0.weight holds NaN or inf"),
+    ("net/field.mlp.0.weight", lambda a: np.full_like(a, np.nan), "member net/field.mlp.0.weight must be finite, it holds NaN or inf"),
     ("net/field.mlp.0.weight", lambda a: a.astype(np.complex64) * 1j, "member net/field.mlp.0.weight must hold real numbers"),
-    ("net/x_center", lambda a: np.array([np.inf, 0, 0], dtype=a.dtype), "member net/x_center holds NaN or inf"),
+    ("net/x_center", lambda a: np.array([np.inf, 0, 0], dtype=a.dtype), "member net/x_center must be finite, it holds NaN or inf"),
     ("net/x_scale", lambda a: np.zeros_like(a), r"member net/x_scale is 0\.0; it must be > 0"),
     ("net/x_scale", lambda a: -a, "member net/x_scale .* must be > 0"),
-    ("net/u_scale", lambda a: np.full_like(a, np.inf), "member net/u_scale holds NaN or inf"),
+    ("net/u_scale", lambda a: np.full_like(a, np.inf), "member net/u_scale must be finite, it holds NaN or inf"),
     ("mode_variance", lambda a: a[:1], r"member mode_variance has shape \(1,\); latent_dim=2 needs \(2,\)"),
-    ("mode_transform", lambda a: np.full_like(a, np.nan), "member mode_transform holds NaN or inf"),
+    ("mode_transform", lambda a: np.full_like(a, np.nan), "member mode_transform must be finite, it holds NaN or inf"),
     ("affine_correction", lambda a: a[:6], "member affine_correction has shape"),
 ])
 def test_load_refuses_non_finite_or_misshapen_members(mesh, tmp_path, member, edit, message):

@@ -67,7 +67,7 @@ def _check_members(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]
     shapes = {"affine_correction": (12, r), "mode_transform": (r, r), "mode_transform_inv": (r, r), "mode_variance": (r,),
               "net/x_center": (3,), "net/x_scale": (), "net/u_scale": ()}
     for key in sorted(arrays):
-        if not (key.startswith("net/") or key in shapes or key.startswith("cubature/") and key != "cubature/tets"):
+        if not (key.startswith("net/") or key in shapes or (key.startswith("cubature/") and key != "cubature/tets")):
             continue
         a = arrays[key]
         if a.dtype.kind not in "iuf":
@@ -75,7 +75,7 @@ def _check_members(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]
         if key in shapes and a.shape != shapes[key]:
             raise FileFormatError(f"model '{path}' member {key} has shape {a.shape}; latent_dim={r} needs {shapes[key]}")
         if a.size and not np.all(np.isfinite(a)):
-            raise FileFormatError(f"model '{path}' member {key} holds NaN or inf; every value must be finite")
+            raise FileFormatError(f"model '{path}' member {key} must be finite, it holds NaN or inf")
     for key in ("net/x_scale", "net/u_scale"):
         if key in arrays and not float(arrays[key]) > 0:
             raise FileFormatError(f"model '{path}' member {key} is {float(arrays[key])!r}; it must be > 0 (a length in m)")
@@ -83,7 +83,7 @@ def _check_members(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]
         raise FileFormatError(f"model '{path}' member mode_variance holds negative values; variances must be >= 0")
     weights = arrays.get("cubature/weights")
     if weights is not None and (weights.ndim != 1 or np.any(weights < 0)):
-        raise FileFormatError(f"model '{path}' member cubature/weights must be a 1-D array of weights >= 0 (m^3)")
+        raise FileFormatError(f"model '{path}' member cubature/weights must be finite and >= 0 (a 1-D array of weights in m^3)")
 
 
 class Model:
