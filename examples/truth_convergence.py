@@ -22,6 +22,11 @@ Both report the final centre of mass distance over the object's size. Full runs 
 writes ``--work/results.json`` and section 12 of ``docs/results.md``. ``--section-only`` rewrites
 the section from a ``results.json`` (e.g. one computed on a GPU machine). ``--small`` runs tiny
 meshes for 0.2 s on the CPU (a smoke test, under a minute) and writes nothing under ``docs``.
+
+Section 12 was made on an H100 with, per family (``--work`` one folder per family, the results
+merged by ``--section-only``): the default (mesh study at the family's step, time study on the
+~33k-tet mesh), ``--studies mesh --mesh-time-step 0.001``, and ``--studies time
+--time-resolutions 27 42`` (ball: ``22 32``) ``--time-steps 0.01 0.005 0.0025 0.001 0.0005 0.00025 0.000125``.
 """
 
 from __future__ import annotations
