@@ -115,6 +115,59 @@ def test_atomic_path_passes_licrom_errors_through(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_rewritten_file_keeps_its_mode(tmp_path):
+    from click.testing import CliRunner
+    from licrom.cli import cli
+
+    path = _trajectory().save(tmp_path / "t.npz")
+    os.chmod(path, 0o600)
+    _trajectory(4).save(path)
+    assert (os.stat(path).st_mode & 0o7777) == 0o600 and _hidden(tmp_path) == []
+    scene = tmp_path / "scene.toml"
+    scene.write_text("old")
+    os.chmod(scene, 0o640)
+    result = CliRunner().invoke(cli, ["scene", "cheese", "-o", str(scene)])
+    assert result.exit_code == 0, result.output
+    assert (os.stat(scene).st_mode & 0o7777) == 0o640 and scene.read_text() != "old"
+    # a new file gets what open() would give it
+    umask = os.umask(0o022)
+    try:
+        fresh = _trajectory().save(tmp_path / "fresh.npz")
+    finally:
+        os.umask(umask)
+    assert (os.stat(fresh).st_mode & 0o7777) == 0o644
+
+
+def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
+    import socket
+
+    fifo = tmp_path / "pipe.npz"
+    os.mkfifo(fifo)
+    with pytest.raises(OutputError, match=r"cannot write '.*pipe\.npz': it is a FIFO \(named pipe\), not a regular file"):
+        _trajectory().save(fifo)
+    assert fifo.is_fifo() and _hidden(tmp_path) == []
+    sock_path = tmp_path / "s.json"
+    sock = socket.socket(socket.AF_UNIX)
+    try:
+        sock.bind(str(sock_path))
+        with pytest.raises(OutputError, match="it is a socket"), atomic_path(sock_path) as tmp:
+            tmp.write_text("{}")
+        assert sock_path.is_socket()
+    finally:
+        sock.close()
+    with pytest.raises(OutputError, match=r"'/dev/null': it is a character device"), atomic_path("/dev/null") as tmp:
+        tmp.write_text("{}")
+    assert os.path.exists("/dev/null") and not os.path.isfile("/dev/null")
+    # a symlink is still replaced, not followed
+    real = tmp_path / "real.json"
+    real.write_text("real")
+    link = tmp_path / "link.json"
+    link.symlink_to(real)
+    with atomic_path(link) as tmp:
+        tmp.write_text("new")
+    assert not link.is_symlink() and link.read_text() == "new" and real.read_text() == "real"
+
+
 # --- reads: sizes and types checked before allocating --------------------------------------
 def _npz_with_member(path, name, header_bytes, body):
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:

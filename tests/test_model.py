@@ -367,6 +367,17 @@ def test_save_onto_a_directory_is_an_output_error(mesh, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_save_keeps_the_mode_of_the_file_it_replaces(mesh, tmp_path):
+    import os
+
+    path = tmp_path / "m.npz"
+    _random_model(mesh, r=2).save(path)
+    os.chmod(path, 0o600)
+    _random_model(mesh, r=2, seed=1).save(path)
+    assert (os.stat(path).st_mode & 0o7777) == 0o600
+    assert Model.load(path).net.config.latent_dim == 2
+
+
 def test_absurd_header_sizes_are_refused_before_the_network_is_built(mesh, tmp_path, monkeypatch):
     import json
 

@@ -16,6 +16,7 @@ import json
 import math
 import os
 import re
+import stat
 import struct
 import tempfile
 import time
@@ -104,6 +105,36 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     return removed
 
 
+_NOT_REGULAR = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
+                (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+
+
+def _existing_mode(target: Path) -> int | None:
+    """The permission bits of the regular file at ``target`` (None when absent or a symlink, replaced as new).
+
+    Raises:
+        OutputError: ``target`` is a directory, or not a regular file (FIFO, socket, device), which an
+            atomic replace would turn into one.
+    """
+    try:
+        st = os.lstat(target)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise output_error(target, exc) from exc
+    if stat.S_ISLNK(st.st_mode):
+        if target.is_dir():
+            raise OutputError(f"cannot write '{target}': it is a directory (give a file path)", errno=errno.EISDIR)
+        return None  # the link itself is replaced, not followed
+    if stat.S_ISDIR(st.st_mode):
+        raise OutputError(f"cannot write '{target}': it is a directory (give a file path)", errno=errno.EISDIR)
+    for test, what in _NOT_REGULAR:
+        if test(st.st_mode):
+            raise OutputError(f"cannot write '{target}': it is {what}, not a regular file; licrom writes regular "
+                              "files only (give the path of a regular file, or of one that does not exist yet)")
+    return stat.S_IMODE(st.st_mode)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only on success.
@@ -112,13 +143,15 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     removes the temporary file, so readers never see a half-written file. The first
     write into a folder also removes stale temporary files of killed writers there.
 
+    The result keeps the permission bits of the file it replaces (a new file gets those
+    of a plain ``open()``). A symlink at ``path`` is replaced, not followed.
+
     Raises:
-        OutputError: ``path`` is a directory, or writing failed for lack of space or
-            permission (any ``OSError`` of the write).
+        OutputError: ``path`` is a directory or not a regular file (FIFO, socket, device),
+            or writing failed for lack of space or permission (any ``OSError`` of the write).
     """
     target = Path(path)
-    if target.is_dir():
-        raise OutputError(f"cannot write '{target}': it is a directory (give a file path)", errno=errno.EISDIR)
+    mode = _existing_mode(target)
     make_dir(target.parent)
     folder = target.parent.resolve()
     if folder not in _SWEPT:
@@ -134,10 +167,13 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
-        # mkstemp creates 0600 files; give the result the permissions a plain open() would.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        # mkstemp creates 0600 files: give the result the mode of the file it replaces, or
+        # for a new file the permissions a plain open() would.
+        if mode is None:
+            umask = os.umask(0)
+            os.umask(umask)
+            mode = 0o666 & ~umask
+        os.chmod(tmp, mode)
         os.replace(tmp, target)
     except LicromError:
         raise
