@@ -168,6 +168,23 @@ def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
     assert not link.is_symlink() and link.read_text() == "new" and real.read_text() == "real"
 
 
+def test_any_legal_name_can_be_written_and_longer_names_are_named(tmp_path):
+    for length in (231, 250, 255):
+        name = "t" * (length - 4) + ".npz"
+        path = _trajectory().save(tmp_path / name)
+        assert Trajectory.load(path).n_frames == 3 and _hidden(tmp_path) == []
+        path.unlink()
+    long = tmp_path / ("t" * 300 + ".npz")
+    with pytest.raises(OutputError, match=r"cannot write '.*tttt\.npz': its name is 304 bytes long, over the "
+                                          r"file system's limit of 255 bytes") as info:
+        _trajectory().save(long)
+    assert info.value.errno == errno.ENAMETOOLONG and list(tmp_path.iterdir()) == []
+    with pytest.raises(OutputError, match="over the file system's limit of 255 bytes"):
+        _trajectory().save(tmp_path / ("d" * 300) / "t.npz")
+    with pytest.raises(FileFormatError, match=r"'.*tttt\.npz': its name is 304 bytes long, over the file system's limit"):
+        Trajectory.load(long)
+
+
 # --- reads: sizes and types checked before allocating --------------------------------------
 def _npz_with_member(path, name, header_bytes, body):
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:

@@ -3,7 +3,7 @@ import warnings
 import meshio
 import numpy as np
 import pytest
-from licrom import FileFormatError, Mesh, MeshError, ShapeError, meshes
+from licrom import FileFormatError, Mesh, MeshError, OutputError, ShapeError, meshes
 
 
 def test_unit_tet_geometry(unit_tet):
@@ -139,3 +139,14 @@ def test_msh_is_written_in_gmsh_format(tmp_path):
     m.save(tmp_path / "m.msh")
     assert (tmp_path / "m.msh").read_bytes().startswith(b"$MeshFormat")  # Gmsh, not ANSYS (meshio's first .msh match)
     assert Mesh.load(tmp_path / "m.msh").same_as(m)
+
+
+def test_names_over_the_file_system_limit_are_named(tmp_path):
+    long = tmp_path / ("m" * 300 + ".msh")
+    with pytest.raises(FileFormatError, match="its name is 304 bytes long, over the file system's limit of 255 bytes"):
+        Mesh.load(long)
+    with pytest.raises(OutputError, match="its name is 304 bytes long, over the file system's limit of 255 bytes"):
+        meshes.box(0.1, 2).save(long)
+    legal = tmp_path / ("m" * 251 + ".msh")
+    meshes.box(0.1, 2).save(legal)
+    assert Mesh.load(legal).n_vertices == meshes.box(0.1, 2).n_vertices

@@ -140,3 +140,10 @@ def test_a_huge_rotation_vector_is_refused_with_the_accepted_length():
             InitialState(rotation=rotation)
     turns = InitialState(rotation=(0, 0, 1000 * 2 * np.pi))  # many whole turns: still the identity
     np.testing.assert_allclose(turns.rotation_matrix(), np.eye(3), atol=1e-9)
+
+
+def test_scene_file_names_over_the_file_system_limit_are_named(tmp_path):
+    from licrom.scene_file import load_scene
+
+    with pytest.raises(FileFormatError, match="its name is 305 bytes long, over the file system's limit of 255 bytes"):
+        load_scene(tmp_path / ("s" * 300 + ".toml"))

@@ -1,7 +1,9 @@
 """File helpers shared by every format licrom writes: atomic writes and checked reads.
 
 Every write goes to a hidden temporary file beside its destination (named
-``.<name>.licrom-tmp-<pid>-<random><suffix>``, a pattern only this module creates) and
+``.<name>.licrom-tmp-<pid>-<random><suffix>``, or ``.licrom-tmp-<pid>-<random><suffix>``
+where a long ``<name>`` would not fit the file system's limit on names; patterns only this
+module creates) and
 is moved onto the destination when complete. A process killed mid-write leaves that
 temporary file behind; the next write of any licrom process into the same folder removes
 the ones older than itself whose writing process is gone.
@@ -30,10 +32,15 @@ import numpy as np
 
 from .errors import FileFormatError, LicromError, OutputError
 
-__all__ = ["atomic_path", "check_version", "load_npz", "make_dir", "output_error", "remove_stale_temporaries", "save_npz"]
+__all__ = ["atomic_path", "check_version", "load_npz", "make_dir", "name_too_long", "output_error", "remove_stale_temporaries", "save_npz"]
 
 _TMP_TAG = ".licrom-tmp-"
-_TMP_NAME = re.compile(r"^\..*" + re.escape(_TMP_TAG) + r"(\d+)-")
+_TMP_NAME = re.compile(r"^\.(?:.*\.)?" + re.escape(_TMP_TAG[1:]) + r"(\d+)-")
+# The longest name most file systems allow (bytes), when the folder's own limit cannot be read.
+_NAME_MAX = 255
+_PATH_MAX = 4096
+# A temporary file keeps its destination's suffix up to this length (writers that pick the format by it).
+_MAX_TMP_SUFFIX = 32
 # Temporary files created before this moment belong to an earlier process.
 _PROCESS_START = time.time()
 _SWEPT: set[Path] = set()
@@ -53,6 +60,9 @@ def output_error(path: str | os.PathLike, exc: OSError) -> OutputError:
         why = "it is a directory (give a file path)"
     elif code in (errno.ENOTDIR, errno.EEXIST):
         why = "a part of the path is a file, not a folder"
+    elif code == errno.ENAMETOOLONG:
+        why = (f"a name in the path is over the file system's limit of {_NAME_MAX} bytes per name "
+               f"({_PATH_MAX} per path): choose a shorter name")
     else:
         why = exc.strerror or str(exc)
     return OutputError(f"cannot write '{path}': {why}", errno=code)
@@ -105,6 +115,27 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     return removed
 
 
+def _name_max(folder: Path) -> int:
+    """The longest file name (bytes) the file system of ``folder`` allows."""
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return _NAME_MAX
+
+
+def name_too_long(p: Path) -> str | None:
+    """Why ``p`` is too long for the file system (a name in it, or the whole path), naming the limit; else None."""
+    for part in p.parts:
+        n = len(os.fsencode(part))
+        if n > _NAME_MAX:
+            what = "its name" if part == p.name else f"the folder name '{part[:40]}...' in it"
+            return f"{what} is {n} bytes long, over the file system's limit of {_NAME_MAX} bytes per name (choose a shorter name)"
+    n = len(os.fsencode(os.path.abspath(p)))
+    if n >= _PATH_MAX:
+        return f"the path is {n} bytes long, over the file system's limit of {_PATH_MAX} bytes per path (choose a shorter path)"
+    return None
+
+
 _NOT_REGULAR = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
                 (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
 
@@ -118,10 +149,8 @@ def _existing_mode(target: Path) -> int | None:
     """
     try:
         st = os.lstat(target)
-    except FileNotFoundError:
-        return None
-    except OSError as exc:
-        raise output_error(target, exc) from exc
+    except OSError:
+        return None  # absent, or its folder is not one: creating the folder names the problem
     if stat.S_ISLNK(st.st_mode):
         if target.is_dir():
             raise OutputError(f"cannot write '{target}': it is a directory (give a file path)", errno=errno.EISDIR)
@@ -151,14 +180,23 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
             or writing failed for lack of space or permission (any ``OSError`` of the write).
     """
     target = Path(path)
+    too_long = name_too_long(target)
+    if too_long:
+        raise OutputError(f"cannot write '{target}': {too_long}", errno=errno.ENAMETOOLONG)
     mode = _existing_mode(target)
     make_dir(target.parent)
     folder = target.parent.resolve()
     if folder not in _SWEPT:
         remove_stale_temporaries(folder)
         _SWEPT.add(folder)
+    suffix = suffix or target.suffix
+    if len(os.fsencode(suffix)) > _MAX_TMP_SUFFIX:
+        suffix = ""
+    prefix = f".{target.name}{_TMP_TAG}{os.getpid()}-"
+    if len(os.fsencode(prefix + suffix)) + 8 > _name_max(target.parent):  # mkstemp adds 8 random characters
+        prefix = f"{_TMP_TAG}{os.getpid()}-"  # a long name: a short temporary one, so any legal name works
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}{_TMP_TAG}{os.getpid()}-", suffix=suffix or target.suffix, dir=target.parent)
+        fd, tmp_name = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=target.parent)
         os.close(fd)
     except OSError as exc:
         raise output_error(target, exc) from exc
@@ -231,6 +269,9 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
             licrom, or holds a different ``kind`` of data.
     """
     p = Path(path)
+    too_long = name_too_long(p)
+    if too_long:
+        raise FileFormatError(f"cannot read {kind} file '{p}': {too_long}")
     if not p.is_file():
         raise FileFormatError(f"{kind} file not found: '{p}'")
     try:

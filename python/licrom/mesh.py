@@ -305,7 +305,12 @@ class Mesh:
         """
         import meshio
 
+        from ._io import name_too_long
+
         p = Path(path)
+        too_long = name_too_long(p)
+        if too_long:
+            raise FileFormatError(f"cannot read mesh file '{p}': {too_long}")
         if not p.is_file():
             raise FileFormatError(f"mesh file not found: '{p}'")
         chatter = io.StringIO()

@@ -58,6 +58,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ._io import name_too_long
 from .errors import ConfigError, FileFormatError
 from .mesh import Mesh
 from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
@@ -470,6 +471,9 @@ def load_scene(source: str | Path) -> SceneFile:
         ConfigError: a value is missing, unknown or out of range; the message names the key.
     """
     p = Path(source)
+    too_long = name_too_long(p)
+    if too_long:
+        raise FileFormatError(f"cannot read scene file '{p}': {too_long}")
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
             raise FileFormatError(f"scene file not found: '{p}'")
