@@ -225,3 +225,15 @@ def test_a_step_whose_contact_model_stalls_goes_on_with_newton():
     sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
     iterations = [sim.step()[0] for _ in range(45)]
     assert max(iterations) < 20
+
+
+def test_scene_dicts_and_non_real_states_are_named():
+    mesh = meshes.box(0.1, 2)
+    with pytest.raises(ConfigError, match=r"scene must be a licrom\.Scene, got dict"):
+        BodyFrameSim(BodyFrameBasis(mesh), mesh, scene={"dt": 0.01})
+    sim = BodyFrameSim(BodyFrameBasis(mesh), mesh, Scene(planes=()))
+    x = mesh.vertices.copy()
+    with pytest.raises(ShapeError, match=r"positions must be a real \(\d+, 3\) array of finite numbers"):
+        sim.set_state(positions=x.astype(str))
+    with pytest.raises(ShapeError, match=r"velocities must be a real \(\d+, 3\) array of finite numbers"):
+        sim.set_state(velocities=np.zeros((mesh.n_vertices, 3)) + 1j)

@@ -150,3 +150,12 @@ def test_names_over_the_file_system_limit_are_named(tmp_path):
     legal = tmp_path / ("m" * 251 + ".msh")
     meshes.box(0.1, 2).save(legal)
     assert Mesh.load(legal).n_vertices == meshes.box(0.1, 2).n_vertices
+
+
+@pytest.mark.parametrize("density", [-1, 0, float("nan"), float("inf"), True, "1000", 1j])
+def test_vertex_masses_refuse_a_density_out_of_range(density):
+    from licrom import ConfigError
+
+    with pytest.raises(ConfigError, match=r"density must be a finite number > 0 \(kg/m\^3\), got"):
+        meshes.box(0.1, 1).vertex_masses(density)
+    assert meshes.box(0.1, 1).vertex_masses(np.float32(2.0)).sum() == pytest.approx(2.0 * 1e-3)

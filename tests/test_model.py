@@ -425,3 +425,25 @@ def test_load_refuses_non_finite_or_misshapen_members(mesh, tmp_path, member, ed
     np.savez(tmp_path / "bad.npz", **arrays, header_json=np.array(json.dumps(header)))
     with pytest.raises(FileFormatError, match=message):
         Model.load(tmp_path / "bad.npz")
+
+
+def test_bad_devices_and_non_finite_inputs_are_named(mesh):
+    model = _random_model(mesh, r=2)
+    with pytest.raises(ConfigError, match=r"device must be 'cpu', 'cuda', 'cuda:N' .* got 'bogus'"):
+        model.to("bogus")
+    with pytest.raises(ConfigError, match="device must be"):
+        model.to(3.5)
+    u = np.zeros((mesh.n_vertices, 3))
+    q = model.project(u)  # the model still works on its device
+    u[0, 0] = np.nan
+    with pytest.raises(ShapeError, match="displacements hold NaN or inf"):
+        model.project(u)
+    with pytest.raises(ShapeError, match="displacements must be an array of real numbers"):
+        model.project(np.full((mesh.n_vertices, 3), "x"))
+    with pytest.raises(ShapeError, match="q holds NaN or inf"):
+        model.reconstruct(np.full_like(q, np.nan))
+    with pytest.raises(ShapeError, match="q holds NaN or inf"):
+        model.reconstruct(np.full((2, q.size), np.inf))
+    with pytest.raises(ShapeError, match="q must be an array of real numbers"):
+        model.reconstruct(q + 1j)
+    assert model.reconstruct(q).shape == (mesh.n_vertices, 3)

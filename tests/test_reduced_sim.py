@@ -412,3 +412,29 @@ def test_step_many_of_a_simulation_busy_in_another_thread_is_a_named_error():
         stop.set()
         thread.join()
     assert raised and "sims[1] is busy in another thread" in str(raised[0])
+
+
+def test_scene_dicts_huge_counts_and_non_real_states_are_named():
+    mesh = meshes.box(0.1, 2)
+    with pytest.raises(ConfigError, match=r"scene must be a licrom\.Scene, got dict"):
+        ReducedSim(AffineBasis(), mesh, scene={"dt": 0.01})
+    sim = ReducedSim(AffineBasis(), mesh, Scene(planes=()))
+    with pytest.raises(ConfigError, match=r"threads must be None \(every core\) or an integer in 1\.\.9223372036854775807"):
+        ReducedSim.step_many([sim], threads=2**70)
+    with pytest.raises(ConfigError, match=r"steps must be an integer in 0\.\.\d+ for 1 simulation\(s\), got 1180591620717411303424"):
+        ReducedSim.step_many([sim], steps=2**70)
+    with pytest.raises(ConfigError, match=r"steps must be an integer in 0\.\.\d+ for 1 simulation\(s\)"):
+        ReducedSim.step_many([sim], steps=2**62)
+    assert ReducedSim.step_many([sim], steps=2, threads=10**6)[0].shape == (1, 2)
+    before = sim.q
+    x = mesh.vertices.copy()
+    zero = np.zeros_like(x)
+    for positions, velocities in ((x.astype(str), zero.astype(str)), (x + 1j, zero + 1j), ("x", "v")):
+        with pytest.raises(ShapeError, match=r"positions must be a real \(\d+, 3\) array of finite numbers"):
+            sim.set_state(positions=positions)
+        with pytest.raises(ShapeError, match=r"velocities must be a real \(\d+, 3\) array of finite numbers"):
+            sim.set_state(velocities=velocities)
+    np.testing.assert_array_equal(sim.q, before)
+    full = FullSim(mesh, Scene(planes=()), device="cpu")
+    with pytest.raises(ShapeError, match=r"positions must be a real \(\d+, 3\) array of finite numbers"):
+        full.set_state(positions=x + 1j)

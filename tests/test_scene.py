@@ -147,3 +147,10 @@ def test_scene_file_names_over_the_file_system_limit_are_named(tmp_path):
 
     with pytest.raises(FileFormatError, match="its name is 305 bytes long, over the file system's limit of 255 bytes"):
         load_scene(tmp_path / ("s" * 300 + ".toml"))
+
+
+@pytest.mark.parametrize("planes", [Plane(), 3, "ground"])
+def test_planes_that_are_not_a_sequence_are_named(planes):
+    with pytest.raises(ConfigError, match=r"Scene.planes must be a sequence of Plane objects \(planes=\(Plane\(...\),\) for one"):
+        Scene(planes=planes)
+    assert Scene(planes=[Plane()]).planes == (Plane(),) and Scene(planes=()).planes == ()

@@ -27,7 +27,7 @@ from .mesh import Mesh
 from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
-from .stepping import record_run
+from .stepping import check_field, record_run
 from .trajectory import Trajectory
 from .validity import check_start, cubature_min_det, penetration, warn_frames
 
@@ -189,6 +189,8 @@ class BodyFrameSim:
             scene = getattr(basis, "default_scene", None) or getattr(getattr(basis, "learned", None), "default_scene", None)
             if scene is None:
                 raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
+        if not isinstance(scene, Scene):
+            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
         self.basis, self.mesh, self.scene = basis, mesh, scene
         self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
         k = int(basis.n_modes)
@@ -298,12 +300,7 @@ class BodyFrameSim:
         return (self.positions - self._previous_positions()) / self.scene.dt
 
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
-        arr = np.asarray(a, dtype=np.float64)
-        if arr.shape != (self.mesh.n_vertices, 3):
-            raise ShapeError(f"{name} must have shape ({self.mesh.n_vertices}, 3), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ShapeError(f"{name} hold NaN or inf")
-        return arr
+        return check_field(name, a, self.mesh.n_vertices)
 
     def _project(self, field: np.ndarray) -> np.ndarray:
         return np.zeros(0) if self._projector is None else self._projector.project(field)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -11,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FileFormatError, MeshError, ShapeError
+from .errors import ConfigError, FileFormatError, MeshError, ShapeError
 
 __all__ = ["Mesh", "MeshQuality"]
 
@@ -220,7 +221,14 @@ class Mesh:
         return float(np.linalg.norm(hi - lo))
 
     def vertex_masses(self, density: float) -> np.ndarray:
-        """(n,) lumped masses ``m_v = sum_t rho V_t / 4`` in kg for a density in kg/m^3."""
+        """(n,) lumped masses ``m_v = sum_t rho V_t / 4`` in kg for a density in kg/m^3.
+
+        Raises:
+            ConfigError: ``density`` is not a finite real number > 0.
+        """
+        if isinstance(density, bool) or not isinstance(density, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(density) or density <= 0:
+            raise ConfigError(f"density must be a finite number > 0 (kg/m^3), got {density!r}")
         m = np.zeros(self.n_vertices)
         np.add.at(m, self._tets.ravel(), np.repeat(density * self._volumes / 4.0, 4))
         return m

@@ -17,6 +17,7 @@ either kind in one call, spread over Rust threads without the GIL.
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -27,11 +28,11 @@ from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, contact_start, warn_estimate
-from .errors import ConfigError, LicromWarning, ShapeError, SolverError
+from .errors import ConfigError, LicromWarning, SolverError
 from .mesh import Mesh
 from .rigid import body_frame_displacements
 from .scene import Scene
-from .stepping import check_run_arguments, record_run
+from .stepping import check_field, check_run_arguments, record_run
 from .trajectory import Trajectory
 from .validity import check_start, cubature_min_det, penetration, warn_frames
 
@@ -39,6 +40,21 @@ __all__ = ["CUBATURES", "SOLVERS", "ReducedSim", "step_many"]
 
 SOLVERS = ("newton", "prefactored")
 _DEFAULT_CUBATURE_POINTS = 1000
+
+
+# Python ints are at most this in the native core (a signed 64-bit integer).
+_MAX_INT = 2**63 - 1
+# Bytes step_many holds per step and simulation for its results (native record, Python objects, arrays), an upper estimate.
+_STEP_RESULT_BYTES = 160
+
+
+def _max_batch_steps(n_sims: int) -> int:
+    """The most steps one step_many call can record for ``n_sims`` simulations within this machine's memory."""
+    try:
+        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        memory = 2**40
+    return min(_MAX_INT, memory // (_STEP_RESULT_BYTES * max(n_sims, 1)))
 
 
 def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -53,8 +69,8 @@ def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -
 
     Args:
         sims: the simulations, each at most once.
-        steps: steps of each simulation, an integer >= 0.
-        threads: threads to spread the simulations over (default: every core).
+        steps: steps of each simulation, an integer >= 0 whose per-step results fit in memory.
+        threads: threads to spread the simulations over, 1..2**63 - 1 (default: every core).
 
     Returns:
         ``(iterations, residuals, converged)``, each of shape ``(len(sims), steps)``.
@@ -66,12 +82,18 @@ def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -
             names it (``sims[i]``) and its step.
     """
     steps, _ = check_run_arguments(steps, 1)
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1):
-        raise ConfigError(f"threads must be None (every core) or an integer >= 1, got {threads!r}")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
+                                or not 1 <= threads <= _MAX_INT):
+        raise ConfigError(f"threads must be None (every core) or an integer in 1..{_MAX_INT} (2**63 - 1), got {threads!r}")
     try:
         sims = list(sims)
     except TypeError:
         raise ConfigError(f"sims must be a sequence of ReducedSim or BodyFrameSim objects, got {type(sims).__name__}") from None
+    most = _max_batch_steps(len(sims))
+    if steps > most:
+        raise ConfigError(f"steps must be an integer in 0..{most} for {len(sims)} simulation(s), got {steps!r}: the "
+                          f"per-step results ({_STEP_RESULT_BYTES} bytes a step and simulation) must fit in this "
+                          f"machine's memory; step in chunks")
     for i, sim in enumerate(sims):
         if not isinstance(getattr(sim, "_core", None), (_core.ReducedCore, _core.BodyFrameCore)):
             raise ConfigError(f"sims[{i}] must be a ReducedSim or BodyFrameSim, got {type(sim).__name__}")
@@ -157,6 +179,8 @@ class ReducedSim:
             scene = getattr(basis, "default_scene", None)
             if scene is None:
                 raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
+        if not isinstance(scene, Scene):
+            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
         if solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
         check_basis(basis)
@@ -252,12 +276,7 @@ class ReducedSim:
             check_start(self.positions, self.scene.plane_array(), self.mesh.size, "the reduced simulation")
 
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
-        arr = np.asarray(a, dtype=np.float64)
-        if arr.shape != (self.mesh.n_vertices, 3):
-            raise ShapeError(f"{name} must have shape ({self.mesh.n_vertices}, 3), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ShapeError(f"{name} hold NaN or inf")
-        return arr
+        return check_field(name, a, self.mesh.n_vertices)
 
     # --- stepping ----------------------------------------------------------------------
     def step(self) -> tuple[int, float]:

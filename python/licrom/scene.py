@@ -304,6 +304,9 @@ class Scene:
         for name, cls in (("material", Material), ("contact", ContactParams), ("solver", SolverParams), ("initial", InitialState)):
             if not isinstance(getattr(self, name), cls):
                 raise ConfigError(f"Scene.{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
+        if isinstance(self.planes, (Plane, str, bytes)) or not hasattr(self.planes, "__iter__"):
+            raise ConfigError(f"Scene.planes must be a sequence of Plane objects (planes=(Plane(...),) for one, () for "
+                              f"none), got a {type(self.planes).__name__}")
         planes = tuple(self.planes)
         for p in planes:
             if not isinstance(p, Plane):

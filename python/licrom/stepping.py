@@ -17,12 +17,33 @@ from typing import Any
 import numpy as np
 
 from ._repr import concise_repr
-from .errors import ConfigError
+from .errors import ConfigError, ShapeError
 
 __all__ = ["RunRecord", "check_run_arguments", "record_run"]
 
 StepOutcome = tuple[int, float, bool]
 """``(iterations, residual in m/s, converged)`` of one step."""
+
+
+def check_field(name: str, a: Any, n: int) -> np.ndarray:
+    """``a`` as a contiguous real (n, 3) float64 array of finite numbers (``set_state``'s positions/velocities).
+
+    Raises:
+        ShapeError: not an array of real numbers (strings, complex values, objects), the wrong shape, or NaN/inf.
+    """
+    what = f"{name} must be a real ({n}, 3) array of finite numbers"
+    try:
+        raw = np.asarray(a)
+        if raw.dtype.kind not in "biufO":
+            raise TypeError(f"dtype {raw.dtype}")
+        arr = raw.astype(np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{what}, got {type(a).__name__} ({exc})") from None
+    if arr.shape != (n, 3):
+        raise ShapeError(f"{name} must have shape ({n}, 3), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ShapeError(f"{name} hold NaN or inf")
+    return np.ascontiguousarray(arr)
 
 
 def check_run_arguments(steps: Any, record_every: Any) -> tuple[int, int]:

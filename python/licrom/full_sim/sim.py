@@ -15,7 +15,7 @@ import warp as wp
 from ..errors import ConfigError, ShapeError, SolverError
 from ..mesh import Mesh
 from ..scene import Scene
-from ..stepping import record_run
+from ..stepping import check_field, record_run
 from ..trajectory import Trajectory
 from ..validity import check_start, penetration, tet_determinants, warn_frames
 from . import contact, elastic, inertia, pcg
@@ -237,15 +237,7 @@ class FullSim:
         self._have_prev = False
 
     def _check_field(self, name: str, a: Any) -> np.ndarray:
-        try:
-            arr = np.asarray(a, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ShapeError(f"{name} must be a real (n, 3) array") from None
-        if arr.shape != (self._n, 3):
-            raise ShapeError(f"{name} must have shape ({self._n}, 3), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ShapeError(f"{name} hold NaN or inf")
-        return np.ascontiguousarray(arr)
+        return check_field(name, a, self._n)
 
     # --- evaluation --------------------------------------------------------------------
     def _begin_step(self) -> None:

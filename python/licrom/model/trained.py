@@ -32,6 +32,17 @@ MODEL_FORMAT_VERSION = 3
 _READABLE_VERSIONS = (1, 2, 3)
 
 
+def _real_array(name: str, a: Any) -> np.ndarray:
+    """``a`` as a float64 array; ShapeError naming ``name`` for strings, complex values or objects."""
+    try:
+        raw = np.asarray(a)
+        if raw.dtype.kind not in "biufO":
+            raise TypeError(f"dtype {raw.dtype}")
+        return raw.astype(np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} must be an array of real numbers, got {type(a).__name__} ({exc})") from None
+
+
 def _as_points(points: Any, name: str = "points") -> np.ndarray:
     x = np.asarray(points, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 3:
@@ -152,9 +163,31 @@ class Model:
         self._dA = torch.tensor(AFFINE_JACOBIAN, dtype=torch.float64, device=dev)
 
     def to(self, device: str | torch.device) -> Model:
-        """Evaluate on ``device`` ("cpu", "cuda", ...) from now on; returns self."""
-        self._device = torch.device(device)
-        self._build_eval_net()
+        """Evaluate on ``device`` ("cpu", "cuda", ...) from now on; returns self.
+
+        Raises:
+            ConfigError: ``device`` is not a device name torch knows ("cpu", "cuda", "cuda:N", ...)
+                or a ``torch.device``, or names a CUDA device that is not there.
+        """
+        accepted = "'cpu', 'cuda', 'cuda:N' (N = 0, 1, ...) or a torch.device"
+        try:
+            dev = torch.device(device)
+        except (RuntimeError, TypeError, ValueError):
+            raise ConfigError(f"device must be {accepted}, got {device!r}") from None
+        if dev.type == "cuda":
+            count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+            if count == 0:
+                raise ConfigError(f"device {device!r} requested but no CUDA device is available here; accepted here: 'cpu'")
+            if dev.index is not None and dev.index >= count:
+                raise ConfigError(f"device {device!r} does not exist: {count} CUDA device(s) available (cuda:0..cuda:{count - 1})")
+        previous = self._device
+        self._device = dev
+        try:
+            self._build_eval_net()
+        except BaseException:
+            self._device = previous
+            self._build_eval_net()
+            raise
         return self
 
     # --- basic properties -----------------------------------------------------------
@@ -318,12 +351,14 @@ class Model:
         import scipy.linalg
 
         m, basis, masses, factor = self._vertex_system(mesh)
-        u = np.asarray(displacements, dtype=np.float64)
+        u = _real_array("displacements", displacements)
         single = u.ndim == 2
         if single:
             u = u[None]
         if u.ndim != 3 or u.shape[1:] != (m.n_vertices, 3):
             raise ShapeError(f"displacements must have shape (n, 3) or (f, n, 3) with n = {m.n_vertices}, got {np.shape(displacements)}")
+        if not np.isfinite(u).all():
+            raise ShapeError("displacements hold NaN or inf; project needs finite values")
         rhs = np.einsum("nic,n,fni->cf", basis, masses, u)
         q = scipy.linalg.cho_solve(factor, rhs).T
         return q[0] if single else q
@@ -331,9 +366,11 @@ class Model:
     def reconstruct(self, q: Any, mesh: Mesh | None = None) -> np.ndarray:
         """Vertex displacements ``B q`` (n, 3) or (f, n, 3) of the model mesh (or ``mesh``)."""
         _m, basis, _, _ = self._vertex_system(mesh)
-        qa = np.asarray(q, dtype=np.float64)
-        if qa.shape[-1] != self.n_modes or qa.ndim not in (1, 2):
+        qa = _real_array("q", q)
+        if qa.ndim not in (1, 2) or qa.shape[-1] != self.n_modes:
             raise ShapeError(f"q must have shape ({self.n_modes},) or (f, {self.n_modes}), got {qa.shape}")
+        if not np.isfinite(qa).all():
+            raise ShapeError("q holds NaN or inf; reconstruct needs finite reduced coordinates")
         return np.einsum("nic,...c->...ni", basis, qa)
 
     # --- encoder ------------------------------------------------------------------------
