@@ -111,3 +111,17 @@ def test_stepping_many_stops_a_diverging_simulation_even_when_recording_failures
     sims = [SIMULATORS[name](scene) for name in ("reduced", "body_frame")]
     with pytest.raises(SolverError, match=r"sims\[0\], at its step 1 of 2: .*non-finite"):
         step_many(sims, 2)
+
+
+def test_first_touch_is_the_first_frame_within_the_tolerance_of_a_plane():
+    from licrom.validity import first_touch
+
+    ground = np.array([[0.0, 0.0, 1.0, 0.0, 0.5]])  # z >= 0
+    heights = np.array([0.3, 0.1, 0.004, -0.01])  # one vertex falling through z = 0
+    frames = np.zeros((4, 2, 3))
+    frames[:, 0, 2] = heights
+    frames[:, 1, 2] = 1.0
+    assert first_touch(frames, ground, 0.005) == 2
+    assert first_touch(frames, ground, 0.2) == 1
+    assert first_touch(frames[:2], ground, 0.005) is None
+    assert first_touch(frames, np.zeros((0, 5)), 0.005) is None

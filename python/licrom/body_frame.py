@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
-from .error_estimate import ErrorMonitor, contact_start, warn_estimate
+from .error_estimate import ErrorMonitor, warn_estimate
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
@@ -29,7 +29,7 @@ from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import check_field, record_run
 from .trajectory import Trajectory
-from .validity import check_start, cubature_min_det, penetration, warn_frames
+from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames
 
 __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
 
@@ -375,7 +375,7 @@ class BodyFrameSim:
         depth = np.array([penetration(x, planes) for x in positions])
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation")
-        start = contact_start(positions, planes, self.mesh.size)
+        start = first_touch(positions, planes, CONTACT_TOLERANCE * self.mesh.size)
         estimate = monitor.estimate(record_every * np.arange(len(positions)), None if start is None else record_every * start)
         warn_estimate(estimate, "the body-frame simulation")
         return Trajectory(
@@ -409,8 +409,8 @@ class BodyFrameSim:
         on ``mesh``, else the naive scheme with as many points as this one, unless given).
         """
         basis = self.basis.on(mesh) if isinstance(self.basis, BodyFrameBasis) else self.basis
-        if cubature is None and _fitted_cubature(basis, mesh) is None:
-            cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
+        if cubature is None:
+            cubature = _fitted_cubature(basis, mesh) or Cubature.naive(mesh, max(self.cubature.count, 1))
         other = BodyFrameSim(basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, strain=self.strain)
         other._core.set_state(self.center, self.rotation, self.q, self.velocity, self.angular_velocity, self.qdot)
         other.time = self.time

@@ -26,6 +26,7 @@ from .rigid import body_frame_displacements, rigid_fit, rotation_angle
 from .scene import Scene
 from .training_data import relative_error
 from .trajectory import Trajectory
+from .validity import CONTACT_TOLERANCE, first_touch
 
 __all__ = [
     "Comparison",
@@ -44,8 +45,6 @@ __all__ = [
 # An object "slides" when its contact points slip further than this fraction of its size
 # over the second half of the run (after a drop's landing transient has passed).
 SLIDE_THRESHOLD = 0.01
-# A vertex "touches" a plane when its gap is below this fraction of the object's size.
-CONTACT_TOLERANCE = 0.005
 
 
 def _positions(traj: Trajectory) -> np.ndarray:
@@ -81,8 +80,7 @@ def first_contact_frame(traj: Trajectory, contact_tolerance: float | None = None
     object's size). None also when the scene has no planes.
     """
     tol = CONTACT_TOLERANCE * traj.mesh.size if contact_tolerance is None else contact_tolerance
-    touching = (plane_gaps(traj) < tol).any(axis=(1, 2))
-    return int(np.argmax(touching)) if touching.any() else None
+    return first_touch(_positions(traj), traj.scene.plane_array(), tol)
 
 
 def slip_distance(traj: Trajectory, contact_tolerance: float | None = None, start: int = 1) -> float:

@@ -46,12 +46,11 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from . import _core
-from .compare import CONTACT_TOLERANCE
 from .errors import AccuracyWarning, ConfigError
 from .mesh import Mesh
 from .scene import Scene
 
-__all__ = ["ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "SAMPLE_COUNT", "ErrorMonitor", "contact_start", "sample_vertices", "warn_estimate"]
+__all__ = ["ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "SAMPLE_COUNT", "ErrorMonitor", "sample_vertices", "warn_estimate"]
 
 SAMPLE_COUNT = 48
 """Vertices where the residual is evaluated."""
@@ -246,15 +245,6 @@ class ErrorMonitor:
         ok = (last >= 0) & (den[last] > 0)
         out[ok] = ERROR_SCALE * np.sqrt(num[last[ok]] / den[last[ok]])
         return out
-
-
-def contact_start(positions: np.ndarray, planes: np.ndarray, size: float) -> int | None:
-    """First of (f, n, 3) frame positions where a vertex touches one of the (P, 5) planes (gap
-    below ``licrom.compare.CONTACT_TOLERANCE`` of the object's ``size``); None if none does."""
-    if not len(planes):
-        return None
-    touching = (np.einsum("fni,pi->fnp", positions, planes[:, :3]) + planes[:, 3] < CONTACT_TOLERANCE * size).any(axis=(1, 2))
-    return int(np.argmax(touching)) if touching.any() else None
 
 
 def warn_estimate(estimate: np.ndarray, what: str) -> None:

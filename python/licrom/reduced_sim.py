@@ -27,14 +27,14 @@ import numpy as np
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
 from .cubature import ContactPoints, Cubature
-from .error_estimate import ErrorMonitor, contact_start, warn_estimate
+from .error_estimate import ErrorMonitor, warn_estimate
 from .errors import ConfigError, LicromWarning, SolverError
 from .mesh import Mesh
 from .rigid import body_frame_displacements
 from .scene import Scene
 from .stepping import check_field, check_run_arguments, record_run
 from .trajectory import Trajectory
-from .validity import check_start, cubature_min_det, penetration, warn_frames
+from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames
 
 __all__ = ["CUBATURES", "SOLVERS", "ReducedSim", "step_many"]
 
@@ -330,7 +330,7 @@ class ReducedSim:
         depth = np.array([penetration(self.mesh.vertices + d, planes) for d in displacements])
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation")
-        start = contact_start(self.mesh.vertices + displacements, planes, self.mesh.size)
+        start = first_touch(self.mesh.vertices + displacements, planes, CONTACT_TOLERANCE * self.mesh.size)
         estimate = monitor.estimate(record_every * np.arange(len(qs)), None if start is None else record_every * start)
         warn_estimate(estimate, "the reduced simulation")
         return Trajectory(
@@ -363,8 +363,8 @@ class ReducedSim:
         new simulation samples the basis on ``mesh`` (cubature: the model's fitted one refitted
         on ``mesh``, else the naive scheme with as many points as this one, unless given).
         """
-        if cubature is None and _fitted_cubature(self.basis, mesh) is None:
-            cubature = Cubature.naive(mesh, max(self.cubature.count, 1))
+        if cubature is None:
+            cubature = _fitted_cubature(self.basis, mesh) or Cubature.naive(mesh, max(self.cubature.count, 1))
         other = ReducedSim(self.basis, mesh, self.scene, cubature=cubature, contact_points=contact_points, solver=self.solver, strain=self.strain)
         other._core.set_state(self.q, self.qdot)
         other.time = self.time

@@ -74,6 +74,19 @@ def tet_determinants(rest_shape_inverses: np.ndarray, tets: np.ndarray, position
     return determinants((ds @ rest_shape_inverses).reshape(-1, 9))
 
 
+CONTACT_TOLERANCE = 0.005
+"""A vertex touches a plane when its gap is below this fraction of the object's size."""
+
+
+def first_touch(positions: np.ndarray, planes: np.ndarray, tolerance: float) -> int | None:
+    """First of (f, n, 3) frame positions where a vertex is within ``tolerance`` (m) of one of the
+    (P, 5) ``planes``; None when none is, or there are no planes."""
+    if not len(planes):
+        return None
+    touching = (np.einsum("fni,pi->fnp", positions, planes[:, :3]) + planes[:, 3] < tolerance).any(axis=(1, 2))
+    return int(np.argmax(touching)) if touching.any() else None
+
+
 def penetration(points: np.ndarray, planes: np.ndarray) -> float:
     """Deepest penetration (m, >= 0) of (c, 3) ``points`` into the (P, 5) ``planes``
     ``[nx, ny, nz, offset, friction]``; zero without planes or points."""
