@@ -53,21 +53,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import licrom
 import numpy as np
-
-try:
-    import licrom
-except ImportError:  # run from a source checkout without installing
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
-    import licrom
-
 from licrom.compare import penetration_depths
 
 __all__ = [

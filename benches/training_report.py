@@ -34,14 +34,11 @@ import json
 import math
 import multiprocessing as mp
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
 
 # ----------------------------------------------------------------------------------------
