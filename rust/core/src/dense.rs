@@ -11,32 +11,44 @@ use crate::real::LANES;
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
 /// Products `src[r] . x` of the `R` rows of `src` (`R x n`, row-major) with `x`.
-///
-/// The R dot products run interleaved: one dot alone is a chain of dependent
-/// additions, R of them keep the multiply-add units busy.
 #[inline(always)]
 pub fn rows_dot<M: Madd, const R: usize>(src: &[f64], x: &[f64]) -> [f64; R] {
-    let n = x.len();
-    debug_assert!(src.len() == R * n);
+    rows_dot_many::<M, R, 1>(src, [x])[0]
+}
+
+/// Products `src[r] . xs[v]` of the `R` rows of `src` (`R x n`, row-major)
+/// with each of the `V` vectors `xs`, in one pass over `src`.
+///
+/// The R x V dot products run interleaved: one dot alone is a chain of
+/// dependent additions, R of them keep the multiply-add units busy; V of them
+/// read `src` (the memory traffic) once.
+#[inline(always)]
+pub fn rows_dot_many<M: Madd, const R: usize, const V: usize>(src: &[f64], xs: [&[f64]; V]) -> [[f64; R]; V] {
+    let n = src.len() / R;
+    debug_assert!(src.len() == R * n && xs.iter().all(|x| x.len() == n));
     let blocks = n / LANES;
-    let mut acc = [[0.0; LANES]; R];
+    let mut acc = [[[0.0; LANES]; R]; V];
     for b in 0..blocks {
         let c0 = b * LANES;
-        let xb = &x[c0..c0 + LANES];
-        for (r, a) in acc.iter_mut().enumerate() {
+        for r in 0..R {
             let row = &src[r * n + c0..r * n + c0 + LANES];
-            for l in 0..LANES {
-                a[l] = M::madd(row[l], xb[l], a[l]);
+            for (a, x) in acc.iter_mut().zip(&xs) {
+                let xb = &x[c0..c0 + LANES];
+                for l in 0..LANES {
+                    a[r][l] = M::madd(row[l], xb[l], a[r][l]);
+                }
             }
         }
     }
-    let mut out = [0.0; R];
-    for (r, (o, a)) in out.iter_mut().zip(&acc).enumerate() {
-        let mut s = lane_sum(a);
-        for c in blocks * LANES..n {
-            s = M::madd(src[r * n + c], x[c], s);
+    let mut out = [[0.0; R]; V];
+    for ((o, a), x) in out.iter_mut().zip(&acc).zip(&xs) {
+        for (r, (o, a)) in o.iter_mut().zip(a).enumerate() {
+            let mut s = lane_sum(a);
+            for c in blocks * LANES..n {
+                s = M::madd(src[r * n + c], x[c], s);
+            }
+            *o = s;
         }
-        *o = s;
     }
     out
 }

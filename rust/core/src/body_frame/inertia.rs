@@ -11,9 +11,9 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::rotation::axial;
 use super::Pose;
-use crate::dense::rows_dot;
+use crate::dense::rows_dot_many;
 use crate::error::{check_finite, check_positive, LicromError, Result};
-use crate::simd::{dispatch, Madd, Separate, WithMadd};
+use crate::simd::{dispatch, Madd, WithMadd};
 
 /// Mass moments of the body over all its vertices, fixed for a mesh and basis.
 #[derive(Debug, Clone)]
@@ -109,8 +109,15 @@ impl MassMoments {
     /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk`.
     #[inline(always)]
     fn y_mode<M: Madd>(&self, q: &[f64], k: usize) -> Matrix3<f64> {
+        self.y_modes::<M, 1>([q], k)[0]
+    }
+
+    /// `Y_k` at each of the V coordinate vectors `qs`, in one pass over `Q_lk`.
+    #[inline(always)]
+    fn y_modes<M: Madd, const V: usize>(&self, qs: [&[f64]; V], k: usize) -> [Matrix3<f64>; V] {
         let n = self.n_modes();
-        self.p[k].transpose() + Matrix3::from_row_slice(&rows_dot::<M, 9>(&self.q_by_mode[9 * n * k..9 * n * (k + 1)], q))
+        let dots = rows_dot_many::<M, 9, V>(&self.q_by_mode[9 * n * k..9 * n * (k + 1)], qs);
+        dots.map(|d| self.p[k].transpose() + Matrix3::from_row_slice(&d))
     }
 }
 
@@ -131,11 +138,18 @@ impl InertiaTarget {
 
     /// Fills the target of a step from pose `cur` (time t) and `prev` (t - 1).
     pub fn begin(&mut self, m: &MassMoments, cur: &Pose, prev: &Pose, gravity: &Vector3<f64>, h: f64) {
+        dispatch(BeginKernel { target: self, m, cur, prev, gravity, h })
+    }
+
+    /// [`Self::begin`]: `O(9 n^2)`, both poses' `Y_k` in one pass over the `Q_lk`.
+    #[inline(always)]
+    fn begin_impl<M: Madd>(&mut self, m: &MassMoments, cur: &Pose, prev: &Pose, gravity: &Vector3<f64>, h: f64) {
         self.ct = 2.0 * cur.center - prev.center + gravity * (h * h);
         let (r1, r0) = (cur.rotation * 2.0, prev.rotation);
         self.b0 = r1 * m.y_xbar(&cur.q) - r0 * m.y_xbar(&prev.q);
         for (k, b) in self.bk.iter_mut().enumerate() {
-            *b = r1 * m.y_mode::<Separate>(&cur.q, k) - r0 * m.y_mode::<Separate>(&prev.q, k);
+            let [y1, y0] = m.y_modes::<M, 2>([&cur.q, &prev.q], k);
+            *b = r1 * y1 - r0 * y0;
         }
     }
 
@@ -234,6 +248,23 @@ fn gauss_newton_impl<M: Madd>(m: &MassMoments, pose: &Pose, scale: f64, hess: &m
     }
     let ww = r * (Matrix3::identity() * c.trace() - c) * r.transpose() * scale;
     add_rigid(hess, big, m.total * scale, &ww);
+}
+
+struct BeginKernel<'a> {
+    target: &'a mut InertiaTarget,
+    m: &'a MassMoments,
+    cur: &'a Pose,
+    prev: &'a Pose,
+    gravity: &'a Vector3<f64>,
+    h: f64,
+}
+
+impl WithMadd for BeginKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        self.target.begin_impl::<M>(self.m, self.cur, self.prev, self.gravity, self.h)
+    }
 }
 
 struct GaussNewtonKernel<'a> {
