@@ -142,6 +142,10 @@ class ReducedCore:
                 ``iterations`` and ``residual``) or non-finite values; the state is
                 left unchanged.
         """
+    def validity(self) -> tuple[float, float]:
+        """``(min det F, depth)`` of the last step at its accepted iterate: the smallest
+        ``det F`` at the cubature points (inf without any) and the deepest penetration of a
+        contact point into a plane in m (>= 0); ``(inf, 0)`` before any step."""
     def stats(self) -> dict[str, int]:
         """Work counters since construction or :meth:`reset_stats`: ``steps``,
         ``iterations`` (Newton directions, as ``step`` reports them),
@@ -271,6 +275,10 @@ class BodyFrameCore:
                 ``iterations`` and ``residual``) or non-finite values; the state is
                 left unchanged.
         """
+    def validity(self) -> tuple[float, float]:
+        """``(min det F, depth)`` of the last step at its accepted iterate: the smallest
+        ``det F`` at the cubature points (inf without any) and the deepest penetration of a
+        contact point into a plane in m (>= 0); ``(inf, 0)`` before any step."""
     def stats(self) -> dict[str, int]:
         """Work counters since construction or :meth:`reset_stats`, as
         :meth:`ReducedCore.stats` (the same solver machinery: contact model, stick

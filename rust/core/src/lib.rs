@@ -40,6 +40,7 @@ mod simd;
 pub mod solver;
 pub mod svd3;
 pub mod synthetic;
+pub mod validity;
 
 #[cfg(test)]
 mod testing;

@@ -169,6 +169,14 @@ impl BodyFrameCore {
         Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
     }
 
+    /// `(min det F, depth)` of the last step: the smallest `det F` at the
+    /// cubature points (inf without any) and the deepest penetration of a
+    /// contact point into a plane (m, >= 0), at its accepted iterate.
+    fn validity(&self, py: Python<'_>) -> PyResult<(f64, f64)> {
+        let v = exclusive(py, &self.inner)?.validity();
+        Ok((v.min_det, v.depth))
+    }
+
     /// Zeroes the work counters.
     fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
         exclusive(py, &self.inner)?.reset_stats();

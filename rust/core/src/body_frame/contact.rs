@@ -31,6 +31,7 @@ use crate::contact::{ContactModel, Plane, RankOneTerms, CURVATURE_SLACK, DIRECTI
 use crate::dense::{add_gram, rows_dot, IncrementalGram};
 use crate::error::{check_finite, LicromError, Result};
 use crate::simd::{dispatch, Madd, Separate, WithMadd};
+use crate::validity::Validity;
 
 /// The incremental contact Hessian keeps a point's rows while its body
 /// position `y_j` has moved by less than this share of its length since they
@@ -141,6 +142,8 @@ pub(super) struct ContactOut<'a> {
     pub geometric: Option<&'a mut [f64]>,
     /// The points' terms, for the incremental Hessian and the stick switch.
     pub terms: Option<&'a mut ContactTerms>,
+    /// Deepest penetration of an engaged point into a plane, m (set, not added to).
+    pub depth: Option<&'a mut f64>,
 }
 
 /// `out += T S T^T` for `T = diag(R, R, I)` (N x N, full symmetric) in the
@@ -328,6 +331,7 @@ impl BodyContacts {
             rows.count = 0;
         }
         let mut energy = 0.0;
+        let mut validity = Validity::default();
         for s in 0..self.rest.len() {
             // Lower bound of each gap; a plane is skipped where it cannot be
             // reached and the point carries no lagged force against it.
@@ -350,6 +354,7 @@ impl BodyContacts {
             let x = pose.center + p;
             let mut f = Vector3::zeros();
             for (k, (plane, &fn_lag)) in self.planes.iter().zip(forces).enumerate() {
+                validity.take_gap(plane.gap(&x));
                 let e = self.model.evaluate(plane, self.areas[s], fn_lag, &x, &start.x_prev[s]);
                 energy += e.energy;
                 f += e.gradient;
@@ -397,6 +402,9 @@ impl BodyContacts {
                     }
                 }
             }
+        }
+        if let Some(depth) = out.depth {
+            *depth = validity.depth;
         }
         energy
     }

@@ -49,6 +49,7 @@ use crate::contact::{ContactModel, Plane};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::material::StableNeoHookean;
 use crate::reduced::{ElasticModel, ReducedInputs, ReducedSystem, StepStart, VertexStrainInputs, Workspace};
+use crate::validity::Validity;
 use contact::{BodyContactHessian, BodyContacts, ContactOut, ContactRows, ContactStart, ContactTerms};
 use inertia::{InertiaTarget, MassMoments};
 
@@ -172,6 +173,9 @@ pub struct BodyWorkspace {
     /// n x n scratch for the elastic Hessian, and for the modal block.
     square: Vec<f64>,
     block: Vec<f64>,
+    /// Smallest `det F` at the cubature points and deepest contact penetration
+    /// of the last [`BodyFrameSystem::evaluate`] with gradient.
+    pub validity: Validity,
 }
 
 impl BodyWorkspace {
@@ -285,6 +289,7 @@ impl BodyFrameSystem {
             terms: self.contacts.terms(),
             square: vec![0.0; self.n * self.n],
             block: vec![0.0; self.n * self.n],
+            validity: Validity::default(),
         }
     }
 
@@ -331,8 +336,13 @@ impl BodyFrameSystem {
             rows: None,
             geometric: None,
             terms: with_gradient.then_some(&mut ws.terms),
+            depth: with_gradient.then_some(&mut ws.validity.depth),
         };
-        e + self.contacts.evaluate(&start.contact, pose, out)
+        e += self.contacts.evaluate(&start.contact, pose, out);
+        if with_gradient && model.is_none() {
+            ws.validity.min_det = ws.elastic.as_ref().map_or(f64::INFINITY, |e| e.validity.min_det);
+        }
+        e
     }
 
     /// Energy alone (J), allocating its scratch: for tests and probes.
@@ -395,7 +405,7 @@ impl BodyFrameSystem {
                 Some(&mut out[..])
             }
         };
-        let out_c = ContactOut { grad: None, rows: Some(&mut ws.rows), geometric, terms: None };
+        let out_c = ContactOut { grad: None, rows: Some(&mut ws.rows), geometric, terms: None, depth: None };
         self.contacts.evaluate(&start.contact, pose, out_c);
         self.contacts.add_rows(&ws.rows, ws.rows.count, out);
     }

@@ -545,3 +545,46 @@ fn failed_steps_leave_the_state_and_bad_inputs_are_rejected() {
     assert!((s.angular_velocity() - Vector3::new(0.0, 1.0, 0.3)).norm() < 1e-10);
     assert!((log_map(&s.pose().rotation) - log_map(&r)).norm() < 1e-12);
 }
+
+#[test]
+fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
+    // A deforming block started 1 cm inside an incline: pushed out while it turns and slides.
+    let scene = BlockScene { learned_modes: 3, cubature_points: 50, contact_points: 60, incline: 25.0, friction: 0.3, ..Default::default() };
+    let b = body_block(&scene, true).unwrap();
+    let (c, r) = b.resting_pose();
+    let normal = b.planes[0].normal();
+    let mut s = solver(&b, 1e-10, 100);
+    let pose = Pose { center: c - normal * 0.01, rotation: r, q: vec![0.0; b.n] };
+    s.set_state(&pose, &[0.2, 0.0, 0.0], &[0.0, 0.5, 0.0], &vec![0.0; b.n]).unwrap();
+    let n = b.n;
+    let mut depths = vec![];
+    for step in 0..10 {
+        s.step().unwrap();
+        let p = s.pose();
+        let dot = |row: &[f64]| row.iter().zip(&p.q).map(|(a, b)| a * b).sum::<f64>();
+        let min_det = b
+            .cubature_jacobians
+            .chunks_exact(9 * n)
+            .map(|g| {
+                let f: Vec<f64> = (0..9).map(|a| dot(&g[a * n..(a + 1) * n]) + if a % 4 == 0 { 1.0 } else { 0.0 }).collect();
+                Matrix3::from_row_slice(&f).determinant()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let depth = b
+            .contact_basis
+            .chunks_exact(3 * n)
+            .zip(b.contact_rest.chunks_exact(3))
+            .map(|(w, x0)| {
+                let y = Vector3::new(x0[0] + dot(&w[..n]), x0[1] + dot(&w[n..2 * n]), x0[2] + dot(&w[2 * n..]));
+                -b.planes[0].gap(&(p.center + p.rotation * y))
+            })
+            .fold(0.0, f64::max);
+        let v = s.validity();
+        // At the accepted iterate, before the step's last correction (below the tolerance).
+        assert!((v.min_det - min_det).abs() < 1e-6, "step {step}: det {} against {min_det}", v.min_det);
+        assert!((v.depth - depth).abs() < 1e-6, "step {step}: depth {} against {depth}", v.depth);
+        depths.push(v.depth);
+    }
+    assert!(depths[0] > 2e-3, "deep after the first step: {depths:?}");
+    assert!(depths[1] < depths[0] && depths[9] < depths[0], "pushed out: {depths:?}");
+}

@@ -100,6 +100,9 @@ impl ReducedSystem {
     pub(super) fn contact_energy_impl<M: Madd>(&self, start: &StepStart, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
         let n_planes = self.planes.len();
         let mut e = 0.0;
+        if let Some(ws) = ws.as_deref_mut() {
+            ws.validity.depth = 0.0;
+        }
         if n_planes == 0 {
             return e;
         }
@@ -111,6 +114,9 @@ impl ReducedSystem {
             let mut active = 0u32;
             for p in 0..n_planes {
                 let gap = self.contacts.group_gap::<M>(g, p, q);
+                if let Some(ws) = ws.as_deref_mut() {
+                    gap[..slots.len()].iter().for_each(|&d| ws.validity.take_gap(d));
+                }
                 for (l, &j) in slots.iter().enumerate() {
                     if gap[l] < CULL_MARGIN || start.normal_force[j * n_planes + p] > 0.0 {
                         active |= 1 << l;

@@ -114,10 +114,13 @@ impl ReducedSystem {
     /// the gradient into `ws.elastic_grad`.
     #[inline(always)]
     fn elastic_points<M: Madd>(&self, q: &[f64], ws: Option<&mut Workspace>) -> f64 {
-        let (lane_grad, grad): (&mut [F8], &mut [f64]) = match ws {
-            Some(ws) => (&mut ws.lane_grad, &mut ws.elastic_grad),
-            None => (&mut [], &mut []),
+        let (lane_grad, grad, mut validity): (&mut [F8], &mut [f64], _) = match ws {
+            Some(ws) => (&mut ws.lane_grad[..], &mut ws.elastic_grad[..], Some(&mut ws.validity)),
+            None => (&mut [][..], &mut [][..], None),
         };
+        if let Some(v) = validity.as_deref_mut() {
+            v.min_det = f64::INFINITY;
+        }
         let cub = &self.cubature;
         let nv = cub.var_cols.len();
         let with_gradient = !grad.is_empty();
@@ -130,6 +133,9 @@ impl ReducedSystem {
         for (g, weights) in cub.weights.chunks_exact(LANES).enumerate() {
             let group = &cub.packed[g * group_len..(g + 1) * group_len];
             let f = cub.group_deformation::<M>(group, q, &f0);
+            if let Some(v) = validity.as_deref_mut() {
+                v.take_dets(&f, weights);
+            }
             let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
             for l in 0..LANES {
                 elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
@@ -175,6 +181,7 @@ impl ReducedSystem {
                 u.copy_from_slice(&vertices.displacement::<M>(v, q, n));
             }
             ws.vertex_force.fill(0.0);
+            ws.validity.min_det = f64::INFINITY;
         }
         let mut elastic = [0.0; LANES];
         for (g, weights) in self.cubature.weights.chunks_exact(LANES).enumerate() {
@@ -206,6 +213,7 @@ impl ReducedSystem {
                 elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
             }
             let Some(ws) = ws.as_deref_mut() else { continue };
+            ws.validity.take_dets(&f, weights);
             for row in p.iter_mut() {
                 for l in 0..LANES {
                     row[l] *= weights[l];

@@ -2,6 +2,7 @@
 
 use crate::contact::RankOneTerms;
 use crate::real::LANES;
+use crate::validity::Validity;
 
 use super::ReducedSystem;
 
@@ -20,6 +21,9 @@ pub struct Workspace {
     pub has_clamped: bool,
     /// Elastic energy of the last evaluation, J.
     pub elastic_energy: f64,
+    /// Smallest `det F` at the cubature points and deepest contact penetration
+    /// of the last evaluation with gradient.
+    pub validity: Validity,
     /// Contact part of the Hessian (scratch of [`ReducedSystem::assemble`]).
     pub(super) contact_hess: Vec<f64>,
     /// Elastic square-root rows of `chunk` groups of cubature points at a time,
@@ -86,6 +90,7 @@ impl ReducedSystem {
             hess_clamped: vec![0.0; n * n],
             has_clamped: false,
             elastic_energy: 0.0,
+            validity: Validity::default(),
             contact_hess: vec![0.0; n * n],
             rows: vec![0.0; row_stride * n],
             clamped_rows: vec![0.0; row_stride * n],

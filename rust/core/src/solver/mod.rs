@@ -49,6 +49,7 @@ pub use settings::{ElasticHessian, SolverKind, SolverSettings, SolverStats, Step
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepStart, Workspace};
+use crate::validity::Validity;
 use contact_model::{ContactModelState, ModelSchedule};
 use direction::ElasticPart;
 use line_search::{line_search, LineStep};
@@ -114,11 +115,13 @@ struct Point {
     grad_elastic: Vec<f64>,
     /// Elastic energy, J.
     energy_elastic: f64,
+    /// Smallest det F and deepest penetration there (E evaluations only).
+    validity: Validity,
 }
 
 impl Point {
     fn zeros(n: usize) -> Self {
-        Self { q: vec![0.0; n], grad: vec![0.0; n], grad_elastic: vec![0.0; n], energy_elastic: 0.0 }
+        Self { q: vec![0.0; n], grad: vec![0.0; n], grad_elastic: vec![0.0; n], energy_elastic: 0.0, validity: Validity::default() }
     }
 
     fn copy_from(&mut self, other: &Point) {
@@ -126,6 +129,7 @@ impl Point {
         self.grad.copy_from_slice(&other.grad);
         self.grad_elastic.copy_from_slice(&other.grad_elastic);
         self.energy_elastic = other.energy_elastic;
+        self.validity = other.validity;
     }
 }
 
@@ -194,6 +198,8 @@ pub struct ReducedSolver {
     bfgs_as: Vec<f64>,
     bfgs_y: Vec<f64>,
     stats: SolverStats,
+    /// [`Self::validity`].
+    validity: Validity,
 }
 
 impl ReducedSolver {
@@ -236,6 +242,7 @@ impl ReducedSolver {
             stats.factorizations = 1;
         }
         Ok(Self {
+            validity: Validity::default(),
             current: system.step_start(),
             probe: system.step_start(),
             probe_hessian: square.clone(),
@@ -353,6 +360,7 @@ impl ReducedSolver {
         self.iterate.grad.copy_from_slice(&self.ws.grad);
         self.ws.elastic_gradient(&mut self.iterate.grad_elastic);
         self.iterate.energy_elastic = self.ws.elastic_energy;
+        self.iterate.validity = self.ws.validity;
         self.stats.evaluations += 1;
         if !energy.is_finite() {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
@@ -429,6 +437,7 @@ impl ReducedSolver {
                 self.stats.evaluations += 1;
                 let e = self.system.evaluate(&self.current, &self.trial.q, true, &mut self.ws);
                 self.ws.elastic_gradient(&mut self.trial.grad_elastic);
+                self.trial.validity = self.ws.validity;
                 e
             }
         };
@@ -471,7 +480,15 @@ impl ReducedSolver {
             *v = (x - q) / h;
         }
         self.q.copy_from_slice(&self.iterate.q);
+        self.validity = self.iterate.validity;
         std::mem::swap(self.last.fill(), &mut self.current);
+    }
+
+    /// Smallest det F at the cubature points and deepest penetration of a
+    /// contact point at the accepted iterate of the last step (before its
+    /// final correction, below the tolerance): [`crate::validity`].
+    pub fn validity(&self) -> Validity {
+        self.validity
     }
 
     fn fail(&mut self, iterations: usize, residual: f64) -> LicromError {
