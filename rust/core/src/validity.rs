@@ -8,6 +8,7 @@
 //! a determinant per point and a comparison per gap, not a pass of its own. The
 //! step's final Newton correction (below the tolerance) is not re-evaluated.
 
+use crate::real::LANES;
 use crate::simd::F8;
 
 /// Smallest `det F` and deepest penetration of one evaluation.
@@ -28,14 +29,12 @@ impl Default for Validity {
 }
 
 impl Validity {
-    /// Takes in eight points' row-major F (nine lanes), those with `weight > 0`.
+    /// Takes in the lanes of [`lowest_dets`].
     #[inline(always)]
-    pub fn take_dets(&mut self, f: &[F8; 9], weights: &[f64]) {
-        for (l, w) in weights.iter().enumerate() {
-            if *w > 0.0 {
-                let d = f[0][l] * (f[4][l] * f[8][l] - f[5][l] * f[7][l]) - f[1][l] * (f[3][l] * f[8][l] - f[5][l] * f[6][l])
-                    + f[2][l] * (f[3][l] * f[7][l] - f[4][l] * f[6][l]);
-                self.min_det = self.min_det.min(d);
+    pub fn take_lanes(&mut self, low: &F8) {
+        for &d in low {
+            if d < self.min_det {
+                self.min_det = d;
             }
         }
     }
@@ -44,6 +43,21 @@ impl Validity {
     #[inline(always)]
     pub fn take_gap(&mut self, gap: f64) {
         self.depth = self.depth.max(-gap);
+    }
+}
+
+/// Lowers each lane of `low` to the `det F` of that lane's point, for eight
+/// points' row-major F (nine lanes) with `weight > 0`: kept in registers over
+/// the kernel's pass and taken in once at its end ([`Validity::take_lanes`]).
+#[inline(always)]
+pub fn lowest_dets(f: &[F8; 9], weights: &[f64], low: &mut F8) {
+    let w = &weights[..LANES];
+    for l in 0..LANES {
+        let det = f[0][l] * (f[4][l] * f[8][l] - f[5][l] * f[7][l]) - f[1][l] * (f[3][l] * f[8][l] - f[5][l] * f[6][l])
+            + f[2][l] * (f[3][l] * f[7][l] - f[4][l] * f[6][l]);
+        if w[l] > 0.0 && det < low[l] {
+            low[l] = det;
+        }
     }
 }
 
@@ -64,10 +78,13 @@ mod tests {
         let mut v = Validity::default();
         let mut weights = [1.0; 8];
         weights[3] = 0.0;
-        v.take_dets(&f, &weights);
+        let mut low = [f64::INFINITY; 8];
+        lowest_dets(&f, &weights, &mut low);
+        v.take_lanes(&low);
         assert_eq!(v.min_det, 2.0);
         weights[3] = 1.0;
-        v.take_dets(&f, &weights);
+        lowest_dets(&f, &weights, &mut low);
+        v.take_lanes(&low);
         assert_eq!(v.min_det, -4.0);
     }
 

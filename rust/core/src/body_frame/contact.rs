@@ -332,6 +332,7 @@ impl BodyContacts {
         }
         let mut energy = 0.0;
         let mut validity = Validity::default();
+        let track = out.depth.is_some();
         for s in 0..self.rest.len() {
             // Lower bound of each gap; a plane is skipped where it cannot be
             // reached and the point carries no lagged force against it.
@@ -354,7 +355,9 @@ impl BodyContacts {
             let x = pose.center + p;
             let mut f = Vector3::zeros();
             for (k, (plane, &fn_lag)) in self.planes.iter().zip(forces).enumerate() {
-                validity.take_gap(plane.gap(&x));
+                if track {
+                    validity.take_gap(plane.gap(&x));
+                }
                 let e = self.model.evaluate(plane, self.areas[s], fn_lag, &x, &start.x_prev[s]);
                 energy += e.energy;
                 f += e.gradient;

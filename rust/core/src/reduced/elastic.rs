@@ -9,6 +9,7 @@
 //! a time (one per lane) into a column-major stack of cache size and multiplied
 //! chunk by chunk by faer's blocked symmetric kernels.
 
+use crate::validity::lowest_dets;
 use faer::Accum;
 
 use crate::dense::{mirror_lower, offset_rows_dot, syrk_columns};
@@ -114,13 +115,11 @@ impl ReducedSystem {
     /// the gradient into `ws.elastic_grad`.
     #[inline(always)]
     fn elastic_points<M: Madd>(&self, q: &[f64], ws: Option<&mut Workspace>) -> f64 {
-        let (lane_grad, grad, mut validity): (&mut [F8], &mut [f64], _) = match ws {
+        let (lane_grad, grad, validity): (&mut [F8], &mut [f64], _) = match ws {
             Some(ws) => (&mut ws.lane_grad[..], &mut ws.elastic_grad[..], Some(&mut ws.validity)),
             None => (&mut [][..], &mut [][..], None),
         };
-        if let Some(v) = validity.as_deref_mut() {
-            v.min_det = f64::INFINITY;
-        }
+        let mut low = [f64::INFINITY; LANES];
         let cub = &self.cubature;
         let nv = cub.var_cols.len();
         let with_gradient = !grad.is_empty();
@@ -133,8 +132,8 @@ impl ReducedSystem {
         for (g, weights) in cub.weights.chunks_exact(LANES).enumerate() {
             let group = &cub.packed[g * group_len..(g + 1) * group_len];
             let f = cub.group_deformation::<M>(group, q, &f0);
-            if let Some(v) = validity.as_deref_mut() {
-                v.take_dets(&f, weights);
+            if with_gradient {
+                lowest_dets(&f, weights, &mut low);
             }
             let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
             for l in 0..LANES {
@@ -161,6 +160,10 @@ impl ReducedSystem {
                 }
             }
         }
+        if let Some(v) = validity {
+            v.min_det = f64::INFINITY;
+            v.take_lanes(&low);
+        }
         if with_gradient {
             grad.fill(0.0);
             reduce_lane_gradient(lane_grad, &cub.var_cols, &cub.const_cols, grad);
@@ -181,8 +184,9 @@ impl ReducedSystem {
                 u.copy_from_slice(&vertices.displacement::<M>(v, q, n));
             }
             ws.vertex_force.fill(0.0);
-            ws.validity.min_det = f64::INFINITY;
         }
+        let track = ws.is_some();
+        let mut low = [f64::INFINITY; LANES];
         let mut elastic = [0.0; LANES];
         for (g, weights) in self.cubature.weights.chunks_exact(LANES).enumerate() {
             let tets = &vertices.tets[g * 4 * LANES..(g + 1) * 4 * LANES];
@@ -208,12 +212,14 @@ impl ReducedSystem {
                     }
                 }
             }
+            if track {
+                lowest_dets(&f, weights, &mut low);
+            }
             let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
             for l in 0..LANES {
                 elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
             }
             let Some(ws) = ws.as_deref_mut() else { continue };
-            ws.validity.take_dets(&f, weights);
             for row in p.iter_mut() {
                 for l in 0..LANES {
                     row[l] *= weights[l];
@@ -232,6 +238,8 @@ impl ReducedSystem {
             }
         }
         if let Some(ws) = ws {
+            ws.validity.min_det = f64::INFINITY;
+            ws.validity.take_lanes(&low);
             ws.elastic_grad.fill(0.0);
             for (rows, force) in vertices.basis.chunks_exact(3 * n).zip(ws.vertex_force.chunks_exact(3)) {
                 for (row, &fi) in rows.chunks_exact(n).zip(force) {
