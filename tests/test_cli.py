@@ -120,6 +120,37 @@ def test_out_of_range_flags_are_refused_with_the_flag_and_the_range(tmp_path, ca
     assert not (tmp_path / "d").exists()
 
 
+def test_generate_refuses_a_directory_in_use_and_a_ray_cluster_that_never_answers(tmp_path, capsys, monkeypatch):
+    import fcntl
+    import socket
+    import types
+
+    from licrom.dataset import LOCK_NAME
+
+    small = ["--mesh", "box:1", "--friction", "0.5", "--slope", "10", "--steps", "2", "-q"]
+    out = tmp_path / "d"
+    out.mkdir()
+    fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # a licrom generate of another mesh writing the same directory
+        assert main(["generate", str(out), *small]) == 2  # was 0, both runs writing mesh.vtu and the manifest
+        err = capsys.readouterr().err
+        assert err.startswith(f"licrom: error: dataset directory '{out}' is being written by another licrom generate") and err.count("\n") == 1
+        assert f"holds its lock '{out / LOCK_NAME}'" in err and not (out / "mesh.vtu").exists()
+    finally:
+        os.close(fd)  # the lock goes with the descriptor
+
+    monkeypatch.setitem(sys.modules, "ray", types.SimpleNamespace(is_initialized=lambda: False, init=lambda **kw: pytest.fail("ray.init")))
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{s.getsockname()[1]}")
+    assert main(["generate", str(out), *small, "--executor", "ray", "--ray-timeout", "0.5"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("licrom: error: no Ray cluster at RAY_ADDRESS=") and "now 0.5 s" in err
+    assert main(["generate", str(out), *small, "--executor", "ray", "--ray-timeout", "0"]) == 2
+    assert "'--ray-timeout': 0.0 is not in the range x>0" in capsys.readouterr().err
+
+
 def test_export_command_writes_every_format(tiny_demo, tmp_path, capsys):
     import imageio.v3 as iio
     import meshio

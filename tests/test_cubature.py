@@ -172,6 +172,27 @@ def test_indices_must_be_non_negative_integers_and_weights_real():
     assert ContactPoints(everyone.indices, everyone.areas).indices is everyone.indices  # valid input kept as is
 
 
+def test_points_are_checked_and_sequences_kept_as_float_arrays():
+    m = meshes.box(0.1, 2)
+    idx = [0, 1, 2]
+    listed = Cubature(tuple(idx), [1, 2, 3], m.centroids[idx].tolist(), "naive")  # tuples and lists, integer weights
+    assert isinstance(listed.points, np.ndarray) and listed.points.dtype == np.float64 and listed.points.shape == (3, 3)
+    assert listed.weights.dtype == np.float64
+    np.testing.assert_array_equal(listed.points, m.centroids[idx])
+    assert Cubature([], [], [], "naive").points.shape == (0, 3)
+    for points, says in (([[0.0, 0.0]] * 3, r"shape \(3, 2\)"), (m.centroids[:3, :, None], r"shape \(3, 3, 1\)"), (5, r"shape \(\)"),
+                         ([["a", "b", "c"]] * 3, "dtype <U1"), (m.centroids[:3] + 1j, "dtype complex")):
+        with pytest.raises(ShapeError, match=r"Cubature points must be a \(K, 3\) array \(or sequence\) of finite real coordinates in m, got .*" + says):
+            Cubature(idx, np.ones(3), points, "naive")
+    with pytest.raises(ShapeError, match="Cubature points hold NaN or inf"):
+        Cubature(idx, np.ones(3), np.full((3, 3), np.nan), "naive")
+    with pytest.raises(ShapeError, match="same length, got 3, 3 and 2"):
+        Cubature(idx, np.ones(3), m.centroids[:2].tolist(), "naive")
+    for count in (-3, 0, 2.5, 3.0, "5", None, np.bool_(True)):
+        with pytest.raises(ConfigError, match=f"Cubature count must be an integer >= 1, got {count!r}"):
+            Cubature.naive(m, count=count)
+
+
 def test_sampling_refuses_foreign_indices():
     from licrom.reduced_sim import sampling
 

@@ -94,6 +94,35 @@ def test_another_mesh_in_the_same_directory_is_refused(tmp_path):
         generate_dataset(tmp_path / "ds", meshes.box(0.1, resolution=2), Scene(), steps=1, progress=False)
 
 
+def test_a_directory_in_use_is_refused_and_a_killed_writers_lock_blocks_nothing(tmp_path):
+    import re
+    import subprocess
+    import sys
+
+    from licrom import ConcurrencyError
+    from licrom.dataset import LOCK_NAME
+
+    out = tmp_path / "ds"
+    out.mkdir()
+    lock = out / LOCK_NAME
+    # Another process holds the directory's lock, as a running sweep does.
+    code = ("import fcntl, os, sys, time; fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT); fcntl.flock(fd, fcntl.LOCK_EX); "
+            "os.write(fd, str(os.getpid()).encode()); print('locked', flush=True); time.sleep(120)")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(lock)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(ConcurrencyError, match=re.escape(f"dataset directory '{out}' is being written by another licrom generate "
+                                                             f"(process {holder.pid} holds its lock '{lock}'); wait for it to finish")):
+            _tiny(tmp_path)  # used to write beside it, the last one winning
+        assert sorted(f.name for f in out.iterdir()) == [LOCK_NAME]  # nothing written
+    finally:
+        holder.kill()  # SIGKILL: it leaves its lock file behind
+        holder.wait()
+    assert lock.exists()
+    _tiny(tmp_path)  # the lock died with its process
+    assert load_manifest(out)["complete"] and not lock.exists()
+
+
 def test_bad_arguments(tmp_path):
     mesh = meshes.box(0.1, resolution=1)
     with pytest.raises(ConfigError, match="steps"):

@@ -117,6 +117,50 @@ def test_ray_missing_is_a_config_error_naming_the_extra(monkeypatch, tmp_path):
         _sweep(tmp_path / "no_ray", executor="ray")
 
 
+def test_a_ray_address_where_nothing_answers_is_refused_in_bounded_time(monkeypatch, tmp_path):
+    import socket
+    import time
+    import types
+
+    from licrom import executors
+
+    def init(**kw):
+        raise AssertionError("ray.init called: it retries an address where nothing answers for minutes")
+
+    monkeypatch.setitem(sys.modules, "ray", types.SimpleNamespace(is_initialized=lambda: False, init=init))
+    with socket.socket() as s:  # a port nothing listens on: the connection is refused at once
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{port}")
+    with pytest.raises(ConfigError, match=rf"no Ray cluster at RAY_ADDRESS='127.0.0.1:{port}' \(.*refused\); start one there"):
+        list(run_tasks(operator.mul, [(1, 2)], "ray"))
+
+    def silent(address, timeout):  # an address that never answers (a firewall dropping packets)
+        time.sleep(timeout)
+        raise TimeoutError("timed out")
+
+    monkeypatch.setattr(executors.socket, "create_connection", silent)
+    monkeypatch.setenv("RAY_ADDRESS", "ray://10.9.8.7:10001")
+    start = time.perf_counter()
+    with pytest.raises(ConfigError, match=r"RAY_ADDRESS='ray://10.9.8.7:10001' \(nothing answered within 0.2 s\).* now 0.2 s"):
+        list(run_tasks(operator.mul, [(1, 2)], "ray", ray_timeout=0.2))
+    monkeypatch.setenv("LICROM_RAY_TIMEOUT", "0.1")
+    with pytest.raises(ConfigError, match=r"nothing answered within 0.1 s"):
+        _sweep(tmp_path / "sweep", executor="ray")
+    assert time.perf_counter() - start < 5
+    assert executors.RAY_TIMEOUT == 30.0 and executors.check_ray_timeout(45) == 45.0
+    for bad in (0, -1.0, float("nan"), float("inf"), True, "10"):
+        with pytest.raises(ConfigError, match=r"ray_timeout must be a finite number of seconds > 0"):
+            list(run_tasks(operator.mul, [(1, 2)], "ray", ray_timeout=bad))
+    monkeypatch.setenv("LICROM_RAY_TIMEOUT", "soon")
+    with pytest.raises(ConfigError, match=r"LICROM_RAY_TIMEOUT must be a finite number of seconds > 0, got 'soon'"):
+        list(run_tasks(operator.mul, [(1, 2)], "ray"))
+    monkeypatch.delenv("LICROM_RAY_TIMEOUT")
+    monkeypatch.setenv("RAY_ADDRESS", "nowhere")
+    with pytest.raises(ConfigError, match=r"RAY_ADDRESS must be host:port or ray://host:port"):
+        list(run_tasks(operator.mul, [(1, 2)], "ray"))
+
+
 def test_local_pool_writes_the_serial_files_and_a_rerun_skips_them(tmp_path):
     serial, pool = tmp_path / "serial", tmp_path / "pool"
     _sweep(serial)

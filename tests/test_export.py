@@ -160,3 +160,53 @@ def test_usd_refuses_bad_input(traj, tmp_path, monkeypatch):
     with pytest.raises(MissingDependencyError, match=r"pip install 'licrom\[usd\]'"):
         write_usd(traj, tmp_path / "run.usda")
     assert not list(tmp_path.iterdir())
+
+
+# Runs a write in a child process whose file size limit is 1 kB (SIGXFSZ ignored, so writes
+# past it fail with EFBIG): the disk is full for it, and for it alone.
+FULL_DISK = """
+import resource, signal, sys
+import numpy as np
+from licrom import meshes, render
+from licrom.export import write_usd
+from licrom.training_data import make_synthetic_trajectories
+
+traj = make_synthetic_trajectories(meshes.box(0.1, 2), count=1, frames=5, seed=1)[0]
+
+
+class Views:  # pictures without PyVista: the GIF's bytes are what matters
+    def __init__(self, *args):
+        pass
+
+    def panel(self, i, f):
+        return None
+
+    def compose(self, rows):
+        return np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)
+
+    def close(self):
+        pass
+
+
+render._Views = Views
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (1000, resource.RLIM_INFINITY))
+try:
+    if sys.argv[1].endswith(".gif"):
+        render.animation([traj], ["run"], sys.argv[1])
+    else:
+        write_usd(traj, sys.argv[1])
+except Exception as exc:
+    print(f"{type(exc).__module__}.{type(exc).__name__} errno={getattr(exc, 'errno', None)}: {exc}")
+"""
+
+
+@pytest.mark.parametrize("name", ["run.usda", "run.usdc", "run.gif"])
+def test_a_full_disk_is_one_output_error(tmp_path, name):
+    import errno
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-c", FULL_DISK, str(tmp_path / name)], capture_output=True, text=True, timeout=300)
+    assert done.stdout.strip() == f"licrom.errors.OutputError errno={errno.EFBIG}: cannot write '{tmp_path / name}': File too large"
+    assert "Exception ignored" not in done.stderr and "Traceback" not in done.stderr
+    assert list(tmp_path.iterdir()) == []  # nothing half-written

@@ -400,3 +400,38 @@ def test_cpu_run_prints_no_missing_driver_warning_but_other_native_output_passes
         os.write(2, b"Warp CUDA error: a real error\n")
     err = capfd.readouterr().err
     assert err == "Warp CUDA error: a real error\n"
+
+
+def test_one_simulation_in_two_threads_is_a_named_error_and_its_state_stays_a_serial_run():
+    import threading
+
+    from licrom import ConcurrencyError
+
+    mesh = meshes.box(L, resolution=2)
+    scene = Scene(material=STIFF, contact=CONTACT, planes=(Plane((0, 0, 1), 0.05, 0.5),), initial=InitialState(velocity=(0.2, 0, -0.5)))
+    sim = FullSim(mesh, scene, device="cpu")
+    raised, taken = [], [0, 0]
+
+    def contend(k):
+        # Both threads read and step the one simulation until one of them is refused.
+        while not raised and taken[k] < 1000:
+            try:
+                _ = sim.positions
+                sim.step()
+                taken[k] += 1
+            except Exception as exc:  # collected: anything but ConcurrencyError fails the test
+                raised.append(exc)
+
+    thread = threading.Thread(target=contend, args=(1,))
+    thread.start()
+    contend(0)
+    thread.join()
+    assert raised and all(isinstance(e, ConcurrencyError) for e in raised), raised
+    assert "busy in another thread" in str(raised[0]) and isinstance(raised[0], RuntimeError)
+    # The steps that ran went one after the other: the state is that of a serial run of as many steps.
+    serial = FullSim(mesh, scene, device="cpu")
+    for _ in range(sum(taken)):
+        serial.step()
+    np.testing.assert_array_equal(sim.positions, serial.positions)
+    np.testing.assert_array_equal(sim.velocities, serial.velocities)
+    assert sim.time == serial.time and sim.run(2).n_frames == 3  # the refused call left it usable

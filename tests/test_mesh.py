@@ -1,9 +1,11 @@
+import re
+import sys
 import warnings
 
 import meshio
 import numpy as np
 import pytest
-from licrom import FileFormatError, Mesh, MeshError, OutputError, ShapeError, meshes
+from licrom import ConfigError, FileFormatError, Mesh, MeshError, OutputError, ShapeError, meshes
 
 
 def test_unit_tet_geometry(unit_tet):
@@ -159,3 +161,76 @@ def test_vertex_masses_refuse_a_density_out_of_range(density):
     with pytest.raises(ConfigError, match=r"density must be a finite number > 0 \(kg/m\^3\), got"):
         meshes.box(0.1, 1).vertex_masses(density)
     assert meshes.box(0.1, 1).vertex_masses(np.float32(2.0)).sum() == pytest.approx(2.0 * 1e-3)
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj", ".off", ".wkt", ".svg"])
+def test_save_refuses_formats_that_cannot_hold_tets(tmp_path, suffix):
+    with pytest.raises(FileFormatError, match=rf"cannot write a mesh to '.*m{suffix}': a {suffix} file cannot hold tets \(meshio would "
+                                              r"drop them\)\. Accepted: \.mesh, \.meshb, \.msh, \.vtu, \.vtk, "):
+        meshes.box(0.1, resolution=1).save(tmp_path / f"m{suffix}")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix, package", [(".xdmf", "h5py"), (".med", "h5py"), (".exo", "netCDF4")])
+def test_formats_whose_package_is_missing_name_it(tmp_path, monkeypatch, capsys, suffix, package):
+    from licrom.cli import main
+    from licrom.errors import MissingDependencyError
+
+    monkeypatch.setitem(sys.modules, package, None)  # not installed
+    message = rf"meshio needs the optional package '{package}' for 'm{suffix}' \({suffix} files\), and it is not installed; " \
+              rf"install it with: pip install {package}"
+    with pytest.raises(MissingDependencyError, match=message):
+        meshes.box(0.1, resolution=1).save(tmp_path / f"m{suffix}")
+    (tmp_path / f"m{suffix}").write_bytes(b"anything")
+    with pytest.raises(MissingDependencyError, match=message):
+        Mesh.load(tmp_path / f"m{suffix}")
+    assert main(["mesh", "box", "-r", "1", "-o", str(tmp_path / f"out{suffix}")]) == 2
+    assert f"pip install {package}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"m{suffix}"]  # nothing half-written
+
+
+def test_a_mesh_file_of_too_few_points_or_no_tets_is_a_named_error(tmp_path):
+    three = tmp_path / "three.mesh"
+    three.write_text("MeshVersionFormatted 1\nDimension 3\nVertices\n3\n0 0 0 0\n1 0 0 0\n0 1 0 0\n"
+                     "Tetrahedra\n1\n1 2 3 3 0\nEnd\n")
+    with pytest.raises(MeshError, match=r"mesh '.*three\.mesh': mesh vertices must have shape \(n, 3\) with n >= 4, got \(3, 3\)"):
+        Mesh.load(three)
+    empty = tmp_path / "empty.mesh"
+    empty.write_text("MeshVersionFormatted 1\nDimension 3\nVertices\n4\n0 0 0 0\n1 0 0 0\n0 1 0 0\n0 0 1 0\nTetrahedra\n0\nEnd\n")
+    with pytest.raises(FileFormatError, match=r"mesh '.*empty\.mesh' holds no tetrahedra \(cell types: none\)"):
+        Mesh.load(empty)
+
+
+@pytest.mark.parametrize("candidates", [0, -1, True, 2.5, "12", None])
+def test_locate_refuses_a_candidate_count_out_of_range(candidates):
+    m = meshes.box(0.1, resolution=2)
+    with pytest.raises(ConfigError, match=rf"Mesh.locate candidates must be an integer >= 1 \(nearest tets examined per point\), "
+                                          rf"got {re.escape(repr(candidates))}"):
+        m.locate(np.zeros((1, 3)), candidates=candidates)
+    tets, _ = m.locate(m.centroids[:3], candidates=np.int64(1))
+    np.testing.assert_array_equal(tets, [0, 1, 2])
+
+
+@pytest.mark.parametrize("suffix", [".dat", ".tec", ".mdpa"])
+def test_truncated_files_of_looping_readers_are_named_errors_not_hangs(tmp_path, suffix):
+    import threading
+
+    good = tmp_path / f"good{suffix}"
+    meshes.box(0.1, resolution=2).save(good)
+    assert Mesh.load(good).same_as(meshes.box(0.1, resolution=2))
+    cut = tmp_path / f"cut{suffix}"
+    cut.write_bytes(good.read_bytes()[:len(good.read_bytes()) // 2])  # meshio's reader would call readline() at the end for ever
+    outcome = []
+
+    def load():
+        try:
+            Mesh.load(cut)
+        except Exception as exc:  # the type is what is checked
+            outcome.append(exc)
+
+    reader = threading.Thread(target=load, daemon=True)
+    reader.start()
+    reader.join(timeout=60)
+    assert not reader.is_alive(), "Mesh.load did not return"
+    assert isinstance(outcome[0], FileFormatError)
+    assert re.search(r"cannot read mesh '.*cut\..*' \(truncated or corrupt\?\): .*the end of the file", str(outcome[0]))

@@ -186,6 +186,25 @@ def test_encode_shapes(mesh, rng):
         model.encode(mesh.vertices, u[:-1])
 
 
+def test_encode_of_too_few_points_for_the_affine_fit_is_a_named_error(mesh, rng):
+    one, u = mesh.vertices[:1], np.full((1, 3), 1e-3)
+    flat = np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.05, 0], [0.1, 0.05, 0], [0.05, 0.02, 0]])  # 5 points in one plane
+    for model in (_random_model(mesh, r=3), _random_model(mesh, r=3, frame="body")):
+        with pytest.raises(ShapeError, match=r"points must span 3-D space for the affine fit .* got 1 point\(s\), 1 of weight > 0, spanning a point"):
+            model.encode(one, u)  # was numpy's LinAlgError: Singular matrix
+        with pytest.raises(ShapeError, match="spanning a plane"):
+            model.encode_q(flat, np.zeros((5, 3)))
+        with pytest.raises(ShapeError, match="at least one point"):
+            model.encode(np.zeros((0, 3)), np.zeros((0, 3)))
+        tet = np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.05, 0], [0, 0, 0.05]])  # 4 points that span the space are enough
+        assert model.encode(tet, rng.normal(size=(4, 3)) * 1e-3).shape == (3,)
+    # Without the affine fit one point is enough.
+    plain = _random_model(mesh, r=3, affine=False)
+    assert plain.encode(one, u).shape == (3,)
+    with pytest.raises(ShapeError, match="at least one point"):
+        plain.encode(np.zeros((0, 3)), np.zeros((0, 3)))  # was torch's IndexError
+
+
 def test_model_without_affine_modes(mesh, rng):
     model = _random_model(mesh, r=3, affine=False)
     assert model.n_modes == 3 and model.n_affine == 0
@@ -395,7 +414,8 @@ def test_absurd_header_sizes_are_refused_before_the_network_is_built(mesh, tmp_p
         raise AssertionError("the network was built from an absurd header")
 
     monkeypatch.setattr(trained, "LicromNet", never)
-    with pytest.raises(FileFormatError, match=r"latent_dim=1000000.*needs \d+ weights, the file holds \d+"):
+    # refused by the header check, or by ModelConfig's memory check (licrom._limits) before it
+    with pytest.raises(FileFormatError, match=r"latent_dim=1000000.*needs (\d+ weights, the file holds \d+|about .* over the memory limit)"):
         Model.load(tmp_path / "huge.lcm.npz")
     # the size it checks is the network's own
     for cfg in (ModelConfig(latent_dim=20), ModelConfig(latent_dim=3, field_layers=2, field_width=7, fourier_features=0,

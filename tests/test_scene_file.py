@@ -228,3 +228,19 @@ def test_a_huge_rotation_in_a_scene_file_is_refused_at_load(tmp_path, initial):
         load_scene(path)
     with pytest.raises(ConfigError, match=r"DropSpec.rotation must be a rotation vector of length <= 1e\+06 rad"):
         DropSpec(0.1, (1e300, 0, 0))
+
+
+def test_cli_scene_names_a_missing_or_surface_mesh_file(tmp_path, capsys):
+    scene = _write(tmp_path, "version = 1\n[object]\nmesh = 'parts/part.msh'")
+    assert main(["scene", str(scene)]) == 2
+    assert capsys.readouterr().err == f"licrom: error: scene file '{scene}': object.mesh: mesh file not found: '{tmp_path / 'parts' / 'part.msh'}'\n"
+    (tmp_path / "parts" / "part.msh").mkdir(parents=True)
+    assert main(["scene", str(scene)]) == 2
+    assert capsys.readouterr().err.endswith(f"mesh file not found: '{tmp_path / 'parts' / 'part.msh'}' (it is a folder)\n")
+    surface = _write(tmp_path, "version = 1\n[object]\nmesh = 'part.obj'", "surface.toml")
+    assert main(["scene", str(surface)]) == 2
+    assert f"object.mesh: object mesh '{tmp_path / 'part.obj'}' is a surface; fill it with tets first" in capsys.readouterr().err
+    (tmp_path / "parts" / "part.msh").rmdir()
+    meshes.box(0.1, resolution=2).save(tmp_path / "parts" / "part.msh")
+    assert main(["scene", str(scene)]) == 0
+    assert "part.msh" in capsys.readouterr().out

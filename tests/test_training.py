@@ -159,7 +159,8 @@ def test_relative_error():
 @pytest.mark.parametrize(
     "kwargs",
     [{"epochs": 0}, {"lr": -1.0}, {"sample": "faces"}, {"device": "tpu"}, {"val_fraction": 1.0}, {"batch_frames": 1.5},
-     {"projection_weight": -1.0}, {"devices": 0}, {"nodes": 0}, {"objective": "vae"}, {"pod_weighting": "energy"}],
+     {"projection_weight": -1.0}, {"devices": 0}, {"nodes": 0}, {"objective": "vae"}, {"pod_weighting": "energy"},
+     {"join_timeout_s": 0}, {"join_timeout_s": float("inf")}, {"join_timeout_s": True}],
 )
 def test_train_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
@@ -319,6 +320,49 @@ def test_cli_train(data_dir, tmp_path):
     assert back.metadata["train_config"]["objective"] == "autoencoder" and back.metadata["train_config"]["pod_weighting"] == "frame"
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(tmp_path / "x.lcm"), "--frame", "lab"])
     assert res.exit_code != 0 and "body" in res.output and "world" in res.output
+
+
+def test_gpus_asked_for_where_there_are_none_are_refused_before_the_data_is_read(tmp_path, monkeypatch, capsys):
+    from licrom.cli import main
+
+    missing = tmp_path / "no-such-data"  # refused before it is looked at
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 0)
+    with pytest.raises(ConfigError, match=r"TrainConfig.devices \(--gpus\) is 2 but no CUDA device is available here.*accepted here: devices 'auto' or 1"):
+        train(missing, None, TrainConfig(**TINY, devices=2))
+    with pytest.raises(ConfigError, match=r"devices \(--gpus\) is 2 but TrainConfig.device is 'cpu'"):
+        train(missing, None, TrainConfig(**TINY, devices=2, device="cpu"))
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    with pytest.raises(ConfigError, match=r"is 3 but this machine has 1 CUDA device\(s\); accepted here: 'auto' or 1..1"):
+        train(missing, None, TrainConfig(**TINY, devices=3))
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 0)
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "m.lcm"), "-r", "2", "--gpus", "2", "-q"]) == 2
+    assert "--gpus) is 2 but no CUDA device is available here" in capsys.readouterr().err
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "m.lcm"), "-r", "2", "--nodes", "2", "--join-timeout", "0", "-q"]) == 2
+    assert "TrainConfig.join_timeout_s must be a finite number of seconds > 0, got 0.0" in capsys.readouterr().err
+
+
+def test_nodes_whose_peers_never_join_time_out_naming_what_they_wait_for(trajs, monkeypatch):
+    import socket
+    import time
+
+    with socket.socket() as s:  # a free port for this run's rendezvous
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    # The launcher's variables, as on node 0 of 2 whose node 1 never starts; restored after the test.
+    for name, value in (("MASTER_ADDR", "127.0.0.1"), ("MASTER_PORT", str(port)), ("NODE_RANK", "0")):
+        monkeypatch.setenv(name, value)
+    for name in ("WORLD_SIZE", "LOCAL_RANK", "GLOBAL_RANK", "PL_GLOBAL_SEED"):
+        monkeypatch.delenv(name, raising=False)
+    start = time.perf_counter()
+    with pytest.raises(ConfigError, match=rf"the 2 processes of this run \(2 node\(s\) x 1 process\(es\); this one: node rank 0, global rank 0\) "
+                                          rf"did not all join at MASTER_ADDR:MASTER_PORT = 127.0.0.1:{port} within 1 s \(TrainConfig.join_timeout_s, "
+                                          rf"--join-timeout\): .*1/2 clients joined; start the same command on every node"):
+        train(trajs, None, TrainConfig(**TINY, device="cpu", nodes=2, join_timeout_s=1.0), ModelConfig(latent_dim=2))
+    assert time.perf_counter() - start < 60  # Lightning alone waits 30 minutes
+    assert not torch.distributed.is_initialized()
 
 
 # --- the POD bound -------------------------------------------------------------------------

@@ -113,3 +113,27 @@ def test_a_boolean_format_version_is_refused(tmp_path):
     save_npz(tmp_path / "v.npz", arrays, {**header, "version": True})
     with pytest.raises(FileFormatError, match="format version True; this licrom reads version 1 only"):
         Trajectory.load(tmp_path / "v.npz")
+
+
+def test_info_that_json_cannot_hold_is_a_config_error_naming_the_entry(tmp_path):
+    from licrom import ConfigError
+
+    cycle = {"run": 1}
+    cycle["again"] = cycle
+    nested = [1]
+    nested.append(nested)
+    for info, says in (({"weights": np.ones(3)}, r"info\['weights'\] is a ndarray"),  # was numpy's TypeError
+                       (cycle, r"info\['again'\] refers back to an entry that holds it \(a cycle\)"),  # was json's ValueError
+                       ({"runs": nested}, r"info\['runs'\]\[1\] refers back"),
+                       ({"count": np.int64(3)}, r"info\['count'\] is a int64"),
+                       ({"tags": {"a", "b"}}, r"info\['tags'\] is a set"),
+                       ({("a", 1): 2}, r"info has a key \('a', 1\) of type tuple"),
+                       ([("source", "full")], "got list")):
+        t = _traj()
+        t.info = info
+        with pytest.raises(ConfigError, match=r"^Trajectory.info must be a dict of JSON-serialisable values \(dicts, lists, .*; " + says):
+            t.save(tmp_path / "t.npz")
+        assert not list(tmp_path.iterdir())  # nothing written
+    t = _traj()
+    t.info = {"source": "full", "sweep": {"mu": [0.1, 0.5], "slope": (10.0, 20.0)}, "n": 3, "ok": True, "none": None, "x": np.float64(2.5)}
+    assert Trajectory.load(t.save(tmp_path / "t.npz")).info == {**t.info, "sweep": {"mu": [0.1, 0.5], "slope": [10.0, 20.0]}}

@@ -82,6 +82,33 @@ def test_a_50_m_per_s_impact_that_inverts_tets_warns():
     assert traj.min_det_f[1] < 0.0 and traj.min_det_f[-1] > 0.0  # inverted, then recovered
 
 
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_every_step_is_checked_not_only_the_recorded_frames(simulator):
+    # A 50 m/s impact: deepest and most compressed at the first step, recovered by the fourth.
+    scene = Scene(initial=InitialState(translation=(0, 0, 0.06), velocity=(0, 0, -50.0)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PhysicsWarning)
+        every = SIMULATORS[simulator](scene).run(4)
+        fourth = SIMULATORS[simulator](scene).run(4, record_every=4)
+    assert every.penetration[1] > 10 * every.penetration[4]  # the impact is over by the fourth step
+    # The one recorded frame holds the worst of the four steps before it.
+    assert fourth.penetration[1] == pytest.approx(every.penetration[1:].max(), rel=1e-6)
+    assert fourth.min_det_f[1] == pytest.approx(every.min_det_f[1:].min(), rel=1e-6)
+
+
+def test_an_inversion_between_frames_warns_and_marks_the_frame_invalid():
+    scene = Scene(initial=InitialState(translation=(0, 0, 0.06), velocity=(0, 0, -50.0)))
+    with pytest.warns(PhysicsWarning) as record:
+        traj = FullSim(MESH, scene).run(4, record_every=4)
+    messages = [str(w.message) for w in record]
+    assert "inverted elements" in messages[0] and "in 1 of 1 frames (or the steps before them)" in messages[0]
+    assert "penetration up to" in messages[1]
+    assert traj.valid.tolist() == [True, False]
+    with pytest.warns(PhysicsWarning, match=r"in the steps after the last frame \(t > 0 s\)"):
+        traj = FullSim(MESH, scene).run(3, record_every=4)
+    assert traj.valid.tolist() == [True]
+
+
 def test_deep_penetration_warns():
     # Soft contact (k_n = 1e4 N/m^3) cannot hold the box: it sinks deeper than the limit.
     scene = Scene(contact=ContactParams(normal_stiffness=1e4), initial=InitialState(translation=(0, 0, 0.05)))

@@ -29,7 +29,7 @@ from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import check_field, record_run
 from .trajectory import Trajectory
-from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames
+from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
 
 __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
 
@@ -368,13 +368,15 @@ class BodyFrameSim:
             monitor.after_step(lambda: (self.q, self.center, self.rotation), lambda q: float(q @ self._modal_mass @ q))
             return outcome
 
-        rec = record_run(step, lambda: (self.positions, self.velocities, self.q), lambda: self.time, steps, record_every, progress, "body frame")
+        rec = record_run(step, lambda: (self.positions, self.velocities, self.q), lambda: self.time, steps, record_every, progress, "body frame",
+                         self._core.validity)
         positions = np.array([x for x, _, _ in rec.frames])
         min_det_f = cubature_min_det(self._jacobians, np.array([q for _, _, q in rec.frames]))
         planes = self.scene.plane_array()
         depth = np.array([penetration(x, planes) for x in positions])
+        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
         arrays = rec.arrays()
-        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation")
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation", rec.trailing)
         start = first_touch(positions, planes, CONTACT_TOLERANCE * self.mesh.size)
         estimate = monitor.estimate(record_every * np.arange(len(positions)), None if start is None else record_every * start)
         warn_estimate(estimate, "the body-frame simulation")

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import click
 
 from .demo import DemoConfig
-from .errors import ConfigError, LicromError
+from .errors import ConfigError, LicromError, LicromWarning
 from .scene_file import builtin_scenes
 
 __all__ = ["cli", "main"]
@@ -78,9 +79,11 @@ def _print_mesh_summary(mesh, seconds: float | None = None) -> None:
               help="Surfaces: largest distance of the tet boundary from the surface, fraction of the diagonal, in (0, 0.1] [1e-3].")
 @click.option("--stop-energy", type=float, default=None, help="Surfaces: tet shape target (AMIPS energy > 3; lower: better, slower) [10].")
 @click.option("--scale", type=float, default=None, help="Surfaces: multiply the coordinates by this first (0.001 for mm) [1].")
+@click.option("--allow-open", is_flag=True,
+              help="Surfaces: mesh a surface that is not closed anyway (fTetWild fills it into another shape; the change is printed).")
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the mesh here (.mesh, .msh, .vtu, ...).")
-def mesh_command(source, resolution, size, radius, holes, seed, edge_length, epsilon, stop_energy, scale, output) -> None:
+def mesh_command(source, resolution, size, radius, holes, seed, edge_length, epsilon, stop_energy, scale, allow_open, output) -> None:
     """Make a tet mesh from a surface (.obj, .stl, .ply, .off) or a procedural shape (box, sphere, cheese), or inspect a tet mesh file.
 
     SOURCE is a surface file (filled with tets by fTetWild), 'box', 'sphere', 'cheese',
@@ -94,7 +97,7 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
     start = time.perf_counter()
     is_surface = Path(source).suffix.lower() in SURFACE_SUFFIXES
     given = [flag for flag, v in (("--edge-length", edge_length), ("--epsilon", epsilon), ("--stop-energy", stop_energy),
-                                  ("--scale", scale)) if v is not None]
+                                  ("--scale", scale), ("--allow-open", allow_open or None)) if v is not None]
     if given and not is_surface:
         raise ConfigError(f"{', '.join(given)}: only for surface files ({', '.join(SURFACE_SUFFIXES)}), not for {source!r}")
     if is_surface:
@@ -105,7 +108,10 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
         click.echo(f"surface {source}: {len(surface.vertices)} vertices, {len(surface.faces)} triangles, "
                    f"{'closed' if surface.is_closed else 'NOT closed (holes or open edges)'}")
         click.echo(f"tetrahedralising (fTetWild, edge length {params.edge_length:g} x diagonal, epsilon {params.epsilon:g}) ...")
-        mesh = tetrahedralize(surface, params)
+        with warnings.catch_warnings():
+            # The open surface's difference is printed below, not also as a warning.
+            warnings.filterwarnings("ignore", message="the open surface was meshed", category=LicromWarning)
+            mesh = tetrahedralize(surface, params, allow_open=allow_open)
     elif source in meshes.PROCEDURAL:
         kwargs: dict = {}
         if resolution is not None:
@@ -130,6 +136,10 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
     if surface is not None and surface.is_closed:
         enclosed = surface.enclosed_volume * params.scale**3
         click.echo(f"surface volume    {enclosed:.6g} m^3 (tets {100 * (mesh.volume / enclosed - 1):+.2f} %)")
+    elif surface is not None:
+        from .surface import _difference
+
+        click.echo(f"NOT the surface's shape: {_difference(surface, params.scale, mesh)}")
     if output is not None:
         mesh.save(output)
         click.echo(f"wrote {output}")
@@ -148,6 +158,10 @@ def scene_command(source, output) -> None:
     from .scene_file import builtin_scene_text, load_scene
 
     scene = load_scene(source)
+    try:
+        scene.object.check()  # generate would stop at a missing mesh file; say so here
+    except LicromError as exc:
+        raise type(exc)(f"scene file {scene.source}: object.mesh: {exc}") from None
     click.echo(scene.summary())
     if output is not None:
         text = Path(source).read_text(encoding="utf-8") if Path(source).is_file() else builtin_scene_text(source)
@@ -176,9 +190,11 @@ def scene_command(source, output) -> None:
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local: this machine (--jobs processes); ray: one task per run on a Ray cluster (RAY_ADDRESS, else a local one).")
 @click.option("--jobs", "-j", type=int, default=None, help="Processes of the local executor [1].")
+@click.option("--ray-timeout", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Seconds to wait for the Ray cluster at RAY_ADDRESS to answer [LICROM_RAY_TIMEOUT, else 30].")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 def generate_command(out_dir, scene_source, preset, mesh_source, resolution, youngs_modulus, poisson_ratio, density, friction, slope,
-                     dt, steps, record_every, device, executor, jobs, quiet) -> None:
+                     dt, steps, record_every, device, executor, jobs, ray_timeout, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
     The runs are the scene file's sweep (friction x slope x initial state); the options
@@ -203,7 +219,7 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
     click.echo(f"scene {spec.name} ({scene.source}): {spec.description}".rstrip(": "))
     click.echo(f"mesh {scene.object.describe()}: {spec.mesh.n_vertices} vertices, {spec.mesh.n_tets} tets; {spec.n_trajectories} trajectories x "
                f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}, {where}")
-    manifest_path = spec.generate(out_dir, device=device, progress=not quiet, executor=executor, jobs=jobs)
+    manifest_path = spec.generate(out_dir, device=device, progress=not quiet, executor=executor, jobs=jobs, ray_timeout=ray_timeout)
     import json
 
     manifest = json.loads(manifest_path.read_text())
@@ -239,6 +255,9 @@ class _Rank(click.ParamType):
 
 
 RANK = _Rank()
+# The train command's size flags, by the config field they set.
+_SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames", "latent_dim": "--modes / -r", "field_width": "--width",
+               "field_layers": "--layers", "fourier_features": "--fourier", "max_rank": "--max-rank"}
 
 
 @cli.command("train")
@@ -264,16 +283,18 @@ RANK = _Rank()
               help="Training device (auto: CUDA when available).")
 @click.option("--gpus", type=int, default=None, help="GPUs to use (default all visible; >1 trains with DDP).")
 @click.option("--nodes", type=int, default=None, help="Machines of a multi-node DDP run, each with --gpus GPUs [1] (see docs/scaling.md).")
+@click.option("--join-timeout", type=float, default=None,
+              help="Seconds the processes of a multi-GPU or multi-node run wait for each other to join [120].")
 @click.option("--batch-frames", type=int, default=None, help="Frames per step [16].")
 @click.option("--points", type=int, default=None, help="Points sampled per step, shared by its frames [2048].")
 @click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
-@click.option("--width", type=int, default=None, help="Width of the neural field W(X) [60].")
+@click.option("--width", type=int, default=None, help="Width of the neural field W(X) [256].")
 @click.option("--layers", type=int, default=None, help="Linear layers of the neural field W(X) [5].")
 @click.option("--projection-weight", type=float, default=None, help="Weight of the projection loss term [1; 0: plain LiCROM].")
 @click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, rank_tolerance, max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, batch_frames,
+def train_command(data, output, modes, rank_tolerance, max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, join_timeout, batch_frames,
                   points, val_fraction, width, layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -283,12 +304,14 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
     """
     from .model import ModelConfig
     from .training import TrainConfig, output_paths, train
+    from .training.config import check_training_memory
+    from .training.held_out import held_out_lines
     from .training.rank import RankChoice
 
     start = time.perf_counter()
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("pod_weighting", pod_weighting), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
-                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes),
+                       ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes), ("join_timeout_s", join_timeout),
                        ("rank_tolerance", rank_tolerance), ("max_rank", max_rank)):
         if value is not None:
             tkw[key] = value
@@ -299,7 +322,17 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
         mkw["field_layers"] = layers
     if fourier is not None:
         mkw["fourier_features"] = fourier
-    model = train(data, output, TrainConfig(**tkw), ModelConfig(**mkw))
+    try:
+        train_config, model_config = TrainConfig(**tkw), ModelConfig(**mkw)
+        check_training_memory(train_config, model_config)  # --points x --width together, before the data is read
+    except ConfigError as exc:  # the configs name their fields: name the flag too
+        import re
+
+        field = re.search(r"Config\.(\w+)", str(exc))
+        if field is None or field.group(1) not in _SIZE_FLAGS:
+            raise
+        raise ConfigError(f"{_SIZE_FLAGS[field.group(1)]}: {exc}") from exc
+    model = train(data, output, train_config, model_config)
     import os
 
     if os.environ.get("LOCAL_RANK", "0") != "0" or os.environ.get("NODE_RANK", "0") != "0":
@@ -331,6 +364,12 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
         click.echo(f"cubature          {cub['count']} of {model.mesh.n_tets} tets fitted to {cub['samples']} training poses, "
                    f"force residual {100 * cub['fit_error']:.2f} % (tolerance {100 * cub['tolerance']:g} %), {cub['fit_seconds']:.1f} s; "
                    "stored in the model, the reduced runs' default")
+    held = meta.get("held_out")
+    if held and held.get("runs"):
+        click.echo(f"held-out runs, ReducedSim(model) with its defaults against each run (estimate: the run's own; flagged above "
+                   f"{100 * held['threshold']:.0f} %):")
+        for line in held_out_lines(held):
+            click.echo(line)
     paths = output_paths(output)
     click.echo(f"wrote {paths['model']}, {paths['csv'].name}, {paths['png'].name}")
     click.echo(f"wall time {time.perf_counter() - start:.1f} s")
@@ -515,7 +554,9 @@ def demo_command(scene_source, out, resolution, epochs, modes, frame, steps, qui
     from dataclasses import replace
 
     from .demo import run_demo
+    from .model import ModelConfig
 
+    ModelConfig(latent_dim=modes, frame=frame)  # -r's memory, checked before the runs are simulated
     run_demo(replace(DEMO_DEFAULTS, scene=scene_source, out_dir=out, resolution=resolution, epochs=epochs, modes=modes, frame=frame,
                      steps=steps), progress=not quiet)
 

@@ -86,6 +86,13 @@ class Cubature:
         scheme: ``"full"``, ``"naive"`` or ``"optimized"``.
         fit_error: relative error of the fitted reduced forces on the training
             samples (``optimized`` only, else None).
+
+    Arrays may be given as any sequences (lists, tuples); they are kept as arrays: tets int,
+    weights and points float64.
+
+    Raises:
+        ShapeError: arrays of the wrong shape or lengths, points not finite real numbers.
+        ConfigError: tets not integers >= 0, weights not finite reals >= 0.
     """
 
     tets: np.ndarray
@@ -98,16 +105,27 @@ class Cubature:
 
     def __post_init__(self) -> None:
         tets = _indices("Cubature", "tets", self.tets)
-        weights = _amounts("Cubature", "weights", self.weights, "m^3")
+        weights = _amounts("Cubature", "weights", self.weights, "m^3").astype(np.float64, copy=False)
+        what = "Cubature points must be a (K, 3) array (or sequence) of finite real coordinates in m"
         try:
-            n_points = len(self.points)
-        except TypeError:
-            raise ShapeError(f"Cubature points must be a (K, 3) array, got {type(self.points).__name__}") from None
-        if len(tets) != len(weights) or len(tets) != n_points:
+            points = np.asarray(self.points)
+            if points.dtype.kind not in "iuf":
+                raise TypeError(f"dtype {points.dtype}")
+            points = points.astype(np.float64, copy=False)
+        except (TypeError, ValueError) as exc:
+            raise ShapeError(f"{what}, got {type(self.points).__name__} ({exc})") from None
+        if points.size == 0 and points.ndim <= 2:
+            points = points.reshape(0, 3)  # no points: [] as well as np.zeros((0, 3))
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ShapeError(f"{what}, got shape {points.shape}")
+        if not np.all(np.isfinite(points)):
+            raise ShapeError("Cubature points hold NaN or inf")
+        if len(tets) != len(weights) or len(tets) != len(points):
             raise ShapeError("Cubature tets, weights and points must have the same length, got "
-                             f"{len(tets)}, {len(weights)} and {n_points}")
+                             f"{len(tets)}, {len(weights)} and {len(points)}")
         object.__setattr__(self, "tets", tets)
         object.__setattr__(self, "weights", weights)
+        object.__setattr__(self, "points", points)
 
     @property
     def count(self) -> int:

@@ -5,7 +5,10 @@ configurations and initial states for one mesh, writes one trajectory file per r
 (``traj_XXX_*.npz``), the mesh once (``mesh.vtu``) and a manifest (``manifest.json``)
 listing every run with its parameters, status and timing. It is resumable: a run whose
 file exists and is valid (readable archive, licrom trajectory header, the same scene and
-frame count) is skipped, so an interrupted sweep continues where it stopped.
+frame count) is skipped, so an interrupted sweep continues where it stopped. One sweep at a
+time writes a directory: it holds a lock (``.licrom.lock``, :data:`LOCK_NAME`) while it runs, and a
+second one is refused with a ConcurrencyError; the lock dies with its process, so a killed run
+leaves nothing that blocks the next.
 
 Each run is one task (:func:`simulate_run`, the same code for every executor) that writes
 its own file atomically; the runs go one after the other in this process, to a pool of
@@ -20,10 +23,12 @@ mu 0.5) and the demo's training set ("demo").
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -31,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_path, load_npz, make_dir
-from .errors import ConfigError, FileFormatError, LicromError, OutputError
+from ._io import atomic_path, load_npz, make_dir, output_error
+from .errors import ConcurrencyError, ConfigError, FileFormatError, LicromError, OutputError
 from .mesh import Mesh
 from .placement import initial_state_on_plane
 from .scene import InitialState, Plane, Scene
@@ -41,6 +46,7 @@ from .trajectory import TRAJECTORY_FORMAT_VERSION
 
 __all__ = [
     "DATASET_FORMAT_VERSION",
+    "LOCK_NAME",
     "MANIFEST_NAME",
     "MESH_NAME",
     "PRESETS",
@@ -56,6 +62,8 @@ __all__ = [
 DATASET_FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"
 MESH_NAME = "mesh.vtu"
+LOCK_NAME = ".licrom.lock"
+"""The file a running :func:`generate_dataset` holds locked in its directory (removed when it ends)."""
 PRESETS = builtin_scenes()
 INITIAL_FRAMES = ("world", "plane")
 
@@ -124,6 +132,71 @@ def load_manifest(out_dir: str | Path) -> dict[str, Any]:
     if not isinstance(entries, list) or not all(isinstance(t, dict) and isinstance(t.get("file"), str) for t in entries):
         raise FileFormatError(f"dataset manifest '{p}' is corrupt: 'trajectories' must be a list of objects with a 'file' name")
     return d
+
+
+def _try_lock(fd: int) -> bool:
+    """Lock the open file ``fd`` for this process without waiting; False when another holds it.
+
+    The operating system releases the lock when its holder exits, however it ends (killed included).
+    """
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except OSError:
+            return False
+        return True
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def _directory_lock(out: Path) -> Iterator[None]:
+    """Hold ``out/LOCK_NAME`` locked while the body runs; remove it after.
+
+    Raises:
+        ConcurrencyError: another sweep (in this or another process) holds the lock.
+        OutputError: the lock file cannot be created (read-only folder, ...).
+    """
+    path = out / LOCK_NAME
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise output_error(path, exc) from exc
+        if not _try_lock(fd):
+            try:
+                holder = os.read(fd, 32).decode(errors="replace").strip()
+            except OSError:
+                holder = ""
+            os.close(fd)
+            raise ConcurrencyError(f"dataset directory '{out}' is being written by another licrom generate "
+                                   f"({'process ' + holder if holder.isdigit() else 'another process'} holds its lock "
+                                   f"'{path}'); wait for it to finish or write to another directory")
+        # The holder before us removes the file as it ends: hold the one that is at the path now.
+        try:
+            current = os.stat(path)
+            opened = os.fstat(fd)
+            if (current.st_dev, current.st_ino) == (opened.st_dev, opened.st_ino):
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    try:
+        with contextlib.suppress(OSError):  # the holder's pid is for the message only
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)  # while still locked, so no one holds a file that is no longer there
+        os.close(fd)
 
 
 def _write_manifest(path: Path, manifest: dict[str, Any]) -> None:
@@ -251,6 +324,7 @@ def generate_dataset(
     name: str | None = None,
     executor: str = "local",
     jobs: int | None = None,
+    ray_timeout: float | None = None,
 ) -> Path:
     """Simulate the cartesian product of frictions x planes x initial states; return the manifest path.
 
@@ -284,6 +358,8 @@ def generate_dataset(
             tasks share). See :mod:`licrom.executors`.
         jobs: processes of the local executor (default 1: the runs in this process, one
             after the other); not for Ray.
+        ray_timeout: seconds to wait for the Ray cluster at ``RAY_ADDRESS`` to answer (default
+            ``LICROM_RAY_TIMEOUT``, else :data:`licrom.executors.RAY_TIMEOUT`, 30 s).
 
     Every run is :func:`simulate_run`, which writes its file atomically; this process
     writes the manifest as runs finish. The files do not depend on the executor. Existing
@@ -291,10 +367,11 @@ def generate_dataset(
     with ``on_failure="raise"``) are recorded as failed and retried on the next call.
 
     Raises:
-        ConfigError: bad arguments, Ray missing for ``executor="ray"``, or ``out_dir``
-            holds a dataset of another mesh.
+        ConfigError: bad arguments, Ray missing for ``executor="ray"``, no Ray cluster answering
+            at ``RAY_ADDRESS`` within ``ray_timeout``, or ``out_dir`` holds a dataset of another mesh.
+        ConcurrencyError: another sweep is writing ``out_dir`` (it holds :data:`LOCK_NAME` there).
     """
-    from .executors import check_executor, run_tasks
+    from .executors import check_executor, check_ray_timeout, run_tasks
     from .full_sim import check_device_name, resolve_device
 
     if not isinstance(mesh, Mesh):
@@ -309,6 +386,7 @@ def generate_dataset(
         raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
     runs = sweep_runs(mesh, base_scene, frictions, planes, initial_states, initial_frame)
     executor, jobs = check_executor(executor, jobs)
+    ray_timeout = check_ray_timeout(ray_timeout) if executor == "ray" else None
     # Local runs use this machine's devices; Ray tasks choose on the node that runs them.
     device = resolve_device(device) if executor == "local" else check_device_name(device)
     mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
@@ -316,109 +394,111 @@ def generate_dataset(
     states = [base_scene.initial] if initial_states is None else list(initial_states)
 
     out = make_dir(out_dir)
-    mesh_path = out / MESH_NAME
-    existing = None
-    if mesh_path.exists():
-        try:
-            existing = Mesh.load(mesh_path)
-        except LicromError:
-            existing = None  # unreadable: written again below
-    if existing is not None and not existing.same_as(mesh):
-        if (out / MANIFEST_NAME).exists():
-            raise ConfigError(f"'{out}' already holds a dataset of another mesh ({existing.n_tets} tets); use a new directory")
+    # One sweep at a time per directory: two would both write mesh.vtu and the manifest, the last one winning.
+    with _directory_lock(out):
+        mesh_path = out / MESH_NAME
         existing = None
-    if existing is None:
-        mesh.save(mesh_path)
-    frames = 1 + steps // record_every
-    manifest: dict[str, Any] = {
-        "format": "licrom.dataset",
-        "version": DATASET_FORMAT_VERSION,
-        "name": name,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "mesh": MESH_NAME,
-        "n_vertices": mesh.n_vertices,
-        "n_tets": mesh.n_tets,
-        "base_scene": base_scene.to_dict(),
-        "sweep": {
-            "frictions": mus,
-            "planes": [[{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in _as_planes(it, None)]
-                       for it in plane_items],
-            "initial_states": [s.__dict__ for s in states],
-            "initial_frame": initial_frame,
-        },
-        "steps": int(steps),
-        "record_every": int(record_every),
-        "frames": frames,
-        "device": device,
-        "executor": executor,
-        "jobs": jobs if executor == "local" else None,
-        "precision": precision,
-        "trajectories": [],
-    }
-    manifest_path = out / MANIFEST_NAME
-    previous: dict[str, dict[str, Any]] = {}
-    if manifest_path.exists():
-        try:
-            previous = {t["file"]: t for t in load_manifest(out).get("trajectories", [])}
-        except (FileFormatError, KeyError, TypeError):
-            previous = {}
-
-    # Entries in sweep order; a run still to simulate has its entry filled when its task finishes.
-    entries: list[dict[str, Any]] = []
-    todo: list[int] = []
-    task_args: list[tuple[Any, ...]] = []
-    step_bars = progress and executor == "local" and jobs == 1  # one run at a time: its steps can be shown
-    run_devices = local_devices(device, jobs) if executor == "local" else [device]
-    for index, (mu, run_planes, k, state, scene) in enumerate(runs):
-        fname = _file_name(index, mu, run_planes, k)
-        entry: dict[str, Any] = {
-            "index": index,
-            "file": fname,
-            "friction": mu if mu is not None else [p.friction for p in run_planes],
-            "slope_deg": [p.slope_deg for p in run_planes],
-            "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
-            "initial_index": k,
-            "initial": state.__dict__,
-            "scene_initial": scene.initial.__dict__,
+        if mesh_path.exists():
+            try:
+                existing = Mesh.load(mesh_path)
+            except LicromError:
+                existing = None  # unreadable: written again below
+        if existing is not None and not existing.same_as(mesh):
+            if (out / MANIFEST_NAME).exists():
+                raise ConfigError(f"'{out}' already holds a dataset of another mesh ({existing.n_tets} tets); use a new directory")
+            existing = None
+        if existing is None:
+            mesh.save(mesh_path)
+        frames = 1 + steps // record_every
+        manifest: dict[str, Any] = {
+            "format": "licrom.dataset",
+            "version": DATASET_FORMAT_VERSION,
+            "name": name,
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "mesh": MESH_NAME,
+            "n_vertices": mesh.n_vertices,
+            "n_tets": mesh.n_tets,
+            "base_scene": base_scene.to_dict(),
+            "sweep": {
+                "frictions": mus,
+                "planes": [[{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in _as_planes(it, None)]
+                           for it in plane_items],
+                "initial_states": [s.__dict__ for s in states],
+                "initial_frame": initial_frame,
+            },
+            "steps": int(steps),
+            "record_every": int(record_every),
+            "frames": frames,
+            "device": device,
+            "executor": executor,
+            "jobs": jobs if executor == "local" else None,
+            "precision": precision,
+            "trajectories": [],
         }
-        entries.append(entry)
-        if _valid_trajectory_file(out / fname, scene, frames):
-            old = previous.get(fname, {})
-            entry.update(status="done", skipped=True, seconds=old.get("seconds"), device=old.get("device"),
-                         bytes=(out / fname).stat().st_size, newton_mean=old.get("newton_mean"),
-                         unconverged_steps=old.get("unconverged_steps"))
-        else:
-            info = {"dataset": name, "index": index, "friction": mu, "slope_deg": entry["slope_deg"], "initial_index": k, "mesh": MESH_NAME}
-            todo.append(index)
-            run_device = run_devices[len(task_args) % len(run_devices)]
-            task_args.append((str(out), mesh, scene, fname, int(steps), int(record_every), run_device, precision, info, step_bars))
+        manifest_path = out / MANIFEST_NAME
+        previous: dict[str, dict[str, Any]] = {}
+        if manifest_path.exists():
+            try:
+                previous = {t["file"]: t for t in load_manifest(out).get("trajectories", [])}
+            except (FileFormatError, KeyError, TypeError):
+                previous = {}
 
-    bar = None
-    if progress:
-        from tqdm import tqdm
+        # Entries in sweep order; a run still to simulate has its entry filled when its task finishes.
+        entries: list[dict[str, Any]] = []
+        todo: list[int] = []
+        task_args: list[tuple[Any, ...]] = []
+        step_bars = progress and executor == "local" and jobs == 1  # one run at a time: its steps can be shown
+        run_devices = local_devices(device, jobs) if executor == "local" else [device]
+        for index, (mu, run_planes, k, state, scene) in enumerate(runs):
+            fname = _file_name(index, mu, run_planes, k)
+            entry: dict[str, Any] = {
+                "index": index,
+                "file": fname,
+                "friction": mu if mu is not None else [p.friction for p in run_planes],
+                "slope_deg": [p.slope_deg for p in run_planes],
+                "planes": [{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in run_planes],
+                "initial_index": k,
+                "initial": state.__dict__,
+                "scene_initial": scene.initial.__dict__,
+            }
+            entries.append(entry)
+            if _valid_trajectory_file(out / fname, scene, frames):
+                old = previous.get(fname, {})
+                entry.update(status="done", skipped=True, seconds=old.get("seconds"), device=old.get("device"),
+                             bytes=(out / fname).stat().st_size, newton_mean=old.get("newton_mean"),
+                             unconverged_steps=old.get("unconverged_steps"))
+            else:
+                info = {"dataset": name, "index": index, "friction": mu, "slope_deg": entry["slope_deg"], "initial_index": k, "mesh": MESH_NAME}
+                todo.append(index)
+                run_device = run_devices[len(task_args) % len(run_devices)]
+                task_args.append((str(out), mesh, scene, fname, int(steps), int(record_every), run_device, precision, info, step_bars))
 
-        bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj", initial=len(runs) - len(todo))
-    start_all = time.perf_counter()
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-    def write(complete: bool) -> None:
-        manifest["trajectories"] = [e for e in entries if "status" in e]
-        manifest["seconds"] = round(time.perf_counter() - start_all, 3)
-        manifest["complete"] = complete
-        _write_manifest(manifest_path, manifest)
+            bar = tqdm(total=len(runs), desc=f"dataset {name or out.name}", unit="traj", initial=len(runs) - len(todo))
+        start_all = time.perf_counter()
 
-    try:
-        for i, result in run_tasks(simulate_run, task_args, executor, jobs if executor == "local" else None):
-            entry = entries[todo[i]]
-            entry.update(skipped=False, **result)
-            write(False)
+        def write(complete: bool) -> None:
+            manifest["trajectories"] = [e for e in entries if "status" in e]
+            manifest["seconds"] = round(time.perf_counter() - start_all, 3)
+            manifest["complete"] = complete
+            _write_manifest(manifest_path, manifest)
+
+        try:
+            for i, result in run_tasks(simulate_run, task_args, executor, jobs if executor == "local" else None, ray_timeout):
+                entry = entries[todo[i]]
+                entry.update(skipped=False, **result)
+                write(False)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(last=f"{entry['file']} {entry['status']}", refresh=False)
+        finally:
             if bar is not None:
-                bar.update(1)
-                bar.set_postfix(last=f"{entry['file']} {entry['status']}", refresh=False)
-    finally:
-        if bar is not None:
-            bar.close()
-    write(all(e["status"] == "done" for e in entries))
-    return manifest_path
+                bar.close()
+        write(all(e["status"] == "done" for e in entries))
+        return manifest_path
 
 
 # --- the report's sets --------------------------------------------------------------------
@@ -447,7 +527,7 @@ class DatasetSpec:
         return [run[-1] for run in sweep_runs(self.mesh, self.base_scene, self.frictions, self.planes, self.initial_states, self.initial_frame)]
 
     def generate(self, out_dir: str | Path, device: str | None = None, progress: bool = True, executor: str = "local",
-                 jobs: int | None = None) -> Path:
+                 jobs: int | None = None, ray_timeout: float | None = None) -> Path:
         """Run :func:`generate_dataset` on this spec; return the manifest path."""
         return generate_dataset(
             out_dir,
@@ -464,6 +544,7 @@ class DatasetSpec:
             name=self.name,
             executor=executor,
             jobs=jobs,
+            ray_timeout=ray_timeout,
         )
 
 

@@ -10,6 +10,7 @@ they exist for full and reduced runs alike.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from collections.abc import Sequence
@@ -19,8 +20,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from ._io import atomic_path, make_dir
-from .errors import ConfigError, LicromError, ShapeError, require_optional
+from ._io import atomic_path, make_dir, output_error
+from .errors import ConfigError, OutputError, ShapeError, require_optional
 from .rigid import nonrigid_displacements
 from .scene import Plane
 from .trajectory import Trajectory
@@ -230,6 +231,7 @@ def write_usd(trajectories: Trajectory | Sequence[Trajectory], path: str | os.Pa
         MissingDependencyError: usd-core is not installed (``pip install 'licrom[usd]'``).
         ConfigError: another file suffix, or labels that do not match the runs.
         ShapeError: runs of different frame counts.
+        OutputError: the stage cannot be written (a full disk, a read-only folder); ``path`` keeps its previous contents.
     """
     runs = [trajectories] if isinstance(trajectories, Trajectory) else list(trajectories)
     out = Path(path)
@@ -241,7 +243,7 @@ def write_usd(trajectories: Trajectory | Sequence[Trajectory], path: str | os.Pa
     if len({t.n_frames for t in runs}) != 1:
         raise ShapeError(f"write_usd needs runs of one frame count, got {[t.n_frames for t in runs]}")
     Usd = require_optional("pxr.Usd", "usd", "USD export")
-    from pxr import Gf, Sdf, UsdGeom, Vt
+    from pxr import Gf, Sdf, Tf, UsdGeom, Vt
 
     first = runs[0]
     stage = Usd.Stage.CreateInMemory()
@@ -285,7 +287,21 @@ def write_usd(trajectories: Trajectory | Sequence[Trajectory], path: str | os.Pa
         plane.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(0.6, 0.6, 0.6)]))
         plane.GetPrim().SetCustomDataByKey("friction", float(first.scene.planes[p].friction))
     with atomic_path(out) as tmp:
-        if not stage.GetRootLayer().Export(str(tmp)):
-            raise LicromError(f"USD could not write '{out}'")
+        try:
+            written = stage.GetRootLayer().Export(str(tmp))
+        except Tf.ErrorException as exc:  # a full disk, a file size limit, an unwritable folder
+            raise _usd_write_error(out, exc) from None
+        if not written:
+            raise OutputError(f"cannot write '{out}': USD could not export the stage there")
     return out
+
+
+def _usd_write_error(out: Path, exc: Exception) -> OutputError:
+    """The OutputError for USD's ``Tf.ErrorException`` on writing ``out``: the system's reason and its errno when the message names one."""
+    # USD's message: "Error in 'function' at line N in file F : 'what happened'", once per failing layer.
+    said = [m for m in re.findall(r" : '([^']*)'", str(exc)) if m] or [" ".join(str(exc).split())]
+    for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EROFS, errno.EISDIR):
+        if os.strerror(code) in said[0]:
+            return output_error(out, OSError(code, os.strerror(code)))
+    return OutputError(f"cannot write '{out}': USD could not write it ({said[0]})")
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, FileFormatError, MeshError, ShapeError
+from .errors import ConfigError, FileFormatError, MeshError, MissingDependencyError, ShapeError
 
 __all__ = ["Mesh", "MeshQuality"]
 
@@ -22,6 +22,64 @@ _TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 # A tet whose volume is below this fraction of (mean edge length)^3 is degenerate.
 _DEGENERATE_RELATIVE_VOLUME = 1e-10
 _TET_FORMATS = ".mesh, .msh, .vtu, .vtk, .xdmf, .med, .inp (anything meshio reads with tetra cells)"
+# The suffixes Mesh.save writes: meshio formats that hold tets (checked by a write and read back).
+# Surface formats (.stl, .ply, .obj, .off, ...) would drop the tets.
+_SAVE_SUFFIXES = (".mesh", ".meshb", ".msh", ".vtu", ".vtk", ".xdmf", ".xmf", ".med", ".inp", ".avs", ".bdf", ".nas", ".fem",
+                  ".dat", ".tec", ".ele", ".node", ".f3grid", ".mdpa", ".post", ".dato", ".su2", ".vol", ".xml", ".e", ".exo", ".ex2")
+# meshio imports these for some formats only; they are not licrom dependencies.
+_FORMAT_PACKAGES = {".xdmf": "h5py", ".xmf": "h5py", ".med": "h5py", ".h5m": "h5py", ".hmf": "h5py", ".cgns": "h5py",
+                    ".e": "netCDF4", ".exo": "netCDF4", ".ex2": "netCDF4"}
+
+
+# meshio readers that call readline() for ever at the end of a truncated file, and the mode they open it in.
+_LOOPING_READERS = {"tecplot": "r", "mdpa": "rb"}
+# A reader that has read past the end of the file this many times is looping.
+_MAX_READS_AT_END = 100
+
+
+class _EndGuard:
+    """A file for meshio that raises EOFError once a reader keeps reading at its end (a loop on a truncated file)."""
+
+    def __init__(self, f) -> None:
+        self._f = f
+        self._at_end = 0
+
+    def _count(self, data):
+        if not data:
+            self._at_end += 1
+            if self._at_end > _MAX_READS_AT_END:
+                raise EOFError(f"the reader kept reading at the end of the file ({_MAX_READS_AT_END} times): it ends too soon")
+        return data
+
+    def readline(self, *args):
+        return self._count(self._f.readline(*args))
+
+    def read(self, *args):
+        return self._count(self._f.read(*args))
+
+    def __getattr__(self, name):  # tell, seek, fileno (numpy's fromfile) ...: the file's own
+        return getattr(self._f, name)
+
+
+def _read(meshio, p: Path):
+    """``meshio.read(p)``, guarded against the readers that loop for ever on truncated files."""
+    formats = meshio.extension_to_filetypes.get(p.suffix.lower(), [])
+    if len(formats) == 1 and formats[0] in _LOOPING_READERS:
+        with open(p, _LOOPING_READERS[formats[0]]) as f:
+            return meshio.read(_EndGuard(f), file_format=formats[0])
+    return meshio.read(p)
+
+
+def _missing_package(p: Path, exc: ImportError | None = None) -> MissingDependencyError | None:
+    """The MissingDependencyError for a file whose meshio format needs a package that is not installed; else None."""
+    import importlib.util
+
+    package = exc.name if exc is not None and exc.name else _FORMAT_PACKAGES.get(p.suffix.lower())
+    if package is None or (exc is None and importlib.util.find_spec(package) is not None):
+        return None
+    package = package.split(".")[0]
+    return MissingDependencyError(f"meshio needs the optional package '{package}' for '{p.name}' ({p.suffix} files), and it is not "
+                                  f"installed; install it with: pip install {package} (or use .msh, .vtu or .mesh)")
 
 
 @dataclass(frozen=True)
@@ -250,13 +308,19 @@ class Mesh:
 
         Args:
             points: (p, 3) positions in m in the rest configuration.
-            candidates: nearest tet centroids examined per point.
+            candidates: nearest tet centroids examined per point, an integer >= 1 (capped at the tet count).
 
         Returns:
             ``(tets, bary)``: (p,) tet indices and (p, 4) barycentric coordinates.
+
+        Raises:
+            ShapeError: ``points`` is not (p, 3) or holds NaN or inf.
+            ConfigError: ``candidates`` is not an integer >= 1.
         """
         from scipy.spatial import cKDTree
 
+        if isinstance(candidates, (bool, np.bool_)) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
+            raise ConfigError(f"Mesh.locate candidates must be an integer >= 1 (nearest tets examined per point), got {candidates!r}")
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ShapeError(f"points must have shape (p, 3), got {pts.shape}")
@@ -310,6 +374,8 @@ class Mesh:
         Raises:
             FileFormatError: the file is missing, unreadable or holds no tetrahedra.
             MeshError: the tets are invalid (see :class:`Mesh`).
+            MissingDependencyError: the format needs a package meshio imports on demand (``h5py`` for
+                ``.xdmf`` and ``.med``, ``netCDF4`` for Exodus), and it is not installed.
         """
         import meshio
 
@@ -321,22 +387,31 @@ class Mesh:
             raise FileFormatError(f"cannot read mesh file '{p}': {too_long}")
         if not p.is_file():
             raise FileFormatError(f"mesh file not found: '{p}'")
+        missing = _missing_package(p)
+        if missing is not None:
+            raise missing
         chatter = io.StringIO()
         try:
             # meshio prints and calls sys.exit() on some corrupt files; keep both away from the user.
             with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
-                m = meshio.read(p)
+                m = _read(meshio, p)
+        except ImportError as exc:  # a format whose package meshio imports on demand
+            missing = _missing_package(p, exc)
+            raise (missing or FileFormatError(f"cannot read mesh '{p}': {exc}")) from exc
         except meshio.ReadError as exc:
             raise FileFormatError(f"cannot read mesh '{p}': {exc}. Accepted formats: {_TET_FORMATS}") from exc
         except (Exception, SystemExit) as exc:  # meshio raises many types on truncated or corrupt files
             detail = " ".join(chatter.getvalue().split()).removeprefix("Error: ") or f"{type(exc).__name__}: {exc}"
             raise FileFormatError(f"cannot read mesh '{p}' (truncated or corrupt?): {detail}") from None
-        blocks = [c.data for c in m.cells if c.type == "tetra"]
-        if not blocks:
-            kinds = sorted({c.type for c in m.cells}) or ["none"]
+        blocks = [np.asarray(c.data) for c in m.cells if c.type == "tetra"]
+        if not sum(len(b) for b in blocks):
+            kinds = sorted({c.type for c in m.cells if len(c.data)}) or ["none"]
             raise FileFormatError(f"mesh '{p}' holds no tetrahedra (cell types: {', '.join(kinds)}); licrom needs a tet mesh")
-        tets = np.concatenate(blocks).astype(np.int64)
-        pts = np.asarray(m.points, dtype=np.float64)
+        try:
+            tets = np.concatenate([b.reshape(-1, 4) for b in blocks]).astype(np.int64)
+            pts = np.asarray(m.points, dtype=np.float64)
+        except (ValueError, TypeError) as exc:  # tets of another arity, or points that are not numbers
+            raise FileFormatError(f"cannot read mesh '{p}' (truncated or corrupt?): {exc}") from None
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise FileFormatError(f"mesh '{p}' has points of shape {pts.shape}; licrom needs 3D points")
         if tets.size and (tets.min() < 0 or tets.max() >= len(pts)):
@@ -347,10 +422,21 @@ class Mesh:
             warnings.warn(f"mesh '{p}': dropped {int((~used).sum())} vertices that belong to no tet", stacklevel=2)
             remap = np.cumsum(used) - 1
             pts, tets = pts[used], remap[tets]
-        return cls(pts, tets, fix_orientation=fix_orientation)
+        try:
+            return cls(pts, tets, fix_orientation=fix_orientation)
+        except (ShapeError, MeshError) as exc:  # a file's content is a mesh problem, whatever its arrays' shapes
+            raise MeshError(f"mesh '{p}': {exc}") from None
 
     def save(self, path: str | Path) -> None:
-        """Write the mesh with meshio; the format follows the file extension. The write is atomic."""
+        """Write the mesh with meshio; the format follows the file extension. The write is atomic.
+
+        Raises:
+            FileFormatError: an extension that meshio does not know, or whose format cannot hold tets
+                (``.stl``, ``.ply``, ``.obj``, ...); the message lists the accepted ones.
+            MissingDependencyError: the format needs a package meshio imports on demand (``h5py`` for
+                ``.xdmf`` and ``.med``, ``netCDF4`` for Exodus), and it is not installed.
+            OutputError: the file cannot be written (see :func:`licrom._io.atomic_path`).
+        """
         import meshio
 
         from ._io import atomic_path
@@ -358,13 +444,22 @@ class Mesh:
         p = Path(path)
         formats = meshio.extension_to_filetypes.get(p.suffix.lower())
         if not formats:
-            raise FileFormatError(f"cannot write a mesh to '{p}': unknown file extension '{p.suffix}'. Accepted formats: {_TET_FORMATS}")
+            raise FileFormatError(f"cannot write a mesh to '{p}': unknown file extension '{p.suffix}'. "
+                                  f"Accepted: {', '.join(_SAVE_SUFFIXES)}")
+        if p.suffix.lower() not in _SAVE_SUFFIXES:
+            raise FileFormatError(f"cannot write a mesh to '{p}': a {p.suffix} file cannot hold tets (meshio would drop them). "
+                                  f"Accepted: {', '.join(_SAVE_SUFFIXES)}")
+        missing = _missing_package(p)
+        if missing is not None:
+            raise missing
         # .msh is Gmsh's format to most people (meshio would pick ANSYS, its first match).
         file_format = "gmsh" if "gmsh" in formats else formats[0]
         mesh = meshio.Mesh(self._vertices, [("tetra", self._tets)])
         with atomic_path(p) as tmp:
             try:
                 meshio.write(tmp, mesh, file_format=file_format)
+            except ImportError as exc:  # a package that _FORMAT_PACKAGES does not know of
+                raise (_missing_package(p, exc) or FileFormatError(f"cannot write a mesh to '{p}': {exc}")) from exc
             except (KeyError, ValueError, meshio.ReadError, meshio.WriteError) as exc:
                 detail = str(exc).replace(str(tmp), str(p))  # the user's path, not the temporary one beside it
                 raise FileFormatError(f"cannot write a mesh to '{p}': {detail}. Accepted formats: {_TET_FORMATS}") from exc

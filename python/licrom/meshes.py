@@ -5,17 +5,25 @@ Kuhn tets (a conforming Freudenthal triangulation), cubes whose centre lies insi
 shape are kept, and boundary vertices are moved onto the curved surface where that
 does not flatten a tet. ``resolution`` is the number of cells along the longest side;
 tets grow with its cube (the cheese reaches 100k tets at about ``resolution=42``).
+
+Sizes are checked before anything is allocated: a ``resolution`` whose mesh (about
+``_BYTES_PER_TET`` bytes per tet while meshing) would not fit in the memory limit of
+:mod:`licrom._limits` (a fraction of the physical memory, or ``LICROM_MEMORY_LIMIT``), and
+a hole count that cannot be placed, give a :class:`~licrom.errors.ConfigError`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from decimal import Decimal
+from fractions import Fraction
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ._limits import check_memory, format_size
 from .errors import ConfigError
 from .mesh import Mesh
 
@@ -31,12 +39,36 @@ _KUHN = np.array(
 )
 # A snapped tet may keep no less than this fraction of its grid volume.
 _MIN_VOLUME_FRACTION = 0.15
+# Peak bytes per tet while meshing (grid indices, tets, the face-connectivity graph, snapping, the Mesh):
+# 1.7-1.9 kB measured for box, sphere and cheese at resolution 20-60, rounded up.
+_BYTES_PER_TET = 2048
+# Bytes per grid cell before the cells outside the shape are dropped (indices, centres, signed distances),
+# and per cell and hole (the cheese's distances to every hole, float64).
+_BYTES_PER_CELL = 96
+_BYTES_PER_CELL_HOLE = 32
 
 
 def _check_resolution(resolution: int, minimum: int) -> int:
-    if not isinstance(resolution, (int, np.integer)) or resolution < minimum:
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < minimum:
         raise ConfigError(f"resolution must be an integer >= {minimum} (cells along the longest side), got {resolution!r}")
     return int(resolution)
+
+
+def _check_memory(shape: str, extent: np.ndarray, resolution: int, fill: float, holes: int = 0) -> None:
+    """Refuse a ``resolution`` whose mesh would not fit in memory, before the grid is made.
+
+    ``fill``: the fraction of the bounding box's cells the shape keeps (1 for a box; its tets, 6 per kept cell).
+    """
+    # Exact in Python ints (the grid of _grid_mesh): 2**70 gives a ConfigError, not an overflow.
+    ratio = extent / extent.max()
+    cells = [max(1, round(Fraction(float(x)) * resolution)) for x in ratio]
+    n_cells = cells[0] * cells[1] * cells[2]
+    tets = 6 * n_cells * Fraction(fill)
+    estimate = int(n_cells * (_BYTES_PER_CELL + _BYTES_PER_CELL_HOLE * holes) + tets * _BYTES_PER_TET)
+    with_holes = f" and {holes} holes" if holes else ""
+    grid = " x ".join(format_size(n) for n in cells)
+    check_memory("resolution", resolution, estimate, f"a {shape} of about {Decimal(int(tets)):.3g} tets from a {grid} grid"
+                 f"{with_holes}, {_BYTES_PER_TET} bytes per tet while meshing")
 
 
 def _check_size(size: float | tuple[float, float, float]) -> np.ndarray:
@@ -135,6 +167,7 @@ def box(size: float | tuple[float, float, float] = 0.1, resolution: int = 8) -> 
     """
     s = _check_size(size)
     res = _check_resolution(resolution, 1)
+    _check_memory("box", s, res, 1.0)
     return _grid_mesh(_box_sdf(s / 2, np.zeros(3)), -s / 2, s / 2, res, snap=False)
 
 
@@ -147,6 +180,7 @@ def sphere(radius: float = 0.05, resolution: int = 12) -> Mesh:
     """
     r = float(_check_size(radius)[0])
     res = _check_resolution(resolution, 4)
+    _check_memory("sphere", np.ones(3), res, np.pi / 6)  # the cells whose centre is in the ball
     sdf: Sdf = lambda p: np.linalg.norm(p, axis=1) - r  # noqa: E731
     return _grid_mesh(sdf, np.full(3, -r), np.full(3, r), res, snap=True)
 
@@ -168,7 +202,7 @@ class CheeseHoles:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.count, (int, np.integer)) or self.count < 0:
+        if isinstance(self.count, bool) or not isinstance(self.count, (int, np.integer)) or self.count < 0:
             raise ConfigError(f"CheeseHoles.count must be an integer >= 0, got {self.count!r}")
         if not 0 < self.min_radius <= self.max_radius < 0.5:
             raise ConfigError(
@@ -176,22 +210,51 @@ class CheeseHoles:
                 f"got {self.min_radius}, {self.max_radius}"
             )
 
+    def most(self, size: np.ndarray) -> int:
+        """An upper bound of the holes that fit in a block of ``size`` (m): a larger count can never be placed.
+
+        Hole centres keep ``(2 min_radius + 0.1) x`` the shortest side apart, so balls of half that
+        diameter around them are disjoint, inside the block grown by that radius: their volumes bound the count.
+        """
+        gap = 2 * self.min_radius + 0.1  # x the shortest side
+        # In units of the gap (no overflow for tiny or huge blocks); a block too long for a float gets 2**62.
+        with np.errstate(over="ignore"):
+            grown = (size / size.min() - 0.6 * self.min_radius + gap) / gap  # centres stay 0.3 r inside each face
+            return int(min(np.prod(grown) / (np.pi / 6), 2.0**62))
+
     def layout(self, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Hole centres (k, 3) and radii (k,) in m for a block of ``size`` centred at the origin."""
+        """Hole centres (k, 3) and radii (k,) in m for a block of ``size`` centred at the origin.
+
+        Raises:
+            ConfigError: more holes than can fit (:meth:`most`, at once), or fewer placed than ``count``
+                in ``200 count`` random tries (naming how many were placed).
+        """
+        size = np.asarray(size, dtype=np.float64)
+        most = self.most(size)
+        block = " x ".join(f"{x:g}" for x in size)
+        if self.count > most:
+            raise ConfigError(f"CheeseHoles.count must be at most {most} for a {block} m block (holes of radius >= min_radius="
+                              f"{self.min_radius} x its shortest side, {0.1 * size.min():g} m apart, cannot fit more), got {format_size(self.count)}")
         rng = np.random.default_rng(self.seed)
         short = float(size.min())
-        centres: list[np.ndarray] = []
-        radii: list[float] = []
-        for _ in range(200 * max(self.count, 1)):
-            if len(radii) == self.count:
+        centres = np.empty((self.count, 3))
+        radii = np.empty(self.count)
+        k = 0
+        tries = 200 * max(self.count, 1)
+        for _ in range(tries):
+            if k == self.count:
                 break
             r = short * rng.uniform(self.min_radius, self.max_radius)
             # Centres may sit slightly outside the block so some holes open onto its faces.
             c = rng.uniform(-size / 2 + 0.3 * r, size / 2 - 0.3 * r)
-            if all(np.linalg.norm(c - c2) > r + r2 + 0.1 * short for c2, r2 in zip(centres, radii)):
-                centres.append(c)
-                radii.append(r)
-        return np.array(centres).reshape(-1, 3), np.array(radii)
+            if np.all(np.linalg.norm(c - centres[:k], axis=1) > r + radii[:k] + 0.1 * short):
+                centres[k], radii[k] = c, r
+                k += 1
+        if k < self.count:
+            raise ConfigError(f"CheeseHoles.count={self.count}: only {k} holes could be placed in the {block} m block (seed "
+                              f"{self.seed}, {tries} random tries); ask for at most {k}, smaller holes (min_radius, max_radius) "
+                              "or another seed")
+        return centres, radii
 
 
 def cheese(
@@ -212,6 +275,8 @@ def cheese(
     res = _check_resolution(resolution, 4)
     if not isinstance(holes, CheeseHoles):
         raise ConfigError(f"holes must be a CheeseHoles, got {type(holes).__name__}")
+    if holes.count <= holes.most(s):  # else layout names the count, not the resolution
+        _check_memory("cheese", s, res, 1.0, holes.count)
     centres, radii = holes.layout(s)
     block = _box_sdf(s / 2, np.zeros(3))
 

@@ -34,7 +34,7 @@ from .rigid import body_frame_displacements
 from .scene import Scene
 from .stepping import check_field, check_run_arguments, record_run
 from .trajectory import Trajectory
-from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames
+from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
 
 __all__ = ["CUBATURES", "SOLVERS", "ReducedSim", "step_many"]
 
@@ -318,7 +318,7 @@ class ReducedSim:
             monitor.after_step(lambda: (self.q, None, None), deformation)
             return outcome
 
-        rec = record_run(step, lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced")
+        rec = record_run(step, lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced", self._core.validity)
         work = {k: v - before[k] for k, v in sorted(self._core.stats().items())}
         qs = np.array([q for q, _ in rec.frames])
         qdots = np.array([qd for _, qd in rec.frames])
@@ -328,8 +328,9 @@ class ReducedSim:
         min_det_f = cubature_min_det(self._jacobians, qs)
         planes = self.scene.plane_array()
         depth = np.array([penetration(self.mesh.vertices + d, planes) for d in displacements])
+        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
         arrays = rec.arrays()
-        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation")
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation", rec.trailing)
         start = first_touch(self.mesh.vertices + displacements, planes, CONTACT_TOLERANCE * self.mesh.size)
         estimate = monitor.estimate(record_every * np.arange(len(qs)), None if start is None else record_every * start)
         warn_estimate(estimate, "the reduced simulation")

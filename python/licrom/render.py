@@ -436,8 +436,11 @@ def animation(
         images = np.stack([views.compose([[views.panel(i, f) for i in range(len(runs))]]) for f in picks])
     finally:
         views.close()
+    # Encoded in memory, then written: imageio writing the file itself retries its failed flush
+    # of a full disk when it is garbage-collected, printing an "Exception ignored" traceback.
+    data = iio.imwrite("<bytes>", images, extension=".gif", duration=1000.0 / fps, loop=0)
     with atomic_path(out) as tmp:
-        iio.imwrite(tmp, images, extension=".gif", duration=1000.0 / fps, loop=0)
+        tmp.write_bytes(data)
     return out
 
 

@@ -229,6 +229,22 @@ class ObjectSpec:
     def procedural(self) -> bool:
         return self.mesh in PROCEDURAL_SHAPES
 
+    def check(self) -> None:
+        """Check, without reading it, that the mesh file exists and is not a surface (procedural shapes pass).
+
+        Raises:
+            FileFormatError: the mesh file does not exist (or is a folder).
+            ConfigError: it is a surface (``.obj``, ``.stl``, ...), to be filled with tets first.
+        """
+        if self.procedural:
+            return
+        from .surface import SURFACE_SUFFIXES
+
+        if Path(self.mesh).suffix.lower() in SURFACE_SUFFIXES:
+            raise ConfigError(f"object mesh '{self.mesh}' is a surface; fill it with tets first: licrom mesh {self.mesh} -o object.msh")
+        if not Path(self.mesh).is_file():
+            raise FileFormatError(f"mesh file not found: '{self.mesh}'" + (" (it is a folder)" if Path(self.mesh).is_dir() else ""))
+
     def build(self) -> Mesh:
         """The tet mesh: generated, or read from the file."""
         from . import meshes

@@ -3,12 +3,15 @@
 :class:`~licrom.full_sim.FullSim`, :class:`~licrom.reduced_sim.ReducedSim` and
 :class:`~licrom.body_frame.BodyFrameSim` differ in how they take a step and what a
 frame is; the argument checks, the recording cadence, the timing and the progress bar
-(closed also when a step raises) are one piece of code.
+(closed also when a step raises) are one piece of code, and so is the rule that one
+simulation serves one thread at a time (:func:`exclusive`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -17,12 +20,53 @@ from typing import Any
 import numpy as np
 
 from ._repr import concise_repr
-from .errors import ConfigError, ShapeError
+from .errors import ConcurrencyError, ConfigError, ShapeError
 
-__all__ = ["RunRecord", "check_run_arguments", "record_run"]
+__all__ = ["BUSY_MESSAGE", "RunRecord", "ThreadGuard", "check_run_arguments", "exclusive", "record_run"]
 
 StepOutcome = tuple[int, float, bool]
 """``(iterations, residual in m/s, converged)`` of one step."""
+
+BUSY_MESSAGE = ("this simulation is busy in another thread (a step or evaluation is running there); a simulation serves one "
+                "thread at a time: give each thread its own simulation, or guard a shared one with a threading.Lock")
+"""What :class:`~licrom.errors.ConcurrencyError` says for a simulation in use by another thread (the reduced
+simulations' native core says the same)."""
+
+
+class ThreadGuard:
+    """Exclusive use of one simulation by one thread at a time, as the reduced simulations' native core enforces.
+
+    Entering it while another thread is inside raises :class:`~licrom.errors.ConcurrencyError` at once
+    instead of waiting (waiting would interleave two threads' steps on one state); the thread inside may
+    enter again (``run`` calls ``step``).
+    """
+
+    __slots__ = ("_lock",)
+
+    def __init__(self) -> None:
+        self._lock = threading.RLock()
+
+    def __enter__(self) -> None:
+        if not self._lock.acquire(blocking=False):
+            raise ConcurrencyError(BUSY_MESSAGE)
+
+    def __exit__(self, *exc: object) -> None:
+        self._lock.release()
+
+
+def exclusive(method: Callable[..., Any]) -> Callable[..., Any]:
+    """Run a simulation's method inside its :class:`ThreadGuard` (the instance attribute ``_guard``).
+
+    Raises:
+        ConcurrencyError: (from the method) another thread is inside a guarded method of the same simulation.
+    """
+
+    @functools.wraps(method)
+    def guarded(self: Any, *args: Any, **kwargs: Any) -> Any:
+        with self._guard:
+            return method(self, *args, **kwargs)
+
+    return guarded
 
 
 def check_field(name: str, a: Any, n: int) -> np.ndarray:
@@ -67,6 +111,10 @@ class RunRecord:
         frames: the snapshots, in order.
         times: simulated time of each frame, s.
         iterations, residuals, converged, seconds: per step (wall time in s).
+        between: per frame, ``(min det F, deepest penetration in m)`` over the steps since the
+            previous frame, this frame's included (``(inf, 0)`` for frame 0 and without a
+            ``validity`` probe).
+        trailing: the same over the steps after the last frame.
     """
 
     frames: list[Any] = field(default_factory=list)
@@ -75,6 +123,8 @@ class RunRecord:
     residuals: list[float] = field(default_factory=list)
     converged: list[bool] = field(default_factory=list)
     seconds: list[float] = field(default_factory=list)
+    between: list[tuple[float, float]] = field(default_factory=list)
+    trailing: tuple[float, float] = (np.inf, 0.0)
 
     __repr__ = concise_repr
 
@@ -111,6 +161,7 @@ def record_run(
     record_every: Any = 1,
     progress: bool = False,
     desc: str = "steps",
+    validity: Callable[[], tuple[float, float]] | None = None,
 ) -> RunRecord:
     """Take ``steps`` steps and record the state before the first and after every ``record_every``-th.
 
@@ -122,12 +173,15 @@ def record_run(
         record_every: record cadence, an integer >= 1.
         progress: show a progress bar.
         desc: the bar's label.
+        validity: ``(min det F, deepest penetration)`` after a step, probed after every step
+            (:mod:`licrom.validity`: a state between frames counts too).
 
     Raises:
         ConfigError: bad ``steps`` or ``record_every``. Whatever ``step`` raises passes through.
     """
     steps, record_every = check_run_arguments(steps, record_every)
-    rec = RunRecord(frames=[snapshot()], times=[clock()])
+    rec = RunRecord(frames=[snapshot()], times=[clock()], between=[(np.inf, 0.0)])
+    worst = (np.inf, 0.0)
     with _progress(steps, desc, progress) as bar:
         for s in range(1, steps + 1):
             start = time.perf_counter()
@@ -136,10 +190,16 @@ def record_run(
             rec.iterations.append(its)
             rec.residuals.append(res)
             rec.converged.append(ok)
+            if validity is not None:
+                det, depth = validity()
+                worst = (min(worst[0], det), max(worst[1], depth))
             if s % record_every == 0:
                 rec.frames.append(snapshot())
                 rec.times.append(clock())
+                rec.between.append(worst)
+                worst = (np.inf, 0.0)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(iterations=its, refresh=False)
+    rec.trailing = worst
     return rec

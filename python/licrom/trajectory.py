@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ._io import check_version, load_npz, save_npz
-from .errors import FileFormatError, LicromError, ShapeError, SolverError
+from .errors import ConfigError, FileFormatError, LicromError, ShapeError, SolverError
 from .mesh import Mesh
 from .rigid import center_of_mass
 from .scene import Scene
@@ -37,11 +37,12 @@ class Trajectory:
         residuals: (s,) final convergence measure of each step (m/s).
         converged: (s,) whether each step met the tolerance.
         step_seconds: (s,) wall time of each step, s.
-        min_det_f: (f,) smallest ``det F`` over the elements at each frame (the tets, or the
-            cubature points of a reduced model), or empty when not measured; <= 0 means
-            inverted elements (see :mod:`licrom.validity`).
-        penetration: (f,) deepest penetration of a vertex into a plane at each frame, m, or
-            empty when not measured.
+        min_det_f: (f,) smallest ``det F`` over the elements at each frame and the steps since
+            the previous frame (the tets, or the cubature points of a reduced model), or empty
+            when not measured; <= 0 means inverted elements (see :mod:`licrom.validity`).
+        penetration: (f,) deepest penetration of a vertex into a plane at each frame and the
+            steps since the previous frame (every vertex at the frames; the contact points of a
+            reduced model between them), m, or empty when not measured.
         error_estimate: (f,) a reduced run's online estimate of its non-rigid error, running
             from the first contact (dimensionless; see :mod:`licrom.error_estimate`), or empty
             (full runs, and files written before it existed).
@@ -139,9 +140,12 @@ class Trajectory:
         Raises:
             ShapeError: unknown precision, or frames beyond its range (they would be
                 stored as inf, which :meth:`load` refuses).
+            ConfigError: :attr:`info` is not a dict of JSON-serialisable values (the message names the
+                first entry that is not).
         """
         if precision not in ("float32", "float64"):
             raise ShapeError(f"precision must be 'float32' or 'float64', got {precision!r}")
+        _check_info(self.info)
         limit = float(np.finfo(precision).max)
         for name in ("displacements", "velocities"):
             # Values beyond float32 would be stored as inf, which load refuses.
@@ -194,6 +198,45 @@ class Trajectory:
             raise FileFormatError(f"trajectory '{path}' is missing data: {exc}") from exc
         except (LicromError, ValueError) as exc:
             raise FileFormatError(f"trajectory '{path}' holds invalid data: {exc}") from exc
+
+
+_JSON_INFO = ("Trajectory.info must be a dict of JSON-serialisable values (dicts, lists, tuples, str, int, float, "
+              "bool, None; arrays as .tolist())")
+
+
+def _check_info(info: Any) -> None:
+    """Refuse an ``info`` the file's JSON header cannot hold, naming the entry, before anything is written.
+
+    Raises:
+        ConfigError: not a dict, or an entry that is not JSON (an array, a NumPy integer, a set, an object, a key
+            that is no str, int, float, bool or None, a cycle, or nesting too deep).
+    """
+    if not isinstance(info, dict):
+        raise ConfigError(f"{_JSON_INFO}; got {type(info).__name__}")
+
+    def bad(value: Any, where: str, open_: tuple[int, ...]) -> str | None:
+        """What is wrong first at or under ``value`` (reached as ``where``), None when it is JSON."""
+        if value is None or isinstance(value, (str, bool, int, float)):
+            return None
+        if not isinstance(value, (dict, list, tuple)):
+            return f"{where} is a {type(value).__name__}"
+        if id(value) in open_:
+            return f"{where} refers back to an entry that holds it (a cycle)"
+        items = value.items() if isinstance(value, dict) else enumerate(value)
+        for key, item in items:
+            if isinstance(value, dict) and key is not None and not isinstance(key, (str, int, float)):  # json writes these as strings
+                return f"{where} has a key {key!r} of type {type(key).__name__}"
+            found = bad(item, f"{where}[{key!r}]", (*open_, id(value)))
+            if found is not None:
+                return found
+        return None
+
+    try:
+        found = bad(info, "info", ())
+    except RecursionError:
+        found = "info is nested too deeply"
+    if found is not None:
+        raise ConfigError(f"{_JSON_INFO}; {found}")
 
 
 def _check_members(path: Any, arrays: dict[str, np.ndarray]) -> None:

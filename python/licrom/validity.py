@@ -21,6 +21,15 @@ inside the valid range, e.g. to keep invalid runs out of a training set. A start
 inside a plane is usually a placement mistake, but the scene can still be simulated
 (the body is thrown out), so it warns at once instead of refusing.
 
+Both are checked after every step, not only at the recorded frames: each frame's
+``min_det_f`` and ``penetration`` are the worst of its own state and of the steps since
+the previous frame (a run recorded every 100 steps still sees what happened between). The
+full simulation measures every step on its device; the reduced ones keep the values of
+the evaluation at each step's accepted iterate, where their native solver forms every
+cubature point's F and every contact point's gap anyway (the last correction of a step,
+below the solver's tolerance, is not evaluated again), at the contact points; the
+recorded frames are measured at every vertex.
+
 Elements are the tets for the full simulation and the cubature points for the
 reduced ones (where the reduced model evaluates its material); penetration is
 measured at every vertex (an inverted body can sink with its inside), against
@@ -44,6 +53,7 @@ __all__ = [
     "penetration",
     "tet_determinants",
     "warn_frames",
+    "with_steps",
 ]
 
 PENETRATION_LIMIT = 0.1
@@ -110,22 +120,36 @@ def check_start(points: np.ndarray, planes: np.ndarray, size: float, what: str) 
         )
 
 
-def warn_frames(times: np.ndarray, min_det_f: np.ndarray, depth: np.ndarray, size: float, what: str) -> None:
+def with_steps(min_det_f: np.ndarray, depth: np.ndarray, between: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's (f,) ``min_det_f`` and ``depth`` combined with the worst of the steps since
+    the previous frame (``RunRecord.between``): a frame is out of range when a state after the
+    previous frame was. An empty ``min_det_f`` (no elements) stays empty."""
+    steps = np.array(between, dtype=np.float64).reshape(-1, 2)
+    det = np.minimum(min_det_f, steps[:, 0]) if len(min_det_f) else min_det_f
+    return det, np.maximum(depth, steps[:, 1])
+
+
+def warn_frames(times: np.ndarray, min_det_f: np.ndarray, depth: np.ndarray, size: float, what: str,
+                trailing: tuple[float, float] = (np.inf, 0.0)) -> None:
     """Warn (:class:`PhysicsWarning`) about the frames after the first with inverted
     elements or penetration deeper than ``PENETRATION_LIMIT * size`` (an empty
-    ``min_det_f`` is not checked)."""
-    for bad, message in (
-        (min_det_f[1:] <= 0.0, f"inverted elements (min det F = {min_det_f.min(initial=np.inf):.3g})"),
-        (depth[1:] > PENETRATION_LIMIT * size,
-         f"penetration up to {depth.max():.4g} m ({100 * depth.max() / size:.3g} % of the object's size, limit "
-         f"{100 * PENETRATION_LIMIT:.0f} %)"),
+    ``min_det_f`` is not checked), and about ``trailing`` ``(min det F, depth)``: the
+    steps after the last frame."""
+    limit = PENETRATION_LIMIT * size
+    for bad, late, message in (
+        (min_det_f[1:] <= 0.0, len(min_det_f) > 0 and trailing[0] <= 0.0,
+         f"inverted elements (min det F = {min(min_det_f.min(initial=np.inf), trailing[0]):.3g})"),
+        (depth[1:] > limit, trailing[1] > limit,
+         f"penetration up to {max(depth.max(), trailing[1]):.4g} m ({100 * max(depth.max(), trailing[1]) / size:.3g} % of the "
+         f"object's size, limit {100 * PENETRATION_LIMIT:.0f} %)"),
     ):
-        if bad.any():
-            first = float(times[1:][bad][0])
+        parts = [f"in {int(bad.sum())} of {len(bad)} frames (or the steps before them), first at t = {float(times[1:][bad][0]):.4g} s"] if bad.any() else []
+        parts += [f"in the steps after the last frame (t > {float(times[-1]):.4g} s)"] if late else []
+        if parts:
+            where = " and ".join(parts)
             warnings.warn(
-                f"{what} left the valid range of its physics: {message} in {int(bad.sum())} of {len(bad)} frames, "
-                f"first at t = {first:.4g} s; a smaller dt, a stiffer material or stiffer contact keeps it in range "
-                "(see Trajectory.min_det_f, Trajectory.penetration)",
+                f"{what} left the valid range of its physics: {message} {where}; a smaller dt, a stiffer material or "
+                "stiffer contact keeps it in range (see Trajectory.min_det_f, Trajectory.penetration)",
                 PhysicsWarning,
                 stacklevel=3,
             )

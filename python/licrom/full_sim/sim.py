@@ -15,10 +15,10 @@ import warp as wp
 from ..errors import ConfigError, ShapeError, SolverError
 from ..mesh import Mesh
 from ..scene import Scene
-from ..stepping import check_field, record_run
+from ..stepping import ThreadGuard, check_field, exclusive, record_run
 from ..trajectory import Trajectory
-from ..validity import check_start, penetration, tet_determinants, warn_frames
-from . import contact, elastic, inertia, pcg
+from ..validity import check_start, penetration, tet_determinants, warn_frames, with_steps
+from . import contact, elastic, inertia, pcg, validity
 from .device import (
     MODE_ENERGY,
     MODE_FORCES,
@@ -78,9 +78,15 @@ class FullSim:
             of the boundary area, or ``(indices, areas)`` (or an object with ``indices`` and
             ``areas`` attributes, such as ``licrom.cubature.ContactPoints``).
 
+    Threads: one simulation serves one thread at a time, as the reduced simulations do: a call
+    (step, run, state, evaluation) while another thread's call on it runs raises
+    :class:`~licrom.errors.ConcurrencyError` at once rather than interleaving the two on one state
+    (give each thread its own simulation, or guard a shared one with a ``threading.Lock``).
+
     Raises:
         ConfigError: unknown device, or bad contact points.
         ShapeError: contact-point arrays of the wrong shape.
+        ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
 
     def __init__(self, mesh: Mesh, scene: Scene, device: str | None = None, contact_points: Any = None) -> None:
@@ -88,6 +94,7 @@ class FullSim:
             raise ConfigError(f"mesh must be a licrom.Mesh, got {type(mesh).__name__}")
         if not isinstance(scene, Scene):
             raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        self._guard = ThreadGuard()
         self.device = resolve_device(device)
         """The warp device the simulation runs on: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``."""
         _log.info("full simulation of %d vertices, %d tets on %s", mesh.n_vertices, mesh.n_tets, self.device)
@@ -142,6 +149,8 @@ class FullSim:
         self._energy = wp.zeros(parts, dtype=f64, device=dev)
         self._gnorm = wp.zeros(parts, dtype=f64, device=dev)
         self._stats = wp.zeros((2, parts), dtype=f64, device=dev)
+        self._validity_start = np.stack([np.full(parts, np.inf), np.zeros(parts)])
+        self._validity = wp.array(self._validity_start, dtype=f64, device=dev)
         self._y_alt = vec()
         self._rhs = vec()
         self._count = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -193,14 +202,28 @@ class FullSim:
         return self._n
 
     @property
+    @exclusive
     def positions(self) -> np.ndarray:
         """(n, 3) float64 vertex positions in m (a copy)."""
         return self._x.numpy().astype(np.float64, copy=True)
 
     @property
+    @exclusive
     def velocities(self) -> np.ndarray:
         """(n, 3) float64 vertex velocities in m/s (a copy)."""
         return self._v.numpy().astype(np.float64, copy=True)
+
+    @exclusive
+    def validity(self) -> tuple[float, float]:
+        """``(min det F, depth)`` at the current state, computed on the device: the smallest
+        tet ``det F`` and the deepest penetration of a vertex into a plane (m, >= 0)."""
+        dev = self.device
+        self._validity.assign(self._validity_start)
+        wp.launch(validity.tet_det_kernel, dim=self.mesh.n_tets, device=dev, inputs=[self._x, self._tets, self._dminv, self._validity])
+        if self._n_planes:
+            wp.launch(validity.depth_kernel, dim=self._n, device=dev, inputs=[self._x, self._normals, self._offsets, self._n_planes, self._validity])
+        out = self._validity.numpy()
+        return float(out[0].min()), float(out[1].max())
 
     @property
     def masses(self) -> np.ndarray:
@@ -217,6 +240,7 @@ class FullSim:
         """(C,) boundary area carried by each contact point, m^2."""
         return self._contact_areas.copy()
 
+    @exclusive
     def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
         """Set positions and/or velocities ((n, 3), m and m/s); an omitted one keeps its value.
 
@@ -301,6 +325,7 @@ class FullSim:
         return float(self._energy.numpy().sum())
 
     # --- stepping ----------------------------------------------------------------------
+    @exclusive
     def step(self) -> tuple[int, float]:
         """Advance one time step by minimising the incremental potential.
 
@@ -457,6 +482,7 @@ class FullSim:
         """
         return line_search(e0, -slope, lambda alpha: self._trial(alpha, True))
 
+    @exclusive
     def contact_forces(self) -> np.ndarray:
         """(C, 3) contact + damping + friction force on each contact point at the end of the last step, N.
 
@@ -467,6 +493,7 @@ class FullSim:
             return np.zeros((c, 3))
         return self._forces.numpy()[:c].astype(np.float64, copy=True)
 
+    @exclusive
     def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
         """Step ``steps`` times; record frame 0 (the current state) and every ``record_every``-th step.
 
@@ -490,15 +517,17 @@ class FullSim:
             linear += self.last_stats.linear_iterations
             return its, res, self.last_stats.converged
 
-        rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress, f"full ({self.device})")
+        rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress,
+                         f"full ({self.device})", self.validity)
         converged = rec.converged
         displacements = np.array([d for d, _ in rec.frames])
         dm_inv, tets = self.mesh.shape_matrix_inverses, self.mesh.tets
         planes = self.scene.plane_array()
         min_det_f = np.array([tet_determinants(dm_inv, tets, rest + d).min() for d in displacements])
         depth = np.array([penetration(rest + d, planes) for d in displacements])
+        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
         arrays = rec.arrays()
-        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the full simulation")
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the full simulation", rec.trailing)
         return Trajectory(
             rest_positions=rest,
             tets=tets,
@@ -540,6 +569,7 @@ class FullSim:
         self._x_trial.assign(wp.array(pos, dtype=wp.vec3d, device=self.device))
         return self._x_trial
 
+    @exclusive
     def energy(self, positions: np.ndarray | None = None, terms: str | Iterable[str] = "all") -> float:
         """Incremental potential of a step from the current state, at ``positions`` (default: now), J.
 
@@ -550,12 +580,14 @@ class FullSim:
         self._evaluate(x, MODE_ENERGY, self._terms_mask(terms))
         return self._energy_value()
 
+    @exclusive
     def gradient(self, positions: np.ndarray | None = None, terms: str | Iterable[str] = "all") -> np.ndarray:
         """(n, 3) gradient of :meth:`energy`, N."""
         x = self._at(positions)
         self._evaluate(x, MODE_GRADIENT, self._terms_mask(terms))
         return self._grad.numpy().astype(np.float64, copy=True)
 
+    @exclusive
     def hessian(self, positions: np.ndarray | None = None, terms: str | Iterable[str] = "all", project: bool = True) -> Any:
         """(3n, 3n) ``scipy.sparse.csr_matrix`` Hessian of :meth:`energy` as assembled by Newton.
 

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from decimal import Decimal
 from typing import Any
 
 import numpy as np
 
+from .._limits import blame, check_memory
 from ..errors import ConfigError
 from ..rigid import check_frame
 
@@ -14,6 +18,40 @@ __all__ = ["ModelConfig"]
 
 # Points evaluated per batch of the field (bounds peak memory, not speed).
 _CHUNK = 16384
+# Bytes per network weight of a built network: the float32 weight and a float64 copy (finalisation, evaluation).
+_BYTES_PER_WEIGHT = 12
+# The sizes whose memory is estimated, with the values an estimate falls back to when it names the culprit.
+_SIZES = {"latent_dim": 1, "field_layers": 5, "field_width": 256, "fourier_features": 32,
+          "encoder_point_widths": (64, 128, 256), "encoder_fc_widths": (128,)}
+
+
+def network_weights(s: Mapping[str, Any]) -> int:
+    """Numbers of the networks of sizes ``s`` (the keys of ``_SIZES``; ``latent_dim`` an int), in closed form:
+    exact for any size, without building the layer list ``state_size`` builds."""
+    f, r, w, layers = s["fourier_features"], s["latent_dim"], s["field_width"], s["field_layers"]
+    field = (3 + 2 * f) * w + w + (layers - 2) * (w * w + w) + w * 3 * r + 3 * r + 3 * f
+    dims = [6, *s["encoder_point_widths"], *s["encoder_fc_widths"], r]
+    return field + sum(a * b + b for a, b in itertools.pairwise(dims)) + 5
+
+
+def field_floats_per_point(s: Mapping[str, Any]) -> int:
+    """Numbers the field's forward pass holds per point: input and Fourier features, every hidden layer
+    before and after its ELU, the 3 r output and its Jacobian (9 r)."""
+    f, r = s["fourier_features"], s["latent_dim"]
+    return 3 + 5 * f + 2 * (s["field_layers"] - 1) * s["field_width"] + 12 * r
+
+
+def _model_bytes(s: Mapping[str, Any]) -> int:
+    # the weights, and the float64 field with its gradients at _CHUNK points at a time (finalisation, Model.values)
+    return _BYTES_PER_WEIGHT * network_weights(s) + _CHUNK * 16 * field_floats_per_point(s)
+
+
+def model_sizes(config: ModelConfig) -> dict[str, Any]:
+    """The sizes of ``config`` that memory estimates read (``latent_dim`` "auto" counts as 1: r is not known yet)."""
+    sizes = {name: getattr(config, name) for name in _SIZES}
+    if sizes["latent_dim"] == "auto":
+        sizes["latent_dim"] = 1
+    return sizes
 
 
 @dataclass(frozen=True)
@@ -50,6 +88,12 @@ class ModelConfig:
         frame: ``"body"``: the modes learn the non-rigid deformation in the body frame
             (rigid motion exact, see :mod:`licrom.body_frame`); ``"world"``: LiCROM's
             world-frame displacement modes.
+
+    Raises:
+        ConfigError: a size out of range, or sizes whose networks (their weights and the field at ``_CHUNK``
+            points) need more than the memory limit of ``licrom._limits`` (a fraction of the machine's
+            physical memory, or ``LICROM_MEMORY_LIMIT``); the message names the size. Training's share
+            (gradients, Adam, the step's points) is :func:`licrom.training.config.check_training_memory`'s.
     """
 
     latent_dim: int | str = "auto"
@@ -91,6 +135,12 @@ class ModelConfig:
             raise ConfigError(f"ModelConfig.affine must be True or False, got {self.affine!r}")
         object.__setattr__(self, "affine", bool(self.affine))
         check_frame(self.frame, "ModelConfig.frame")
+        # Before anything is built: a width or rank the machine cannot hold is named, not an allocator traceback.
+        sizes = model_sizes(self)
+        culprit = blame(_model_bytes, sizes, _SIZES)
+        check_memory(f"ModelConfig.{culprit}", getattr(self, culprit), _model_bytes(sizes),
+                     f"{Decimal(network_weights(sizes)):.3g} network weights at {_BYTES_PER_WEIGHT} bytes each and the "
+                     f"field at {_CHUNK} points at a time; the other sizes as given")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

@@ -387,6 +387,13 @@ class Model:
             u = body_frame_displacements(x + u, x, w)
         if not self.affine:
             return np.zeros(0), u
+        # Fewer than 4 weighted points, or all in one plane, leave the affine fit's normal equations singular.
+        used = x[w > 0]
+        spans = int(np.linalg.matrix_rank(used - used.mean(axis=0))) if len(used) > 1 else 0
+        if spans < 3:
+            raise ShapeError(f"points must span 3-D space for the affine fit that encode removes first: at least 4 points with "
+                             f"weight > 0, not all in one plane; got {len(x)} point(s), {len(used)} of weight > 0, spanning "
+                             f"{('a point', 'a line', 'a plane')[spans]}")
         a = fit_affine(x, u, w)
         return a[: self.n_affine], u - apply_affine(x, a)
 
@@ -403,6 +410,11 @@ class Model:
             points: (p, 3) rest positions X in m (any sampling of the object).
             displacements: (p, 3) world-frame displacements u at those points in m.
             weights: optional (p,) weights of the affine fit.
+
+        Raises:
+            ShapeError: misshapen or non-finite points, displacements or weights, no points, or (a model with
+                affine modes, or in the body frame) points that do not span 3-D space: fewer than 4 of weight
+                > 0, or all in one plane, leave the affine fit undetermined.
         """
         return self.encode_q(points, displacements, weights)[self.n_affine :]
 
@@ -412,6 +424,8 @@ class Model:
         u = _as_points(displacements, "displacements")
         if u.shape != x.shape:
             raise ShapeError(f"points and displacements must have the same shape, got {x.shape} and {u.shape}")
+        if len(x) == 0:
+            raise ShapeError("points must hold at least one point (p >= 1), got none")
         if weights is None and x.shape == self.mesh.vertices.shape and np.array_equal(x, self.mesh.vertices):
             weights = self.mesh.vertex_masses(1.0)
         a, res = self._split_affine(x, u, weights)

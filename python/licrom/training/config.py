@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -13,8 +13,11 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_path
+from .._limits import blame, check_memory, format_size
 from ..cubature import FIT_TOLERANCE
 from ..errors import ConfigError
+from ..model.config import _SIZES as _MODEL_SIZES
+from ..model.config import ModelConfig, field_floats_per_point, model_sizes, network_weights
 from .rank import DEFAULT_MAX_RANK, DEFAULT_TOLERANCE
 
 OBJECTIVES = ("pod", "autoencoder")
@@ -67,6 +70,9 @@ class TrainConfig:
         nodes: machines of a multi-node DDP run (Lightning's ``num_nodes``), each with
             ``devices`` GPUs; the launcher (torchrun, SLURM, or ``MASTER_ADDR``,
             ``MASTER_PORT``, ``NODE_RANK`` set on each machine) places the processes.
+        join_timeout_s: seconds the processes of a run of several (``nodes`` or ``devices``
+            > 1) wait for each other to join before a ConfigError naming the address and
+            the processes missing (Lightning would wait 30 minutes).
         precision: Lightning precision string (``"32-true"``; ``"bf16-mixed"`` on GPUs).
         checkpoint_dir: Lightning checkpoints; default ``<model>.checkpoints`` beside the model.
         checkpoint_every: epochs between checkpoints (``last.ckpt`` is overwritten).
@@ -113,6 +119,7 @@ class TrainConfig:
     device: str = "auto"
     devices: int | str = "auto"
     nodes: int = 1
+    join_timeout_s: float = 120.0
     precision: str = "32-true"
     checkpoint_dir: str | None = None
     checkpoint_every: int = 1
@@ -163,16 +170,81 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.devices must be 'auto' or an integer >= 1, got {self.devices!r}")
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
             raise ConfigError(f"TrainConfig.seed must be an integer >= 0, got {self.seed!r}")
+        jt = self.join_timeout_s
+        if isinstance(jt, bool) or not isinstance(jt, (int, float)) or not 0 < jt < math.inf:
+            raise ConfigError(f"TrainConfig.join_timeout_s must be a finite number of seconds > 0, got {jt!r}")
         if self.max_time_s is not None and (not isinstance(self.max_time_s, (int, float)) or not self.max_time_s > 0):
             raise ConfigError(f"TrainConfig.max_time_s must be None or a positive number of seconds, got {self.max_time_s!r}")
         if self.num_threads is not None and (not isinstance(self.num_threads, int) or self.num_threads < 1):
             raise ConfigError(f"TrainConfig.num_threads must be None or an integer >= 1, got {self.num_threads!r}")
+
+        # The training step's buffers with the smallest network: a lower bound for every ModelConfig
+        # (check_training_memory adds the network's share once it is known).
+        sizes = {**_SMALLEST_NETWORK, **{name: getattr(self, name) for name in _TRAIN_SIZES}, "objective": self.objective}
+        _check_step(sizes, {"TrainConfig": self}, _TRAIN_SIZES, "with the smallest network")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         if d["val_indices"] is not None:
             d["val_indices"] = list(d["val_indices"])
         return d
+
+
+# The TrainConfig sizes that multiply a step's buffers, with their defaults (an estimate falls back to them
+# when it names the culprit).
+_TRAIN_SIZES = {"points_per_frame": 2048, "batch_frames": 16, "encoder_points": 512, "val_points": 512, "val_encoder_frames": 256}
+# r = 1, one hidden layer of width 1, no Fourier features, one encoder layer of width 1: TrainConfig alone is
+# checked with it.
+_SMALLEST_NETWORK = {"latent_dim": 1, "field_layers": 2, "field_width": 1, "fourier_features": 0,
+                     "encoder_point_widths": (1,), "encoder_fc_widths": ()}
+# Bytes per point of a step: the point, its tet's 4 vertices (int64), barycentric weights and their temporaries.
+_BYTES_PER_POINT = 256
+# Bytes per (frame, point) of a step: 4 vertex displacements (float32) interpolated, the target, the
+# reconstruction and the loss terms, with their gradients.
+_BYTES_PER_FRAME_POINT = 128
+# Frames encoded at once in validation (licrom.training.evaluation._encode_frames).
+_VAL_CHUNK = 64
+# Bytes per network weight while training: float32 weight, gradient and Adam's two moments, a checkpoint's
+# copy, the float64 copy of finalisation (an upper estimate).
+_BYTES_PER_WEIGHT = 40
+
+
+def _step_bytes(s: Mapping[str, Any]) -> int:
+    """Bytes a training run of sizes ``s`` holds at once: a step's sampled points, the field with its
+    gradients at them, the encoder's activations, the validation batch and the weights (Python ints: no overflow)."""
+    points, frames = s["points_per_frame"], s["batch_frames"]
+    enc = min(s["encoder_points"], points)
+    field = 8 * field_floats_per_point(s)  # float32, forward and backward
+    encoder = 6 + 2 * sum(s["encoder_point_widths"])
+    total = points * (_BYTES_PER_POINT + field) + frames * points * _BYTES_PER_FRAME_POINT + frames * enc * 8 * encoder
+    if s["objective"] == "pod":  # the POD modes interpolated at the points, their loss terms
+        total += 96 * s["latent_dim"] * points
+    val, val_frames = s["val_points"], s["val_encoder_frames"]
+    total += val_frames * val * 64 + min(val_frames, _VAL_CHUNK) * val * 4 * encoder + val * field
+    return total + _BYTES_PER_WEIGHT * network_weights(s)
+
+
+def _check_step(sizes: dict[str, Any], configs: Mapping[str, Any], baseline: Mapping[str, Any], network: str) -> None:
+    culprit = blame(_step_bytes, sizes, baseline)
+    owner = next(name for name, cfg in configs.items() if hasattr(cfg, culprit))
+    others = ", ".join(f"{k}={format_size(sizes[k])}" for k in _TRAIN_SIZES if k != culprit)
+    check_memory(f"{owner}.{culprit}", getattr(configs[owner], culprit), _step_bytes(sizes),
+                 f"the training step's points, frames and validation batch with {others}, {network}")
+
+
+def check_training_memory(config: TrainConfig, model_config: ModelConfig) -> None:
+    """Raise ConfigError when a training run of these configs would need more than the memory limit.
+
+    TrainConfig and ModelConfig each check their own sizes; this checks them together (many points
+    through a wide field), before any data is read or any network built. ``latent_dim="auto"`` counts
+    as r = 1 (a lower bound: r is chosen from the data).
+
+    Raises:
+        ConfigError: naming the size that weighs most, the estimate and the limit
+            (:mod:`licrom._limits`: a fraction of the physical memory, or ``LICROM_MEMORY_LIMIT``).
+    """
+    sizes = {**model_sizes(model_config), **{name: getattr(config, name) for name in _TRAIN_SIZES}, "objective": config.objective}
+    _check_step(sizes, {"TrainConfig": config, "ModelConfig": model_config}, {**_TRAIN_SIZES, **_MODEL_SIZES}, "the network as given")
 
 
 def output_paths(out_path: str | os.PathLike) -> dict[str, Path]:

@@ -22,8 +22,9 @@ from ..render import pyplot, save_png
 from ..rigid import check_frame
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
-from .config import CSV_COLUMNS, TrainConfig, output_paths, write_csv
+from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
+from .held_out import check_held_out
 from .lightning import _lightning_classes
 from .objectives import _refit_output_layer, pod_targets
 from .rank import RankChoice, choose_rank
@@ -134,13 +135,64 @@ def _subspace_ratio(net: LicromNet, data: TrainingData, cfg: TrainConfig, mcfg: 
 
 
 def _accelerator(cfg: TrainConfig) -> tuple[str, Any]:
+    """Lightning's ``(accelerator, devices)`` for ``cfg``.
+
+    Raises:
+        ConfigError: CUDA asked for (``device="cuda"``, or ``devices`` > 1: GPUs) where there is none, or more
+            GPUs than there are.
+    """
+    gpus = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    if isinstance(cfg.devices, int) and cfg.devices > 1:
+        # Several devices are GPUs: training on the CPU instead would ignore the request silently.
+        if cfg.device == "cpu":
+            raise ConfigError(f"TrainConfig.devices (--gpus) is {cfg.devices} but TrainConfig.device is 'cpu'; the CPU trains in "
+                              "one process: accepted with device 'cpu': devices 'auto' or 1")
+        if gpus == 0:
+            raise ConfigError(f"TrainConfig.devices (--gpus) is {cfg.devices} but no CUDA device is available here "
+                              "(torch.cuda.is_available() is False); accepted here: devices 'auto' or 1 (training on the CPU)")
+        if cfg.devices > gpus:
+            raise ConfigError(f"TrainConfig.devices (--gpus) is {cfg.devices} but this machine has {gpus} CUDA device(s); "
+                              f"accepted here: 'auto' or 1..{gpus}")
     if cfg.device == "cpu":
         return "cpu", 1
-    if cfg.device == "cuda" and not torch.cuda.is_available():
+    if cfg.device == "cuda" and gpus == 0:
         raise ConfigError("TrainConfig.device is 'cuda' but no CUDA device is available (torch.cuda.is_available() is False)")
-    if torch.cuda.is_available():
+    if gpus:
         return "gpu", cfg.devices
     return "cpu", 1
+
+
+def _strategy(cfg: TrainConfig, accelerator: str, devices: Any) -> Any:
+    """Lightning's strategy: ``"auto"`` for one process; for several, DDP whose processes wait at most
+    ``cfg.join_timeout_s`` for each other to join (then a ConfigError saying what is missing)."""
+    per_node = (torch.cuda.device_count() if devices == "auto" else int(devices)) if accelerator == "gpu" else 1
+    if per_node * cfg.nodes == 1:
+        return "auto"
+    from datetime import timedelta
+
+    from lightning.pytorch.strategies import DDPStrategy
+    from torch.distributed.constants import default_pg_timeout
+
+    class JoiningDDP(DDPStrategy):
+        """DDP whose rendezvous gives up after ``join_timeout_s``; collectives keep torch's default timeout."""
+
+        def setup_distributed(self) -> None:
+            try:
+                super().setup_distributed()
+            except torch.distributed.DistError as exc:
+                where = f"{os.environ.get('MASTER_ADDR', '?')}:{os.environ.get('MASTER_PORT', '?')}"
+                hint = ("start the same command on every node with MASTER_ADDR, MASTER_PORT and NODE_RANK set (or under torchrun "
+                        "or SLURM), or train with --nodes 1" if cfg.nodes > 1 else "the other processes of this machine did not start")
+                raise ConfigError(
+                    f"the {self.world_size} processes of this run ({cfg.nodes} node(s) x {self.num_processes} process(es); this one: "
+                    f"node rank {self.node_rank}, global rank {self.global_rank}) did not all join at MASTER_ADDR:MASTER_PORT = {where} "
+                    f"within {cfg.join_timeout_s:g} s (TrainConfig.join_timeout_s, --join-timeout): {str(exc).rstrip('.')}; {hint}") from exc
+            # The join timeout is the collectives' too: give them back torch's default (a slow checkpoint is no lost peer).
+            set_timeout = getattr(torch.distributed, "set_timeout", None)  # absent from older torch: there the collectives keep join_timeout_s
+            if set_timeout is not None:
+                set_timeout(default_pg_timeout)
+
+    return JoiningDDP(timeout=timedelta(seconds=cfg.join_timeout_s))
 
 
 def train(
@@ -181,6 +233,8 @@ def train(
         raise ConfigError(f"model_config must be a ModelConfig, got {type(mcfg).__name__}")
     if frame is not None:
         mcfg = dataclasses.replace(mcfg, frame=check_frame(frame))
+    accelerator, devices = _accelerator(cfg)  # before the data is read: a machine without the GPUs asked for is refused at once
+    check_training_memory(cfg, mcfg)  # the two configs together (each checked its own sizes), before any data
     if cfg.num_threads is not None:
         torch.set_num_threads(cfg.num_threads)
     t_start = time.perf_counter()
@@ -199,6 +253,7 @@ def train(
     if mcfg.latent_dim == "auto":
         rank = choose_rank(tdata, cfg.rank_tolerance, cfg.max_rank)
         mcfg = dataclasses.replace(mcfg, latent_dim=rank.rank)
+        check_training_memory(cfg, mcfg)
 
     L = _lightning_classes()
     pl = L["pl"]
@@ -217,7 +272,6 @@ def train(
     module.net.set_normalization(tdata.x_center, tdata.x_scale, tdata.u_scale)
     module.attach(tdata)
 
-    accelerator, devices = _accelerator(cfg)
     history = L["History"](paths["csv"] if paths else None)
     callbacks: list[Any] = [history]
     plugins: list[Any] = []
@@ -248,7 +302,7 @@ def train(
                 accelerator=accelerator,
                 devices=devices,
                 num_nodes=cfg.nodes,
-                strategy="auto",
+                strategy=_strategy(cfg, accelerator, devices),
                 precision=cfg.precision,
                 max_epochs=max_epochs,
                 callbacks=callbacks,
@@ -333,6 +387,8 @@ def train(
             torch.as_tensor(val.norm2_residual), torch.as_tensor(val.norm2_full), mcfg.affine).items()})
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
     fit_cubature(model, tdata, cfg)
+    if tdata.held_out and trainer.is_global_zero:
+        model.metadata["held_out"] = check_held_out(model, tdata.held_out)
     if paths is not None and trainer.is_global_zero:
         model.save(paths["model"])
         if rows:

@@ -1,0 +1,41 @@
+"""What the valid range of the physics needs from every step (:mod:`licrom.validity`):
+the smallest tet ``det F`` and the deepest penetration of a vertex into a plane, reduced
+on the device into ``parts`` partial extremes (as the energy's partial sums), so that
+checking every step costs one pass over the tets and vertices and no copy of the state."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .device import f64, mat33d, vec3d
+
+__all__ = ["depth_kernel", "tet_det_kernel"]
+
+
+@wp.kernel
+def tet_det_kernel(
+    x: wp.array(dtype=vec3d),
+    tets: wp.array(dtype=wp.vec4i),
+    dminv: wp.array(dtype=mat33d),
+    out: wp.array2d(dtype=f64),
+):
+    """``out[0, t % parts] = min det F`` over the tets (``out`` starts at +inf)."""
+    t = wp.tid()
+    ids = tets[t]
+    x0 = x[ids[0]]
+    ds = wp.matrix_from_cols(x[ids[1]] - x0, x[ids[2]] - x0, x[ids[3]] - x0)
+    wp.atomic_min(out, 0, t % out.shape[1], wp.determinant(ds * dminv[t]))
+
+
+@wp.kernel
+def depth_kernel(
+    x: wp.array(dtype=vec3d),
+    normals: wp.array(dtype=vec3d),
+    offsets: wp.array(dtype=f64),
+    n_planes: int,
+    out: wp.array2d(dtype=f64),
+):
+    """``out[1, v % parts] = max`` over the planes of the vertices' penetration ``-gap`` (``out`` starts at 0)."""
+    v = wp.tid()
+    for p in range(n_planes):
+        wp.atomic_max(out, 1, v % out.shape[1], -(wp.dot(normals[p], x[v]) + offsets[p]))

@@ -1,0 +1,56 @@
+"""The end-of-training check (licrom.training.held_out): the model run as a user runs it
+on the training's held-out runs, against those runs."""
+
+import dataclasses
+import warnings
+
+import pytest
+from licrom import Model, ReducedSim, Trajectory
+from licrom.compare import compare
+from licrom.errors import AccuracyWarning
+from licrom.training import held_out
+
+
+def test_the_training_report_holds_each_held_out_run_replayed_with_the_defaults(tiny_demo):
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    report = model.metadata["held_out"]
+    names = model.metadata["data"]["validation"]
+    assert names and [r["run"] for r in report["runs"]] == names[: held_out.HELD_OUT_RUNS]
+    for row in report["runs"]:
+        run = Trajectory.load(out / "data" / f"{row['run']}.npz")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reduced = ReducedSim(model, scene=run.scene).run(len(run.iterations), record_every=len(run.iterations) // (run.n_frames - 1))
+        c = compare(run, reduced)
+        assert row["nonrigid_error"] == pytest.approx(c.nonrigid_error, rel=1e-9)
+        assert row["com_error"] == pytest.approx(c.final_com_error, rel=1e-9)
+        assert row["estimate"] == pytest.approx(c.error_estimate, rel=1e-9)
+        assert row["stick_slip_right"] == c.stick_slip_agree
+        assert row["flagged"] == (row["estimate"] > report["threshold"])
+    assert report["worst_nonrigid_error"] == max(r["nonrigid_error"] for r in report["runs"])
+    lines = held_out.held_out_lines(report)
+    assert len(lines) == len(report["runs"]) and "non-rigid error" in lines[0]
+
+
+def test_a_held_out_run_above_the_threshold_is_named_in_an_accuracy_warning(tiny_demo, monkeypatch):
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    name = model.metadata["data"]["validation"][0]
+    run = Trajectory.load(out / "data" / f"{name}.npz")
+    monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 0.0)  # every run misses
+    with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name}"):
+        report = held_out.check_held_out(model, [(name, run)])
+    assert report["runs"][0]["nonrigid_error"] > 0.0
+
+
+def test_runs_whose_frames_are_not_evenly_spaced_steps_are_skipped_with_the_reason(tiny_demo):
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    name = model.metadata["data"]["validation"][0]
+    run = Trajectory.load(out / "data" / f"{name}.npz")
+    steps = len(run.iterations) - 1  # one step fewer than the frames say
+    uneven = dataclasses.replace(run, iterations=run.iterations[:steps], residuals=run.residuals[:steps],
+                                 converged=run.converged[:steps], step_seconds=run.step_seconds[:steps])
+    report = held_out.check_held_out(model, [(name, uneven)])
+    assert "not evenly spaced" in report["runs"][0]["skipped"]
