@@ -1,3 +1,4 @@
+import re
 import warnings
 
 import meshio
@@ -260,7 +261,13 @@ def test_an_open_surface_is_refused_unless_allowed(open_surface, capsys):
     pytest.param(["--edge-length", "1e-6"], r"--edge-length; .* over the memory limit", id="edge-length"),
 ])
 def test_mesh_command_refuses_what_would_crash_ftetwild(sphere_files, capsys, argv, message):
-    import re
-
     assert main(["mesh", str(sphere_files / "ball.obj"), *argv]) == 2
     assert re.search(message, capsys.readouterr().err)
+
+
+def test_mesh_command_scales_tiny_coordinates_up_without_overflow(tmp_path, capsys):
+    v, f = icosphere()
+    path = tmp_path / "tiny.obj"
+    meshio.write(path, meshio.Mesh(v * 1e-299, [("triangle", f)]))  # a 0.1 m ball in units of 1e299 m
+    assert main(["mesh", str(path), "--scale", "1e299", "--edge-length", "0.2", "--epsilon", "0.01"]) == 0
+    assert re.search(r"surface volume    0.000505\d* m\^3 \(tets [+-]\d", capsys.readouterr().out)

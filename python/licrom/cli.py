@@ -134,7 +134,7 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
     elapsed = time.perf_counter() - start
     _print_mesh_summary(mesh, elapsed)
     if surface is not None and surface.is_closed:
-        enclosed = surface.enclosed_volume * params.scale**3
+        enclosed = Surface(surface.vertices * params.scale, surface.faces).enclosed_volume  # not scale**3: 1e299**3 overflows
         click.echo(f"surface volume    {enclosed:.6g} m^3 (tets {100 * (mesh.volume / enclosed - 1):+.2f} %)")
     elif surface is not None:
         from .surface import _difference

@@ -251,7 +251,7 @@ def _check_input(surface: Surface, params: TetrahedralizeParams, allow_open: boo
         vertices = surface.vertices * params.scale
     used = vertices[np.unique(surface.faces)]
     lo, hi = used.min(axis=0), used.max(axis=0)
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):  # inf - inf: the size check below names it
         extent = hi - lo
     size = math.hypot(*extent.tolist()) if np.isfinite(vertices).all() else math.inf
     scaled = f" (after scale {params.scale:g})" if params.scale != 1 else ""
