@@ -354,3 +354,29 @@ def _load_path(kind, path):
 
     return (Trajectory.load if kind == "trajectory" else Model.load)(path)
 
+
+
+# The members whose values (not only their shapes) a loader must check: the model's weights and scalars, the
+# trajectory's mesh part. Each gets the right shape and dtype but a poisoned value somewhere.
+_POISONED = {"model": lambda name: True, "trajectory": lambda name: name in ("rest_positions", "tets")}
+
+
+@pytest.mark.parametrize("kind", ["trajectory", "model"])
+@FAST
+@given(data=st.data())
+def test_poisoned_values_in_weights_and_mesh_parts_raise_file_format_error(files, kind, data):
+    header, arrays = load_npz(_save_valid(files, kind), kind)
+    names = sorted(n for n in arrays if _POISONED[kind](n) and arrays[n].size and arrays[n].dtype.kind in "fiu")
+    name = data.draw(st.sampled_from(names))
+    a = arrays[name].copy()
+    at = data.draw(st.integers(0, a.size - 1))
+    if a.dtype.kind == "f":
+        a.flat[at] = data.draw(st.sampled_from([np.nan, np.inf, -np.inf]))
+    else:  # tet indices: negative or past the last vertex
+        n = len(arrays["rest_positions" if kind == "trajectory" else "rest_vertices"])
+        a.flat[at] = data.draw(st.sampled_from([-1, -(2**31), n, 2**31 - 1]))
+    arrays[name] = a
+    path = files["scratch"] / f"p.{kind}.npz"
+    np.savez_compressed(path, **arrays, header_json=np.array(json.dumps(header)))
+    with pytest.raises(FileFormatError):
+        _load_path(kind, path)
