@@ -4,7 +4,7 @@ Positions are ``x_v = c + R (Xbar_v + W_v q)`` with ``Xbar = X - X_com``, ``c`` 
 centre of mass, ``R`` a rotation and ``W`` body-frame modes that carry no linear
 or angular momentum (every column mass-orthogonal to the six rigid modes). The
 rigid motion is then exact and nonlinear, so one set of modes serves every
-orientation of the body (see DESIGN.md, "Reduced model in the body frame").
+orientation of the body (see docs/design.md, "Reduced model in the body frame").
 
 :class:`BodyFrameBasis` builds such modes on a mesh: the 6 symmetric affine modes
 ``S Xbar`` plus learned modes, orthogonalised against the rigid modes.

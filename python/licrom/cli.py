@@ -181,7 +181,7 @@ def scene_command(source, output) -> None:
 @click.option("--youngs-modulus", "-E", type=click.FloatRange(min=0, min_open=True), default=None, help="Young's modulus in Pa [the scene's].")
 @click.option("--poisson-ratio", type=click.FloatRange(-1, 0.5, min_open=True, max_open=True), default=None, help="Poisson ratio in (-1, 0.5) [the scene's].")
 @click.option("--density", type=click.FloatRange(min=0, min_open=True), default=None, help="Density in kg/m^3 [the scene's].")
-@click.option("--friction", "-mu", type=click.FloatRange(min=0), multiple=True, help="Friction sweep: Coulomb coefficient (repeatable) [the scene's].")
+@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, help="Friction sweep: Coulomb coefficient (repeatable) [the scene's].")
 @click.option("--slope", type=SLOPE, multiple=True, help="Slope sweep: first plane's incline in degrees, [0, 90) (repeatable) [the scene's].")
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, help="Time step in s [the scene's].")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps per trajectory [the scene's].")
@@ -380,7 +380,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
 @click.option("--scene", "scene_source", default=None,
               help="Scene file (.toml) or built-in scene: its held-out scenes (or its sweep), object and time [the model's scene].")
 @click.option("--slope", type=SLOPE, multiple=True, help="Incline angle in degrees, [0, 90) (repeatable) [the scene's].")
-@click.option("--friction", "-mu", type=click.FloatRange(min=0), multiple=True, help="Coulomb coefficient (repeatable) [the scene's].")
+@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, help="Coulomb coefficient (repeatable) [the scene's].")
 @click.option("--mesh", "mesh_source", default=None,
               help="Mesh to run on: a tet mesh file, or cheese:RES / sphere:RES / box:RES [the scene's, else the model's].")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps [the scene's; 150 without --scene].")

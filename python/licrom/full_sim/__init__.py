@@ -8,7 +8,7 @@ Each time step minimises the incremental potential of backward Euler,
 with stable Neo-Hookean elasticity and, at each contact point j and plane p, a
 normal penalty, optional normal damping and a friction dissipation potential whose
 gradient is the force ``|f_t| = min(k_f |v_t|, mu f_n)`` with the normal force
-``f_n`` lagged from the start of the step (see ``DESIGN.md`` and :class:`FullSim`).
+``f_n`` lagged from the start of the step (see ``docs/design.md`` and :class:`FullSim`).
 
 The minimiser is found by Newton's method:
 

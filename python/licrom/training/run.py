@@ -394,7 +394,7 @@ def train(
         if rows:
             write_csv(paths["csv"], rows)
             try:
-                plot_losses(rows, paths["png"], title=f"LiCROM r={mcfg.latent_dim}, {len(tdata.train_indices)} train / {len(tdata.val_indices)} held-out trajectories",
+                plot_losses(rows, paths["png"], title=f"LiCROM r={mcfg.latent_dim} ({mcfg.frame} frame), {len(tdata.train_indices)} train / {len(tdata.val_indices)} held-out trajectories",
                             rank=rank)
             except Exception as exc:  # a plot must never lose a trained model
                 warnings.warn(f"could not write the loss plot: {exc}", stacklevel=2)
