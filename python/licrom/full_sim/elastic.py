@@ -15,7 +15,14 @@ from .device import (
     vec3d,
 )
 
-__all__ = ['tet_kernel']
+__all__ = ['deformation_gradient', 'tet_kernel']
+
+
+@wp.func
+def deformation_gradient(x: wp.array(dtype=vec3d), ids: wp.vec4i, dmi: mat33d):
+    """``F = Ds Dm^-1`` of the tet with corners ``ids``."""
+    x0 = x[ids[0]]
+    return wp.matrix_from_cols(x[ids[1]] - x0, x[ids[2]] - x0, x[ids[3]] - x0) * dmi
 
 
 @wp.func
@@ -65,11 +72,9 @@ def tet_kernel(
 ):
     t = wp.tid()
     ids = tets[t]
-    x0 = x[ids[0]]
-    ds = wp.matrix_from_cols(x[ids[1]] - x0, x[ids[2]] - x0, x[ids[3]] - x0)
     dmi = dminv[t]
     v = vol[t]
-    F = ds * dmi
+    F = deformation_gradient(x, ids, dmi)
     one = f64(1.0)
     half = f64(0.5)
     # Energy relative to the rest state, written in E = F - I so that it has no

@@ -149,8 +149,7 @@ class FullSim:
         self._energy = wp.zeros(parts, dtype=f64, device=dev)
         self._gnorm = wp.zeros(parts, dtype=f64, device=dev)
         self._stats = wp.zeros((2, parts), dtype=f64, device=dev)
-        self._validity_start = np.stack([np.full(parts, np.inf), np.zeros(parts)])
-        self._validity = wp.array(self._validity_start, dtype=f64, device=dev)
+        self._validity = wp.zeros((2, parts), dtype=f64, device=dev)
         self._y_alt = vec()
         self._rhs = vec()
         self._count = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -218,12 +217,12 @@ class FullSim:
         """``(min det F, depth)`` at the current state, computed on the device: the smallest
         tet ``det F`` and the deepest penetration of a vertex into a plane (m, >= 0)."""
         dev = self.device
-        self._validity.assign(self._validity_start)
+        self._validity.fill_(np.inf)
         wp.launch(validity.tet_det_kernel, dim=self.mesh.n_tets, device=dev, inputs=[self._x, self._tets, self._dminv, self._validity])
         if self._n_planes:
             wp.launch(validity.depth_kernel, dim=self._n, device=dev, inputs=[self._x, self._normals, self._offsets, self._n_planes, self._validity])
         out = self._validity.numpy()
-        return float(out[0].min()), float(out[1].max())
+        return float(out[0].min()), max(-float(out[1].min()), 0.0)
 
     @property
     def masses(self) -> np.ndarray:

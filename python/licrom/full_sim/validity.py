@@ -1,13 +1,15 @@
 """What the valid range of the physics needs from every step (:mod:`licrom.validity`):
-the smallest tet ``det F`` and the deepest penetration of a vertex into a plane, reduced
-on the device into ``parts`` partial extremes (as the energy's partial sums), so that
-checking every step costs one pass over the tets and vertices and no copy of the state."""
+the smallest tet ``det F`` and the smallest gap of a vertex to a plane, reduced on the
+device into ``parts`` partial minima (as the energy's partial sums, both rows starting at
++inf), so that checking every step costs one pass over the tets and vertices and no copy
+of the state."""
 
 from __future__ import annotations
 
 import warp as wp
 
 from .device import f64, mat33d, vec3d
+from .elastic import deformation_gradient
 
 __all__ = ["depth_kernel", "tet_det_kernel"]
 
@@ -19,12 +21,9 @@ def tet_det_kernel(
     dminv: wp.array(dtype=mat33d),
     out: wp.array2d(dtype=f64),
 ):
-    """``out[0, t % parts] = min det F`` over the tets (``out`` starts at +inf)."""
+    """``out[0, t % parts] = min det F`` over the tets."""
     t = wp.tid()
-    ids = tets[t]
-    x0 = x[ids[0]]
-    ds = wp.matrix_from_cols(x[ids[1]] - x0, x[ids[2]] - x0, x[ids[3]] - x0)
-    wp.atomic_min(out, 0, t % out.shape[1], wp.determinant(ds * dminv[t]))
+    wp.atomic_min(out, 0, t % out.shape[1], wp.determinant(deformation_gradient(x, tets[t], dminv[t])))
 
 
 @wp.kernel
@@ -35,7 +34,7 @@ def depth_kernel(
     n_planes: int,
     out: wp.array2d(dtype=f64),
 ):
-    """``out[1, v % parts] = max`` over the planes of the vertices' penetration ``-gap`` (``out`` starts at 0)."""
+    """``out[1, v % parts] = min`` over the planes of the vertices' gaps (negative inside), m."""
     v = wp.tid()
     for p in range(n_planes):
-        wp.atomic_max(out, 1, v % out.shape[1], -(wp.dot(normals[p], x[v]) + offsets[p]))
+        wp.atomic_min(out, 1, v % out.shape[1], wp.dot(normals[p], x[v]) + offsets[p])
