@@ -8,7 +8,7 @@ use super::solver::{BodyFrameSettings, BodyFrameSolver};
 use super::synthetic::{body_block, BodyBlock};
 use super::*;
 use crate::synthetic::BlockScene;
-use crate::testing::{fd_gradient, fd_jacobian, rel_err, Rng};
+use crate::testing::{check_validity, cubature_min_det, fd_gradient, fd_jacobian, point_positions, rel_err, Rng};
 
 fn block(learned_modes: usize, cubature_points: usize, contact_points: usize, affine: bool) -> BodyBlock {
     let scene = BlockScene { learned_modes, cubature_points, contact_points, normal_damping: 5.0e3, ..Default::default() };
@@ -556,33 +556,17 @@ fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
     let mut s = solver(&b, 1e-10, 100);
     let pose = Pose { center: c - normal * 0.01, rotation: r, q: vec![0.0; b.n] };
     s.set_state(&pose, &[0.2, 0.0, 0.0], &[0.0, 0.5, 0.0], &vec![0.0; b.n]).unwrap();
-    let n = b.n;
     let mut depths = vec![];
     for step in 0..10 {
         s.step().unwrap();
         let p = s.pose();
-        let dot = |row: &[f64]| row.iter().zip(&p.q).map(|(a, b)| a * b).sum::<f64>();
-        let min_det = b
-            .cubature_jacobians
-            .chunks_exact(9 * n)
-            .map(|g| {
-                let f: Vec<f64> = (0..9).map(|a| dot(&g[a * n..(a + 1) * n]) + if a % 4 == 0 { 1.0 } else { 0.0 }).collect();
-                Matrix3::from_row_slice(&f).determinant()
-            })
-            .fold(f64::INFINITY, f64::min);
-        let depth = b
-            .contact_basis
-            .chunks_exact(3 * n)
-            .zip(b.contact_rest.chunks_exact(3))
-            .map(|(w, x0)| {
-                let y = Vector3::new(x0[0] + dot(&w[..n]), x0[1] + dot(&w[n..2 * n]), x0[2] + dot(&w[2 * n..]));
-                -b.planes[0].gap(&(p.center + p.rotation * y))
-            })
+        let min_det = cubature_min_det(&b.cubature_jacobians, &p.q);
+        let depth = point_positions(&b.contact_basis, &b.contact_rest, &p.q)
+            .iter()
+            .map(|y| -b.planes[0].gap(&(p.center + p.rotation * y)))
             .fold(0.0, f64::max);
         let v = s.validity();
-        // At the accepted iterate, before the step's last correction (below the tolerance).
-        assert!((v.min_det - min_det).abs() < 1e-6, "step {step}: det {} against {min_det}", v.min_det);
-        assert!((v.depth - depth).abs() < 1e-6, "step {step}: depth {} against {depth}", v.depth);
+        check_validity(step, v, min_det, depth);
         depths.push(v.depth);
     }
     assert!(depths[0] > 2e-3, "deep after the first step: {depths:?}");
