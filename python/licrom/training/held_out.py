@@ -23,6 +23,7 @@ from ..compare import compare
 from ..error_estimate import ERROR_THRESHOLD
 from ..errors import AccuracyWarning, LicromError, LicromWarning
 from ..model import Model
+from ..reduced_sim import ReducedSim
 from ..trajectory import Trajectory
 
 __all__ = ["HELD_OUT_RUNS", "check_held_out", "held_out_lines"]
@@ -53,8 +54,6 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
         step_ms, seconds], "worst_nonrigid_error", "threshold"}``; a run the check cannot replay
         (frames not evenly spaced, or the reduced run fails) has ``"skipped"`` with the reason.
     """
-    from ..reduced_sim import ReducedSim  # the simulation layer, used here at the top of training
-
     rows: list[dict[str, Any]] = []
     for name, run in list(runs)[:max_runs]:
         cadence = _steps(run)
