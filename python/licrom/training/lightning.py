@@ -173,4 +173,13 @@ def _lightning_classes() -> dict[str, Any]:
             if trainer.is_global_zero and self.csv_path is not None:
                 write_csv(self.csv_path, self.rows)
 
-    return {"Indices": Indices, "EpochShuffle": EpochShuffle, "LicromModule": LicromModule, "History": History, "pl": pl}
+    from lightning.pytorch.callbacks import TQDMProgressBar
+
+    class EpochBar(TQDMProgressBar):
+        """Lightning's bar, counting epochs from 1 to their number ("Epoch 30/30", not "Epoch 29/29")."""
+
+        def on_train_epoch_start(self, trainer, *args: Any) -> None:
+            super().on_train_epoch_start(trainer, *args)
+            self.train_progress_bar.set_description(f"Epoch {trainer.current_epoch + 1}/{trainer.max_epochs}")
+
+    return {"Indices": Indices, "EpochShuffle": EpochShuffle, "LicromModule": LicromModule, "History": History, "EpochBar": EpochBar, "pl": pl}

@@ -273,7 +273,7 @@ def train(
     module.attach(tdata)
 
     history = L["History"](paths["csv"] if paths else None)
-    callbacks: list[Any] = [history]
+    callbacks: list[Any] = [history, L["EpochBar"]()] if cfg.progress else [history]
     plugins: list[Any] = []
     if ckpt_dir is not None and fingerprint is not None:
         from lightning.pytorch.callbacks import ModelCheckpoint

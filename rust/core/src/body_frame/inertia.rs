@@ -106,13 +106,8 @@ impl MassMoments {
         self.p.iter().zip(q).fold(self.j, |acc, (p, ql)| acc + p * *ql)
     }
 
-    /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk`.
-    #[inline(always)]
-    fn y_mode<M: Madd>(&self, q: &[f64], k: usize) -> Matrix3<f64> {
-        self.y_modes::<M, 1>([q], k)[0]
-    }
-
-    /// `Y_k` at each of the V coordinate vectors `qs`, in one pass over `Q_lk`.
+    /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk` at each of the V
+    /// coordinate vectors `qs`, in one pass over `Q_lk`.
     #[inline(always)]
     fn y_modes<M: Madd, const V: usize>(&self, qs: [&[f64]; V], k: usize) -> [Matrix3<f64>; V] {
         let n = self.n_modes();
@@ -128,12 +123,22 @@ pub struct InertiaTarget {
     pub(super) ct: Vector3<f64>,
     pub(super) b0: Matrix3<f64>,
     pub(super) bk: Vec<Matrix3<f64>>,
+    /// The Gauss-Newton inertia's q-dependent moments at the step's start pose
+    /// q^t: `C` and the `a(Y_k)` (see [`Self::add_gauss_newton`]).
+    gn_c: Matrix3<f64>,
+    gn_axial: Vec<Vector3<f64>>,
 }
 
 impl InertiaTarget {
     /// Zeroed target for n modes.
     pub fn new(n: usize) -> Self {
-        Self { ct: Vector3::zeros(), b0: Matrix3::zeros(), bk: vec![Matrix3::zeros(); n] }
+        Self {
+            ct: Vector3::zeros(),
+            b0: Matrix3::zeros(),
+            bk: vec![Matrix3::zeros(); n],
+            gn_c: Matrix3::zeros(),
+            gn_axial: vec![Vector3::zeros(); n],
+        }
     }
 
     /// Fills the target of a step from pose `cur` (time t) and `prev` (t - 1).
@@ -141,16 +146,40 @@ impl InertiaTarget {
         dispatch(BeginKernel { target: self, m, cur, prev, gravity, h })
     }
 
-    /// [`Self::begin`]: `O(9 n^2)`, both poses' `Y_k` in one pass over the `Q_lk`.
+    /// [`Self::begin`]: `O(9 n^2)`, both poses' `Y_k` in one pass over the
+    /// `Q_lk`, those of `cur` kept for the Gauss-Newton inertia.
     #[inline(always)]
     fn begin_impl<M: Madd>(&mut self, m: &MassMoments, cur: &Pose, prev: &Pose, gravity: &Vector3<f64>, h: f64) {
         self.ct = 2.0 * cur.center - prev.center + gravity * (h * h);
         let (r1, r0) = (cur.rotation * 2.0, prev.rotation);
         self.b0 = r1 * m.y_xbar(&cur.q) - r0 * m.y_xbar(&prev.q);
-        for (k, b) in self.bk.iter_mut().enumerate() {
+        self.gn_c = m.j;
+        for (k, (b, a)) in self.bk.iter_mut().zip(self.gn_axial.iter_mut()).enumerate() {
             let [y1, y0] = m.y_modes::<M, 2>([&cur.q, &prev.q], k);
             *b = r1 * y1 - r0 * y0;
+            *a = axial(&y1);
+            self.gn_c += (m.p[k] + y1).transpose() * cur.q[k];
         }
+    }
+
+    /// Adds the Gauss-Newton inertia `J^T M J` of the vertex positions,
+    /// `Jv = [I, -[R y_v]x, R W_v]`, scaled by `scale`, to `hess` (N x N) without
+    /// its `Mqq` block (which the elastic system holds): `M I` for c,
+    /// `R (tr C I - C) R^T` (C = sum m y y^T: the inertia tensor) for omega and
+    /// `R a(Y_k)` between omega and q_k, with `C = J + sum_k q_k (P_k + Y_k)^T`
+    /// (as `Q_kl = Q_lk^T`). R is the rotation of `pose`, but `y_v` and the
+    /// moments are those of the step's start pose q^t, found by [`Self::begin`]
+    /// in its pass over the `Q_lk`: `O(n)` for each matrix the solver factors
+    /// instead of another `O(9 n^2)` pass (a sixth of a contact step's
+    /// instructions at r = 120). It is still the Gram matrix of a Jacobian
+    /// (at `(R, q^t)`), positive semi-definite with `Mqq`, and differs from the
+    /// exact Hessian by terms of order h^2 times the accelerations and of
+    /// order `q - q^t` in the omega rows: it shapes the directions only, the
+    /// line search and the residual take the exact energy and gradient.
+    pub fn add_gauss_newton(&self, m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
+        let r = &pose.rotation;
+        let ww = r * (Matrix3::identity() * self.gn_c.trace() - self.gn_c) * r.transpose() * scale;
+        add_blocks(hess, 6 + m.n_modes(), m.total * scale, &ww, |k| r * self.gn_axial[k] * scale);
     }
 
     /// `B(q) = B0 + sum_k q_k B_k`.
@@ -223,33 +252,6 @@ fn add_cross(hess: &mut [f64], big: usize, k: usize, v: &Vector3<f64>) {
     }
 }
 
-/// Adds the Gauss-Newton inertia `J^T M J` of the vertex positions,
-/// `Jv = [I, -[R y_v]x, R W_v]`, scaled by `scale`, to `hess` (N x N) without
-/// its `Mqq` block (which the elastic system holds): `M I` for c,
-/// `R (tr C I - C) R^T` (C = sum m y y^T: the inertia tensor) for omega and
-/// `R a(Y_k)` between omega and q_k. It is positive semi-definite with the
-/// `Mqq` block, and equals the exact Hessian where `R y_v` meets the predicted
-/// `a_v`, i.e. up to terms of the order of h^2 times the accelerations.
-pub fn add_gauss_newton(m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
-    dispatch(GaussNewtonKernel { m, pose, scale, hess })
-}
-
-#[inline(always)]
-fn gauss_newton_impl<M: Madd>(m: &MassMoments, pose: &Pose, scale: f64, hess: &mut [f64]) {
-    let r = &pose.rotation;
-    let big = 6 + m.n_modes();
-    // One pass over the Y_k: with `Q_kl = Q_lk^T`,
-    // `C = J + sum_k q_k (P_k + P_k^T) + sum_kl q_k q_l Q_kl = J + sum_k q_k (P_k + Y_k)^T`.
-    let mut c = m.j;
-    for (k, qk) in pose.q.iter().enumerate() {
-        let y = m.y_mode::<M>(&pose.q, k);
-        add_cross(hess, big, k, &(r * axial(&y) * scale));
-        c += (m.p[k] + y).transpose() * *qk;
-    }
-    let ww = r * (Matrix3::identity() * c.trace() - c) * r.transpose() * scale;
-    add_rigid(hess, big, m.total * scale, &ww);
-}
-
 struct BeginKernel<'a> {
     target: &'a mut InertiaTarget,
     m: &'a MassMoments,
@@ -264,20 +266,5 @@ impl WithMadd for BeginKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) {
         self.target.begin_impl::<M>(self.m, self.cur, self.prev, self.gravity, self.h)
-    }
-}
-
-struct GaussNewtonKernel<'a> {
-    m: &'a MassMoments,
-    pose: &'a Pose,
-    scale: f64,
-    hess: &'a mut [f64],
-}
-
-impl WithMadd for GaussNewtonKernel<'_> {
-    type Output = ();
-    #[inline(always)]
-    fn run<M: Madd>(self) {
-        gauss_newton_impl::<M>(self.m, self.pose, self.scale, self.hess)
     }
 }

@@ -397,7 +397,7 @@ impl BodyFrameSystem {
         ws.block = block;
         let geometric = match kind {
             BodyHessian::GaussNewton => {
-                inertia::add_gauss_newton(&self.moments, pose, 1.0 / h2, out);
+                start.inertia.add_gauss_newton(&self.moments, pose, 1.0 / h2, out);
                 None
             }
             BodyHessian::Exact => {
@@ -435,7 +435,15 @@ impl BodyFrameSystem {
     /// [`Self::update_contact_hessian`]); and its inertia part, the
     /// Gauss-Newton inertia over all vertices (with `Mqq`) over h^2, into
     /// `metric` (positive definite: the solver's convergence metric).
-    pub fn newton_matrix(&self, pose: &Pose, stiffness: &[f64], contact: &BodyContactHessian, out: &mut [f64], metric: &mut [f64]) {
+    pub fn newton_matrix(
+        &self,
+        start: &BodyStart,
+        pose: &Pose,
+        stiffness: &[f64],
+        contact: &BodyContactHessian,
+        out: &mut [f64],
+        metric: &mut [f64],
+    ) {
         let n = self.n;
         let big = 6 + n;
         let inv_h2 = 1.0 / (self.h * self.h);
@@ -444,7 +452,7 @@ impl BodyFrameSystem {
         for (r, row) in metric.chunks_exact_mut(big).enumerate() {
             row[..if r < 6 { big } else { 6 }].fill(0.0);
         }
-        inertia::add_gauss_newton(&self.moments, pose, inv_h2, metric);
+        start.inertia.add_gauss_newton(&self.moments, pose, inv_h2, metric);
         for (r, (o, m)) in out.chunks_exact_mut(big).zip(metric.chunks_exact(big)).enumerate() {
             let rigid = if r < 6 { big } else { 6 };
             o[..rigid].copy_from_slice(&m[..rigid]);

@@ -468,7 +468,7 @@ impl BodyFrameSolver {
     /// returns its residual r.
     fn direction(&mut self, iteration: usize) -> Result<f64> {
         self.system.update_contact_hessian(&mut self.ws, &mut self.contact);
-        self.system.newton_matrix(&self.iterate.pose, &self.stiffness, &self.contact, &mut self.hess, &mut self.metric);
+        self.system.newton_matrix(&self.current, &self.iterate.pose, &self.stiffness, &self.contact, &mut self.hess, &mut self.metric);
         if !self.hess.iter().all(|v| v.is_finite()) {
             return Err(LicromError::Diverged { iteration, what: "Hessian" });
         }

@@ -104,16 +104,17 @@ fn moments_match_sums_over_vertices() {
     let d_brute = brute(&p1) - brute(&p2);
     assert!((d_sys - d_brute).abs() < 1e-10 * d_brute.abs(), "{d_sys} vs {d_brute}");
     // The Gauss-Newton inertia against `sum_v m_v Jv^T Jv`, `Jv = [I, -[R y_v]x, R W_v]`
-    // (its modal block `Mqq` is the elastic system's).
+    // with the rotation of the pose and `y_v` of the step's start (its modal block
+    // `Mqq` is the elastic system's).
     let big = 6 + n;
     let mut gn = vec![0.0; big * big];
-    inertia::add_gauss_newton(sys.moments(), &p1, 1.0, &mut gn);
+    start.inertia.add_gauss_newton(sys.moments(), &p1, 1.0, &mut gn);
     let mut brute_gn = vec![0.0; big * big];
     for (v, m) in b.masses.iter().enumerate() {
         let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
         let jv = nalgebra::DMatrix::from_fn(3, big, |i, c| match c {
             0..3 => f64::from(u8::from(i == c)),
-            3..6 => -super::rotation::skew(&(p1.rotation * y(&p1, v)))[(i, c - 3)],
+            3..6 => -super::rotation::skew(&(p1.rotation * y(&cur, v)))[(i, c - 3)],
             _ => (p1.rotation * Vector3::new(w[c - 6], w[n + c - 6], w[2 * n + c - 6]))[i],
         });
         let jtj = jv.transpose() * jv * *m;
@@ -323,7 +324,7 @@ fn incremental_contact_hessian_follows_the_full_one() {
         sys.evaluate(&start, pose, true, ws);
         let changed = sys.update_contact_hessian(ws, state);
         sys.elastic_stiffness(&pose.q, ws, &mut k_el);
-        sys.newton_matrix(pose, &k_el, state, &mut newton, &mut metric);
+        sys.newton_matrix(&start, pose, &k_el, state, &mut newton, &mut metric);
         sys.hessian(&start, pose, BodyHessian::GaussNewton, ws, &mut full);
         (changed, rel_err(&newton, &full, 0.0), crate::cholesky::Cholesky::factor(&newton, big).is_ok())
     };
