@@ -8,7 +8,7 @@ from licrom.errors import ConfigError
 
 def test_demo_writes_every_output(tiny_demo):
     out, summary = tiny_demo
-    for name in ("cheese.vtu", "model.lcm", "model.losses.csv", "model.losses.png", "errors.png", "summary.md",
+    for name in ("cheese.vtu", "model.lcm", "model.losses.csv", "model.losses.png", "errors.png", "summary.md", "report.html",
                  "filmstrip_slope20_mu0.1.png", "filmstrip_slope20_mu0.9.png", "animation_slope20_mu0.1.gif",
                  "animation_slope20_mu0.9.gif", "runs/full_slope20_mu0.1.npz", "runs/reduced_slope20_mu0.9.npz",
                  "vtu_slope20_mu0.1/full/full.pvd", "vtu_slope20_mu0.9/reduced/reduced.pvd"):
@@ -27,7 +27,7 @@ def test_demo_reduced_runs_follow_the_full_ones(tiny_demo):
         assert case["reduced_step_ms"] < case["full_step_ms"]
 
 
-def test_demo_without_pyvista_draws_filmstrips_with_matplotlib_and_says_so(tmp_path, monkeypatch, capsys, tiny_demo_scene):
+def test_demo_without_pyvista_draws_with_matplotlib_and_says_so(tmp_path, monkeypatch, capsys, tiny_demo_scene):
     from licrom import render
     from licrom.demo import run_demo
 
@@ -38,8 +38,9 @@ def test_demo_without_pyvista_draws_filmstrips_with_matplotlib_and_says_so(tmp_p
     config = DemoConfig(out_dir=str(tmp_path / "out"), scene=str(scene), resolution=4, steps=10, modes=2, epochs=1, cubature_points=20)
     run_demo(config, progress=False)
     said = capsys.readouterr().out
-    assert said.count("pictures: PyVista is not installed (pip install 'licrom[render]'); drawing filmstrips with matplotlib") == 1
-    assert (tmp_path / "out" / "filmstrip_slope20_mu0.1.png").is_file() and not list((tmp_path / "out").glob("*.gif"))
+    assert said.count("pictures: PyVista is not installed (pip install 'licrom[render]'); drawing them with matplotlib") == 1
+    for name in ("filmstrip_slope20_mu0.1.png", "animation_slope20_mu0.1.gif", "report.html"):
+        assert (tmp_path / "out" / name).is_file(), name
 
 
 def test_demo_saves_the_runs_it_pictures(tiny_demo):

@@ -435,3 +435,27 @@ def test_one_simulation_in_two_threads_is_a_named_error_and_its_state_stays_a_se
     np.testing.assert_array_equal(sim.positions, serial.positions)
     np.testing.assert_array_equal(sim.velocities, serial.velocities)
     assert sim.time == serial.time and sim.run(2).n_frames == 3  # the refused call left it usable
+
+
+def test_a_first_run_says_that_warp_compiles_its_kernels(tmp_path, monkeypatch):
+    """The line comes where the kernel cache lacks a module (a fresh install), and not once it holds them all."""
+    import warp as wp
+    from licrom.full_sim import device
+
+    loaded = []
+    device.warp_ready()  # its initialisation sets the cache folder
+    monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))
+    monkeypatch.setattr(wp, "load_module", lambda m, device: loaded.append((m.name, device)))
+    said = []
+    device.load_kernels("cpu", said.append)
+    assert len(said) == 1 and "compiling" in said[0] and "first run only" in said[0]
+    assert sorted(name for name, _ in loaded) == sorted(f"licrom.full_sim.{n}" for n in device.KERNEL_MODULES)
+    for name in device.KERNEL_MODULES:
+        folder = tmp_path / wp.get_module(f"licrom.full_sim.{name}").get_module_identifier()
+        folder.mkdir()
+        (folder / "module.o").write_bytes(b"")
+    said.clear()
+    device.load_kernels("cpu", said.append)
+    assert said == []
+    device.load_kernels("cuda", said.append)  # built for the CPU only
+    assert len(said) == 1

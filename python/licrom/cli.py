@@ -389,7 +389,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
 @click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Write filmstrips, animations, error plot, summary.json and the runs (.npz, for licrom export) here.")
+              help="Write report.html, summary.md/json, filmstrips, animations, the error plot and the runs (runs/*.npz, for licrom export) here.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 def compare_command(model_path, scene_source, slope, friction, mesh_source, steps, cubature, solver, device, out, quiet) -> None:
     """Run full and reduced side by side on scenes, and report how they differ.
@@ -400,12 +400,11 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
     per-scene error, non-rigid deformation error, peak deformation and total rotation of
     both, centre-of-mass error, stick/slip agreement, penetration and per-step time of both.
     """
-    import json
-
     from ._io import make_dir
     from .compare import run_comparison
     from .model import Model
     from .placement import initial_state_between_planes
+    from .report import Case, case_tag, write_report
     from .scene import Plane
     from .scene_file import ObjectSpec, load_scene
 
@@ -435,9 +434,8 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
                 initial = initial_state_between_planes(initial, base.planes[0], plane, mesh, base.material.density)
             cases.append((f"slope {plane.slope_deg:.1f} deg, mu {plane.friction:g}", base.replace(planes=(plane,), initial=initial)))
     if out is not None:
-        make_dir(out)
-    results = {}
-    comparisons = {}
+        make_dir(out)  # a folder that cannot be made fails before the simulations
+    compared = []
     bar = None
     if not quiet:
         from tqdm import tqdm
@@ -451,30 +449,22 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
             cmp, full, reduced = run_comparison(model, scene, mesh, steps=steps, device=device, solver=solver,
                                                 cubature=cubature_choice, progress=not quiet)
             echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} learned modes, {model.frame} frame)\n{cmp.table()}")
-            results[label] = cmp.summary()
-            comparisons[label] = cmp
-            if out is not None:
-                from .render import pick_renderer, pictures
-
-                renderer, why_not = pick_renderer()
-                if why_not and len(results) == 1:
-                    echo(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
-                pictures([full, reduced], ["full", "reduced"], out, str(len(results)), title=label, renderer=renderer)
-                full.save(Path(out) / f"full_{len(results)}.npz")
-                reduced.save(Path(out) / f"reduced_{len(results)}.npz")
+            compared.append(Case(label, case_tag(label, scene, [c.tag for c in compared]), cmp, full, reduced))
             if bar is not None:
                 bar.update(1)
     finally:
         if bar is not None:
             bar.close()
     if out is not None:
-        from ._io import atomic_path
-        from .render import plot_errors
+        from .render import pick_renderer
 
-        plot_errors(comparisons, Path(out) / "errors.png")
-        with atomic_path(Path(out) / "summary.json") as tmp:
-            tmp.write_text(json.dumps(results, indent=2))
-        click.echo(f"\nwrote {out}/summary.json, errors.png, filmstrips, animations and the runs (full_N.npz, reduced_N.npz)")
+        renderer, why_not = pick_renderer()
+        if why_not:
+            click.echo(f"pictures: {why_not}; drawing them with matplotlib")
+        description = (f"{Path(model_path).name} on {mesh.n_tets} tets: r = {model.n_learned} learned modes, {model.frame} frame, "
+                       f"cubature {cubature}")
+        write_report(compared, out, "licrom compare", description, renderer)
+        click.echo(f"\nwrote {out}/report.html, summary.md, summary.json, errors.png, filmstrips, animations and the runs (runs/*.npz)")
 
 
 @cli.command("export")
@@ -490,8 +480,8 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
 @click.option("--fps", type=float, default=20.0, show_default=True, help="gif: frames per second.")
 @click.option("--max-frames", type=int, default=60, show_default=True, help="gif: at most this many frames.")
 @click.option("--title", default=None, help="png/gif: text above the views.")
-@click.option("--renderer", type=click.Choice(["pyvista", "matplotlib"]), default="pyvista", show_default=True,
-              help="png: matplotlib draws without PyVista (grey, no colours).")
+@click.option("--renderer", type=click.Choice(["auto", "pyvista", "matplotlib"]), default="auto", show_default=True,
+              help="png/gif: pyvista (smooth shading, needs licrom[render]) or matplotlib (flat shading); auto: pyvista where it renders.")
 def export_command(runs, fmt, output, labels, color_by, frames, fps, max_frames, title, renderer) -> None:
     """Export recorded runs (.npz trajectories from generate, demo or compare) for other tools.
 
@@ -516,13 +506,14 @@ def export_command(runs, fmt, output, labels, color_by, frames, fps, max_frames,
 
         written = [write_usd(trajectories, output, names)]
     else:
-        from .render import RenderStyle, animation, filmstrip
+        from .render import RenderStyle, animation, filmstrip, pick_renderer
 
         style = RenderStyle(color_by=color_by)
+        renderer = pick_renderer()[0] if renderer == "auto" else renderer
         if fmt == "png":
             written = [filmstrip(trajectories, names, output, frames=frames, title=title, style=style, renderer=renderer)]
         else:
-            written = [animation(trajectories, names, output, fps=fps, max_frames=max_frames, title=title, style=style)]
+            written = [animation(trajectories, names, output, fps=fps, max_frames=max_frames, title=title, style=style, renderer=renderer)]
     frames_in = trajectories[0].n_frames
     for p in written:
         click.echo(f"wrote {p} ({p.stat().st_size / 1e6:.2f} MB)")

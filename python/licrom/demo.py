@@ -5,15 +5,15 @@ full-space runs over the scene's sweep of friction coefficients and slopes, a Li
 subspace trained on them (in the body frame by default: rigid motion exact, the learned
 modes hold the deformation), then the reduced model run on the scene's held-out slopes and
 friction coefficients, next to the full simulation of the same scenes. Everything lands in
-one folder: a summary table, filmstrips and animations from a fixed camera (PyVista; a
-matplotlib filmstrip without it), an error plot, loss curves, the full and reduced runs
+one folder (:mod:`licrom.report`'s layout): ``report.html`` and a summary table with each number's
+meaning, target and verdict, filmstrips and animations from a fixed camera (PyVista, or matplotlib
+without it), an error plot, loss curves, the full and reduced runs
 (``runs/*.npz``, for ``licrom export``) and VTU series for ParaView with contact forces,
 non-rigid deformation and the planes.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import click
 
-from ._io import atomic_path, make_dir
+from ._io import make_dir
 from .errors import ConfigError
 from .rigid import check_frame
 from .scene_file import SceneFile, load_scene
@@ -94,14 +94,16 @@ def demo_scene(config: DemoConfig) -> SceneFile:
 
 
 def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
-    """Run the pipeline; return the summary (also written as ``summary.json``/``summary.md``).
+    """Run the pipeline; return the summary (also written as ``summary.json``, ``summary.md`` and ``report.html``,
+    :mod:`licrom.report`).
 
     ``progress=False`` hides the progress bars; the stage lines and the summary are printed.
     """
     from .compare import run_comparison
     from .export import write_vtu_series
     from .model import ModelConfig
-    from .render import pick_renderer, pictures, plot_errors
+    from .render import pick_renderer
+    from .report import Case, case_tag, write_report
     from .training import TrainConfig, train
 
     scene_file = demo_scene(config)
@@ -133,60 +135,31 @@ def run_demo(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     say(f"[4/4] held-out scenes, full vs reduced: {[label for label, _ in cases]}")
     renderer, why_not = pick_renderer()
     if why_not:
-        say(f"pictures: {why_not}; drawing filmstrips with matplotlib, without animations")
-    comparisons = {}
-    rows = []
+        say(f"pictures: {why_not}; drawing them with matplotlib")
+    compared: list[Case] = []
     cubature = model.cubature  # fitted to the training poses by train(), the reduced runs' default
     for label, scene in cases:
-        slope, mu = scene.planes[0].slope_deg, scene.planes[0].friction
         cmp, full, reduced = run_comparison(model, scene, mesh, steps=scene_file.steps, device=config.device,
                                             progress=progress)
-        tag = f"slope{slope:g}_mu{mu:g}"
-        comparisons[label] = cmp
-        pictures([full, reduced], ["full", "reduced"], out, tag, title=label, renderer=renderer)
-        full.save(out / "runs" / f"full_{tag}.npz")
-        reduced.save(out / "runs" / f"reduced_{tag}.npz")
+        tag = case_tag(label, scene, [c.tag for c in compared])
+        compared.append(Case(label, tag, cmp, full, reduced))
         write_vtu_series(full, out / f"vtu_{tag}" / "full", "full")
         write_vtu_series(reduced, out / f"vtu_{tag}" / "reduced", "reduced")
-        rows.append({"scene": label, "tan(slope)": math.tan(math.radians(slope)), **cmp.summary()})
         say(f"\n{label}\n{cmp.table()}\n")
-    plot_errors(comparisons, out / "errors.png")
-
-    summary = {
-        "mesh": {"object": scene_file.object.describe(), "vertices": mesh.n_vertices, "tets": mesh.n_tets},
-        "config": {**asdict(config), "scene": scene_file.source},
-        "seconds": {"full_runs": t_data, "training": t_train, "total": time.perf_counter() - t0},
-        "model": {"learned_modes": config.modes, "frame": config.frame, "cubature_points": cubature.count},
-        "cases": rows,
-    }
-    for name, text in (("summary.json", json.dumps(summary, indent=2)), ("summary.md", _markdown(summary))):
-        with atomic_path(out / name) as tmp:
-            tmp.write_text(text)
-    say(_markdown(summary))
-    say(f"outputs in {out.resolve()}:")
+    seconds = {"full_runs": t_data, "training": t_train}
+    extra = "+12 affine" if config.frame == "world" else "+6 symmetric affine, rigid motion exact"
+    description = (f"{scene_file.object.describe()}: {mesh.n_tets} tets; {config.frame}-frame model, r = {model.n_learned} ({extra}), "
+                   f"{cubature.count} cubature tets fitted by the training")
+    summary = write_report(
+        compared, out, "licrom demo", description, renderer,
+        extra={"mesh": {"object": scene_file.object.describe(), "vertices": mesh.n_vertices, "tets": mesh.n_tets},
+               "config": {**asdict(config), "scene": scene_file.source}, "seconds": seconds,
+               "model": {"learned_modes": model.n_learned, "frame": config.frame, "cubature_points": cubature.count}},
+        footer=f"full runs {t_data:.0f} s, training {t_train:.0f} s",
+    )
+    say((out / "summary.md").read_text())
+    say(f"outputs in {out.resolve()} (open report.html):")
     for p in sorted(out.iterdir()):
         say(f"  {p.name}")
+    say(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return summary
-
-
-def _markdown(summary: dict) -> str:
-    head = ("| scene | mean rel. error | non-rigid error | estimated non-rigid error | peak deformation / size full / reduced | "
-            "rotation full / reduced | final COM error / size | full | reduced | full ms/step | reduced ms/step | speedup |\n")
-    head += "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
-    for r in summary["cases"]:
-        head += (
-            f"| {r['scene']} | {100 * r['mean_error']:.2f} % | {100 * r['nonrigid_error']:.2f} % | {100 * r['error_estimate']:.2f} % | "
-            f"{100 * r['peak_deformation_full']:.2f} % / {100 * r['peak_deformation_reduced']:.2f} % | "
-            f"{r['rotation_full']:.0f} deg / {r['rotation_reduced']:.0f} deg | {100 * r['final_com_error']:.2f} % | "
-            f"{'slides' if r['slid_full'] else 'sticks'} | {'slides' if r['slid_reduced'] else 'sticks'} | "
-            f"{r['full_step_ms']:.2f} | {r['reduced_step_ms']:.3f} | {r['speedup']:.0f}x |\n"
-        )
-    s = summary["seconds"]
-    model = summary["model"]
-    extra = "+12 affine" if model["frame"] == "world" else "+6 symmetric affine, rigid motion exact"
-    return (
-        f"# licrom demo\n\n{summary['mesh']['object']}: {summary['mesh']['tets']} tets; {model['frame']}-frame model, r = {model['learned_modes']} ({extra}), "
-        f"{model['cubature_points']} cubature tets fitted by the training\n\n{head}\n"
-        "Estimated non-rigid error: the reduced run's own online estimate (licrom.error_estimate), made without the full run.\n"
-        f"full runs {s['full_runs']:.0f} s, training {s['training']:.0f} s, total {s['total']:.0f} s\n"
-    )

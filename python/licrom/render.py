@@ -1,19 +1,24 @@
 """Pictures of runs: filmstrips and animations from a fixed world camera, and the error plot.
 
-The renderer is PyVista (VTK), off-screen: on a Linux machine without a display VTK's wheels
-render through EGL (Mesa's or a GPU driver's), so ``pip install 'licrom[render]'`` is all it
-takes. One camera frames the whole run of every trajectory shown, the planes are drawn as
-grids, the start pose as a grey ghost, and the surface is coloured by its non-rigid deformation
-(each frame's best rigid fit removed, :mod:`licrom.rigid`) or by its distance from a reference
-run. Full and reduced runs are shown side by side with the same camera and colour scale.
+Two renderers draw the same pictures: one camera frames the whole run of every trajectory
+shown, the planes are drawn as grids, the start pose as a grey ghost, and the surface is
+coloured by its non-rigid deformation (each frame's best rigid fit removed, :mod:`licrom.rigid`)
+or by its distance from a reference run, with a colour bar in mm. Full and reduced runs are
+shown side by side with the same camera and colour scale (and one scale for every scene of a
+comparison when :attr:`RenderStyle.clim` is given).
 
-Without PyVista, :func:`filmstrip` can draw with matplotlib (``renderer="matplotlib"``: the same
-fixed camera and planes, flat shading, no colours); :func:`pick_renderer` chooses and says why.
+- ``"pyvista"`` (VTK, off-screen; ``pip install 'licrom[render]'``): smooth-shaded surfaces. On a
+  Linux machine without a display VTK's wheels render through EGL (Mesa's or a GPU driver's).
+- ``"matplotlib"`` (always installed): the camera's parallel projection painted triangle by
+  triangle, back to front, flat-shaded. :func:`pick_renderer` chooses and says why.
+
+Animations are GIFs written by Pillow with either renderer.
 """
 
 from __future__ import annotations
 
 import functools
+import io
 import math
 import os
 import subprocess
@@ -48,19 +53,23 @@ COLOR_BY = ("deformation", "error")
 """What colours the surface: its non-rigid deformation, or its distance from the first run shown."""
 
 RENDERERS = ("pyvista", "matplotlib")
-"""Renderers of :func:`filmstrip`; animations need PyVista."""
+"""Renderers of :func:`filmstrip` and :func:`animation`."""
 
 HEADER_PX = 32
 """Height of the title strip above the panels (when there is a title), pixels."""
 COLORBAR_PX = 58
-"""Height of the colour-bar strip below the panels (PyVista pictures), pixels."""
+"""Height of the colour-bar strip below the panels, pixels."""
 PANEL_GAP = 2
 """Width of the grey lines between panels, pixels."""
+PLANE_RGB = (0.86, 0.86, 0.84)
+GRID_RGB = (0.6, 0.6, 0.58)
+GHOST_RGB = (0.55, 0.55, 0.55)
+GHOST_ALPHA = 0.25
 
 
 @dataclass(frozen=True)
 class RenderStyle:
-    """How the PyVista renderer draws runs.
+    """How runs are drawn (both renderers).
 
     Attributes:
         color_by: ``"deformation"``: length of each vertex's non-rigid deformation (the frame's
@@ -73,6 +82,8 @@ class RenderStyle:
         colormap: matplotlib colormap name of the surface colours.
         ghost: draw the start pose as a translucent grey ghost in every view.
         edges: draw the surface triangles' edges.
+        clim: the colour scale (low, high), mm; None: from 0 to the largest value of the runs
+            drawn. Give one scale to the pictures of several scenes to compare them.
     """
 
     color_by: str = "deformation"
@@ -82,8 +93,14 @@ class RenderStyle:
     colormap: str = "YlOrRd"
     ghost: bool = True
     edges: bool = False
+    clim: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.clim is not None:
+            lim = tuple(self.clim)
+            if len(lim) != 2 or not all(isinstance(v, (int, float, np.floating)) and math.isfinite(v) for v in lim) or not lim[0] < lim[1]:
+                raise ConfigError(f"RenderStyle.clim must be two finite numbers low < high (mm) or None, got {self.clim!r}")
+            object.__setattr__(self, "clim", (float(lim[0]), float(lim[1])))
         if self.color_by not in COLOR_BY:
             raise ConfigError(f"RenderStyle.color_by must be one of {', '.join(map(repr, COLOR_BY))}, got {self.color_by!r}")
         size = tuple(self.panel_size)
@@ -208,10 +225,10 @@ def _check_runs(trajectories: Sequence[Trajectory], labels: Sequence[str], what:
 
 
 class _Views:
-    """The runs, their colours, one world camera and one off-screen plotter per run."""
+    """The runs, their colours, one world camera and one painter (a view drawn by the renderer) per run."""
 
-    def __init__(self, runs: list[Trajectory], labels: Sequence[str], style: RenderStyle, title: str | None) -> None:
-        self.runs, self.labels, self.style, self.title = runs, list(labels), style, title
+    def __init__(self, runs: list[Trajectory], labels: Sequence[str], style: RenderStyle, title: str | None, renderer: str) -> None:
+        self.runs, self.labels, self.style, self.title, self.renderer = runs, list(labels), style, title, renderer
         self.positions = [t.rest_positions[None] + t.displacements for t in runs]
         if style.color_by == "error":
             ref = runs[0]
@@ -227,7 +244,10 @@ class _Views:
             ]
             self.scalar_label = "non-rigid deformation (mm)"
         top = max(float(s.max()) for s in self.scalars)
-        self.clim = (0.0, max(top, 0.01))  # a rigid run: a scale of 0 to 10 micrometres, not of 0 to 0
+        # a rigid run: a scale of 0 to 10 micrometres, not of 0 to 0
+        self.clim = style.clim if style.clim is not None else (0.0, max(top, 0.01))
+        if style.ghost:
+            self.scalar_label += "; grey ghost: the start pose"
         every = np.concatenate([x.reshape(-1, 3) for x in self.positions])
         size = max(t.mesh.size for t in runs)
         scene = runs[0].scene
@@ -244,7 +264,7 @@ class _Views:
         self.camera = self._camera(np.concatenate(framed), size)
         spacing = np.diff(runs[0].times)
         self.decimals = max(2, math.ceil(-math.log10(spacing[spacing > 0].min()) - 1e-6)) if np.any(spacing > 0) else 2
-        self.plotters: list[Any] = []
+        self.painters: list[Any] = []
         self._strips: dict[int, tuple[list[np.ndarray], np.ndarray]] = {}
 
     def _camera(self, every: np.ndarray, size: float) -> dict[str, Any]:
@@ -278,51 +298,24 @@ class _Views:
         return {"focal": focal, "position": focal + back * 20.0 * (float(np.ptp(every, axis=0).max()) + size),
                 "up": cam_up, "scale": 1.22 * half}
 
-    def _plotter(self, i: int):
-        pv = _pyvista()
-        style = self.style
-        pl = pv.Plotter(off_screen=True, window_size=list(style.panel_size))
-        pl.set_background("white")
-        for patch in self.patches:
-            # Square grid cells of about half the object's size: they show the slide and the scale.
-            cell = 0.5 * self.runs[i].mesh.size
-            ns, nt = (max(2, min(60, round(float(np.linalg.norm(patch[k] - patch[0])) / cell))) for k in (1, 3))
-            s, t = np.meshgrid(np.linspace(0, 1, ns + 1), np.linspace(0, 1, nt + 1), indexing="ij")
-            pts = patch[0] + s[..., None] * (patch[1] - patch[0]) + t[..., None] * (patch[3] - patch[0])
-            grid = pv.StructuredGrid(pts[..., 0], pts[..., 1], pts[..., 2])
-            pl.add_mesh(grid, color=(0.86, 0.86, 0.84), show_edges=True, edge_color=(0.6, 0.6, 0.58), line_width=1)
-        faces = np.asarray(self.runs[i].mesh.boundary_faces)
-        vtk_faces = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
-        if style.ghost:
-            pl.add_mesh(pv.PolyData(self.positions[i][0], vtk_faces), color=(0.55, 0.55, 0.55), opacity=0.25)
-        surface = pv.PolyData(self.positions[i][0].copy(), vtk_faces)
-        surface.point_data["value"] = self.scalars[i][0].copy()
-        pl.add_mesh(surface, scalars="value", cmap=style.colormap, clim=self.clim, show_scalar_bar=False,
-                    show_edges=style.edges, edge_color=(0.2, 0.2, 0.2), line_width=0.5)
-        text = pl.add_text("", position=(8, style.panel_size[1] - 22), font_size=10, color="black")
-        cam = pl.camera
-        cam.focal_point, cam.position, cam.up = self.camera["focal"], self.camera["position"], self.camera["up"]
-        cam.parallel_projection = True
-        cam.parallel_scale = self.camera["scale"]
-        pl.reset_camera_clipping_range()
-        return pl, surface, text
-
     def panel(self, i: int, frame: int) -> np.ndarray:
         """(h, w, 3) picture of run ``i`` at ``frame``."""
-        if not self.plotters:
-            self.plotters = [self._plotter(k) for k in range(len(self.runs))]
-        pl, surface, text = self.plotters[i]
-        surface.points = self.positions[i][frame]
-        surface.point_data["value"] = self.scalars[i][frame]
-        text.SetInput(f"{self.labels[i]}   t = {self.runs[i].times[frame]:.{self.decimals}f} s")
-        pl.reset_camera_clipping_range()
-        pl.render()
-        return np.asarray(pl.screenshot(None, return_img=True))[..., :3]
+        if not self.painters:
+            kind = _VtkPanel if self.renderer == "pyvista" else _FlatPanel
+            self.painters = [kind(self, k) for k in range(len(self.runs))]
+        text = f"{self.labels[i]}   t = {self.runs[i].times[frame]:.{self.decimals}f} s"
+        return self.painters[i].draw(self.positions[i][frame], self.scalars[i][frame], text)
+
+    def grid_cells(self, i: int, patch: np.ndarray) -> tuple[int, int]:
+        """Cells of a plane's grid along its two sides: squares of about half the object's size."""
+        cell = 0.5 * self.runs[i].mesh.size
+        ns, nt = (max(2, min(60, round(float(np.linalg.norm(patch[k] - patch[0])) / cell))) for k in (1, 3))
+        return ns, nt
 
     def close(self) -> None:
-        for pl, _, _ in self.plotters:
-            pl.close()
-        self.plotters = []
+        for painter in self.painters:
+            painter.close()
+        self.painters = []
 
     def compose(self, grid: list[list[np.ndarray]]) -> np.ndarray:
         """Panels in rows and columns, grey lines between them, the title above, the colour bar below."""
@@ -349,6 +342,118 @@ class _Views:
         return np.ascontiguousarray(np.vstack(stack))
 
 
+class _VtkPanel:
+    """One run's view drawn by an off-screen PyVista plotter."""
+
+    def __init__(self, views: _Views, i: int) -> None:
+        pv = _pyvista()
+        style = views.style
+        pl = pv.Plotter(off_screen=True, window_size=list(style.panel_size))
+        pl.set_background("white")
+        for patch in views.patches:
+            ns, nt = views.grid_cells(i, patch)
+            s, t = np.meshgrid(np.linspace(0, 1, ns + 1), np.linspace(0, 1, nt + 1), indexing="ij")
+            pts = patch[0] + s[..., None] * (patch[1] - patch[0]) + t[..., None] * (patch[3] - patch[0])
+            grid = pv.StructuredGrid(pts[..., 0], pts[..., 1], pts[..., 2])
+            pl.add_mesh(grid, color=PLANE_RGB, show_edges=True, edge_color=GRID_RGB, line_width=1)
+        faces = np.asarray(views.runs[i].mesh.boundary_faces)
+        vtk_faces = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
+        if style.ghost:
+            pl.add_mesh(pv.PolyData(views.positions[i][0], vtk_faces), color=GHOST_RGB, opacity=GHOST_ALPHA)
+        self.surface = pv.PolyData(views.positions[i][0].copy(), vtk_faces)
+        self.surface.point_data["value"] = views.scalars[i][0].copy()
+        pl.add_mesh(self.surface, scalars="value", cmap=style.colormap, clim=views.clim, show_scalar_bar=False,
+                    show_edges=style.edges, edge_color=(0.2, 0.2, 0.2), line_width=0.5)
+        self.text = pl.add_text("", position=(8, style.panel_size[1] - 22), font_size=10, color="black")
+        cam = pl.camera
+        cam.focal_point, cam.position, cam.up = views.camera["focal"], views.camera["position"], views.camera["up"]
+        cam.parallel_projection = True
+        cam.parallel_scale = views.camera["scale"]
+        pl.reset_camera_clipping_range()
+        self.plotter = pl
+
+    def draw(self, x: np.ndarray, values: np.ndarray, text: str) -> np.ndarray:
+        self.surface.points = x
+        self.surface.point_data["value"] = values
+        self.text.SetInput(text)
+        self.plotter.reset_camera_clipping_range()
+        self.plotter.render()
+        return np.asarray(self.plotter.screenshot(None, return_img=True))[..., :3]
+
+    def close(self) -> None:
+        self.plotter.close()
+
+
+class _FlatPanel:
+    """One run's view drawn by matplotlib: the camera's parallel projection of the surface
+    triangles, painted back to front (painter's algorithm), each flat-shaded by its normal
+    against a light from the camera and above."""
+
+    def __init__(self, views: _Views, i: int) -> None:
+        from matplotlib import colormaps
+        from matplotlib.collections import LineCollection, PolyCollection
+        from matplotlib.colors import Normalize
+
+        plt = pyplot()
+        style, cam = views.style, views.camera
+        w, h = style.panel_size
+        forward = np.asarray(cam["focal"], float) - np.asarray(cam["position"], float)
+        forward /= np.linalg.norm(forward)
+        up = np.asarray(cam["up"], float)
+        right = np.cross(forward, up)
+        right /= np.linalg.norm(right)
+        self.axes3 = np.stack([right, up, forward])  # screen x, screen y, depth (away from the camera)
+        self.origin = np.asarray(cam["focal"], float)
+        light = up - 1.5 * forward
+        self.light = light / np.linalg.norm(light)
+        self.faces = np.asarray(views.runs[i].mesh.boundary_faces)
+        self.cmap, self.norm = colormaps[style.colormap], Normalize(*views.clim)
+        self.fig = plt.figure(figsize=(w / 100, h / 100), dpi=100)
+        ax = self.fig.add_axes((0, 0, 1, 1))
+        ax.set_axis_off()
+        half = float(cam["scale"])
+        ax.set_xlim(-half * w / h, half * w / h)
+        ax.set_ylim(-half, half)
+        for patch in views.patches:
+            ns, nt = views.grid_cells(i, patch)
+            corners = self._project(np.asarray(patch))[:, :2]
+            ax.add_collection(PolyCollection([corners], facecolors=[PLANE_RGB], edgecolors="none"))
+            p0, ps, pt = patch[0], patch[1] - patch[0], patch[3] - patch[0]
+            lines = [[p0 + a * ps, p0 + a * ps + pt] for a in np.linspace(0, 1, ns + 1)]
+            lines += [[p0 + b * pt, p0 + b * pt + ps] for b in np.linspace(0, 1, nt + 1)]
+            ax.add_collection(LineCollection([self._project(np.asarray(seg))[:, :2] for seg in lines], colors=[GRID_RGB], linewidths=0.8))
+        if style.ghost:
+            tri = self._project(views.positions[i][0])[self.faces]
+            ghost = tri[np.argsort(-tri[:, :, 2].mean(axis=1))][:, :, :2]
+            ax.add_collection(PolyCollection(ghost, facecolors=[(*GHOST_RGB, GHOST_ALPHA)], edgecolors="none"))
+        # Edges in the face colour hide the anti-aliasing seams between neighbours.
+        self.surface = PolyCollection([], linewidths=0.4 if not style.edges else 0.3)
+        ax.add_collection(self.surface)
+        self.edges = style.edges
+        self.text = ax.text(8 / w, 1 - 8 / h, "", transform=ax.transAxes, va="top", ha="left", fontsize=9)
+
+    def _project(self, x: np.ndarray) -> np.ndarray:
+        return (x - self.origin) @ self.axes3.T
+
+    def draw(self, x: np.ndarray, values: np.ndarray, text: str) -> np.ndarray:
+        tri_world = x[self.faces]
+        normal = np.cross(tri_world[:, 1] - tri_world[:, 0], tri_world[:, 2] - tri_world[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        shade = 0.45 + 0.55 * np.abs(normal @ self.light)
+        rgb = self.cmap(self.norm(values[self.faces].mean(axis=1)))[:, :3] * shade[:, None]
+        tri = self._project(x)[self.faces]
+        order = np.argsort(-tri[:, :, 2].mean(axis=1))  # farthest first
+        self.surface.set_verts(tri[order][:, :, :2])
+        self.surface.set_facecolor(rgb[order])
+        self.surface.set_edgecolor((0.2, 0.2, 0.2) if self.edges else rgb[order])
+        self.text.set_text(text)
+        self.fig.canvas.draw()
+        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+
+    def close(self) -> None:
+        pyplot().close(self.fig)
+
+
 def filmstrip(
     trajectories: Sequence[Trajectory],
     labels: Sequence[str],
@@ -370,9 +475,9 @@ def filmstrip(
         path: the PNG to write.
         frames: snapshots per row, >= 1.
         title: text above the views.
-        style: colours, camera angles and view size of the PyVista renderer.
-        renderer: ``"pyvista"`` (coloured, needs ``licrom[render]``) or ``"matplotlib"`` (grey,
-            flat shading; for installs without PyVista, see :func:`pick_renderer`).
+        style: colours, camera angles, view size and colour scale.
+        renderer: ``"pyvista"`` (smooth shading, needs ``licrom[render]``) or ``"matplotlib"``
+            (flat shading, always installed; see :func:`pick_renderer`).
 
     Raises:
         ShapeError: labels or frame counts that do not match.
@@ -382,12 +487,9 @@ def filmstrip(
     runs = _check_runs(trajectories, labels, "filmstrip")
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
         raise ConfigError(f"filmstrip frames must be an integer >= 1, got {frames!r}")
-    if renderer not in RENDERERS:
-        raise ConfigError(f"filmstrip renderer must be one of {', '.join(map(repr, RENDERERS))}, got {renderer!r}")
+    _check_renderer(renderer, "filmstrip")
     picks = np.linspace(0, runs[0].n_frames - 1, frames).round().astype(int)
-    if renderer == "matplotlib":
-        return _filmstrip_matplotlib(runs, labels, path, picks, title)
-    views = _Views(runs, labels, style or RenderStyle(), title)
+    views = _Views(runs, labels, style or RenderStyle(), title, renderer)
     try:
         image = views.compose([[views.panel(i, f) for f in picks] for i in range(len(runs))])
     finally:
@@ -403,6 +505,7 @@ def animation(
     max_frames: int = 60,
     title: str | None = None,
     style: RenderStyle | None = None,
+    renderer: str = "pyvista",
 ) -> Path:
     """An animated GIF of the runs side by side, from the fixed world camera of :func:`filmstrip`.
 
@@ -413,12 +516,14 @@ def animation(
         fps: frames per second of the GIF (the recorded time is shown in each view).
         max_frames: at most this many frames, evenly spaced over the run (all when fewer).
         title: text above the views.
-        style: colours, camera angles and view size.
+        style: colours, camera angles, view size and colour scale.
+        renderer: ``"pyvista"`` or ``"matplotlib"`` (as for :func:`filmstrip`).
 
     Raises:
         ShapeError: labels or frame counts that do not match.
-        ConfigError: a path not ending in ``.gif``, ``fps`` <= 0 or ``max_frames`` < 1.
-        MissingDependencyError: PyVista or imageio missing, or PyVista unable to render here.
+        ConfigError: a path not ending in ``.gif``, ``fps`` <= 0, ``max_frames`` < 1 or an
+            unknown renderer.
+        MissingDependencyError: ``renderer="pyvista"`` where PyVista cannot render.
     """
     runs = _check_runs(trajectories, labels, "animation")
     out = Path(path)
@@ -428,17 +533,19 @@ def animation(
         raise ConfigError(f"animation fps must be > 0, got {fps!r}")
     if isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer)) or max_frames < 1:
         raise ConfigError(f"animation max_frames must be an integer >= 1, got {max_frames!r}")
-    iio = require_optional("imageio.v3", "render", "GIF animations")
+    _check_renderer(renderer, "animation")
+    from PIL import Image
+
     n = runs[0].n_frames
     picks = np.arange(n) if n <= max_frames else np.linspace(0, n - 1, max_frames).round().astype(int)
-    views = _Views(runs, labels, style or RenderStyle(), title)
+    views = _Views(runs, labels, style or RenderStyle(), title, renderer)
     try:
-        images = np.stack([views.compose([[views.panel(i, f) for i in range(len(runs))]]) for f in picks])
+        images = [Image.fromarray(views.compose([[views.panel(i, f) for i in range(len(runs))]])) for f in picks]
     finally:
         views.close()
-    # Encoded in memory, then written: imageio writing the file itself retries its failed flush
-    # of a full disk when it is garbage-collected, printing an "Exception ignored" traceback.
-    data = iio.imwrite("<bytes>", images, extension=".gif", duration=1000.0 / fps, loop=0)
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=round(1000.0 / fps), loop=0)
+    data = buffer.getvalue()
     with atomic_path(out) as tmp:
         tmp.write_bytes(data)
     return out
@@ -453,7 +560,7 @@ def pictures(
     renderer: str = "pyvista",
     style: RenderStyle | None = None,
 ) -> list[Path]:
-    """The pictures of runs of one scene: ``filmstrip_TAG.png`` and, with PyVista, ``animation_TAG.gif``.
+    """The pictures of runs of one scene: ``filmstrip_TAG.png`` and ``animation_TAG.gif``.
 
     Args:
         trajectories: the runs (as for :func:`filmstrip`).
@@ -461,17 +568,20 @@ def pictures(
         folder: where the pictures go.
         tag: the file names' suffix (e.g. the scene's name).
         title: text above the views.
-        renderer: ``"pyvista"``, or ``"matplotlib"`` for the filmstrip alone (see :func:`pick_renderer`).
-        style: colours, camera angles and view size of the PyVista renderer.
+        renderer: ``"pyvista"`` or ``"matplotlib"`` (see :func:`pick_renderer`).
+        style: colours, camera angles, view size and colour scale.
 
     Returns:
         The paths written.
     """
     out = Path(folder)
-    paths = [filmstrip(trajectories, labels, out / f"filmstrip_{tag}.png", title=title, style=style, renderer=renderer)]
-    if renderer == "pyvista":
-        paths.append(animation(trajectories, labels, out / f"animation_{tag}.gif", title=title, style=style))
-    return paths
+    return [filmstrip(trajectories, labels, out / f"filmstrip_{tag}.png", title=title, style=style, renderer=renderer),
+            animation(trajectories, labels, out / f"animation_{tag}.gif", title=title, style=style, renderer=renderer)]
+
+
+def _check_renderer(renderer: Any, what: str) -> None:
+    if renderer not in RENDERERS:
+        raise ConfigError(f"{what} renderer must be one of {', '.join(map(repr, RENDERERS))}, got {renderer!r}")
 
 
 def _save_image(image: np.ndarray, path: str | os.PathLike) -> Path:
@@ -481,42 +591,6 @@ def _save_image(image: np.ndarray, path: str | os.PathLike) -> Path:
     with atomic_path(out) as tmp:
         Image.fromarray(image).save(tmp, format="PNG", optimize=True)
     return out
-
-
-def _filmstrip_matplotlib(runs: list[Trajectory], labels: Sequence[str], path: str | os.PathLike, picks: np.ndarray, title: str | None) -> Path:
-    """The filmstrip drawn with matplotlib's 3-D axes: grey flat-shaded surfaces, the same fixed camera."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    plt = pyplot()
-    every = np.concatenate([(t.rest_positions[None] + t.displacements).reshape(-1, 3) for t in runs])
-    lo, hi = every.min(axis=0), every.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    half = 0.55 * float((hi - lo).max()) + 0.3 * max(t.mesh.size for t in runs)
-    scene = runs[0].scene
-    patches = [plane_patch(p, every, 0.5 * float((hi - lo).max()), scene.gravity) for p in scene.planes]
-    light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
-    fig = plt.figure(figsize=(2.6 * len(picks), 2.6 * len(runs) + 0.4))
-    for row, (traj, label) in enumerate(zip(runs, labels)):
-        faces = traj.mesh.boundary_faces
-        for col, f in enumerate(picks):
-            ax = fig.add_subplot(len(runs), len(picks), row * len(picks) + col + 1, projection="3d")
-            tri = traj.positions(f)[faces]
-            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
-            shade = 0.35 + 0.65 * np.clip(nrm @ light, 0, 1)
-            for patch in patches:
-                ax.add_collection3d(Poly3DCollection([patch], facecolors=(0.6, 0.6, 0.6, 0.35), edgecolors="none"))
-            ax.add_collection3d(Poly3DCollection(tri, facecolors=np.outer(shade, [0.98, 0.82, 0.35]), edgecolors="none"))
-            ax.set_xlim(centre[0] - half, centre[0] + half)
-            ax.set_ylim(centre[1] - half, centre[1] + half)
-            ax.set_zlim(centre[2] - half, centre[2] + half)
-            ax.view_init(elev=18, azim=-70)
-            ax.set_axis_off()
-            ax.set_title(f"{label}  t={traj.times[f]:.2f}s", fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return save_png(fig, path)
 
 
 def plot_errors(comparisons: dict[str, Comparison], path: str | os.PathLike) -> Path:

@@ -7,14 +7,14 @@ import os
 import re
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import warp as wp
 
 from ..errors import ConfigError
 
-__all__ = ["ACCEPTED_DEVICES", "check_device_name", "resolve_device", "warp_ready"]
+__all__ = ["ACCEPTED_DEVICES", "KERNEL_MODULES", "check_device_name", "load_kernels", "resolve_device", "warp_ready"]
 
 ACCEPTED_DEVICES = ("auto", "cpu", "cuda", "cuda:N")
 """Device names :class:`~licrom.full_sim.FullSim` accepts (``cuda:N`` is the N-th CUDA device; ``"auto"``,
@@ -69,6 +69,32 @@ def warp_ready() -> Any:
             wp.init()
         _initialised = True
     return wp
+
+
+KERNEL_MODULES = ("elastic", "contact", "inertia", "pcg", "validity")
+"""The modules of :mod:`licrom.full_sim` that hold warp kernels."""
+
+
+def _compiled(module: Any, device: str) -> bool:
+    """Whether warp's kernel cache holds ``module`` built for ``device`` (True where it cannot tell)."""
+    try:
+        folder = os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier())
+    except (AttributeError, TypeError):  # another warp: no guess, no message
+        return True
+    suffixes = (".o",) if device == "cpu" else (".ptx", ".cubin")
+    return os.path.isdir(folder) and any(name.endswith(suffixes) for name in os.listdir(folder))
+
+
+def load_kernels(device: str, say: Callable[[str], None] | None = None) -> None:
+    """Load the full simulation's warp kernels on ``device``, first saying so through ``say`` when
+    warp must compile them (the first run after an install or an upgrade: about a minute on two
+    cores), so that a progress bar standing at 0 does not look hung."""
+    warp_ready()
+    modules = [wp.get_module(f"licrom.full_sim.{name}") for name in KERNEL_MODULES]
+    if say is not None and not all(_compiled(m, device) for m in modules):
+        say(f"warp is compiling the full simulation's kernels for {device} (first run only, about a minute)...")
+    for m in modules:
+        wp.load_module(m, device=device)
 
 
 def check_device_name(device: Any) -> str:

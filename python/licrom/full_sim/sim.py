@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ from .device import (
     MODE_GRADIENT,
     MODE_HESSIAN,
     MODE_RAW_HESSIAN,
+    load_kernels,
     resolve_device,
     warp_ready,
 )
@@ -509,6 +511,8 @@ class FullSim:
         """
         rest = self.mesh.vertices
         linear = 0
+        if progress:
+            load_kernels(self.device, lambda line: print(line, file=sys.stderr, flush=True))
 
         def step() -> tuple[int, float, bool]:
             nonlocal linear
