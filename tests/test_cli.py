@@ -2,6 +2,7 @@ import errno
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from licrom.cli import main
@@ -186,3 +187,57 @@ def test_export_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
     assert ".usda" in capsys.readouterr().err
     assert main(["export", str(tmp_path / "missing.npz"), "--format", "gif", "-o", str(tmp_path / "x.gif")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_help_shows_every_default_one_way_and_as_the_configs_have_them():
+    """Defaults in Click's '[default: X]' only (no hand-written '[X]'), and train's equal to its config classes'."""
+    import re
+
+    from click.testing import CliRunner
+    from licrom.cli import cli
+    from licrom.model import ModelConfig
+    from licrom.training import TrainConfig
+
+    runner = CliRunner()
+    shown = {}
+    # Click's own notes: defaults, required, ranges, and choices as metavars
+    clicks = re.compile(r"default: .*|required|[-\d.e]*<=?x(<=?[-\d.e]+)?|x[<>]=?[-\d.e]+|[\w-]+(\|[\w-]+)+")
+    for name in cli.commands:
+        text = runner.invoke(cli, [name, "--help"], terminal_width=1000, max_content_width=1000).output
+        options = text.split("Options:", 1)[1]
+        for note in re.findall(r"\[([^\]\[]*)\]\s*$", options, re.MULTILINE):
+            assert clicks.fullmatch(note), f"licrom {name} --help: '[{note}]' is not Click's '[default: X]'"
+        if name == "train":
+            shown = {k: v.strip("()") for k, v in re.findall(r"^\s+(--[\w-]+)[^\n]*\[default: \(?([^\];]+)", text, re.MULTILINE)}
+    t, m = TrainConfig(), ModelConfig()
+    expected = {"--rank-tolerance": t.rank_tolerance, "--max-rank": t.max_rank, "--objective": t.objective, "--pod-weighting": t.pod_weighting,
+                "--epochs": t.epochs, "--lr": t.lr, "--nodes": t.nodes, "--join-timeout": t.join_timeout_s, "--batch-frames": t.batch_frames,
+                "--points": t.points_per_frame, "--val-fraction": t.val_fraction, "--width": m.field_width, "--layers": m.field_layers,
+                "--projection-weight": t.projection_weight, "--fourier": m.fourier_features}
+    for option, value in expected.items():
+        first = shown[option].strip("()")
+        assert float(first) == float(value) if not isinstance(value, str) else first == value, (option, shown[option], value)
+
+
+def test_the_readme_own_object_section_runs_as_written(tmp_path, monkeypatch, capsys):
+    """The README's 'Your own object' commands, word for word, on a small closed surface; only the run
+    lengths are cut (options appended: --steps, --epochs), so that the sequence's wiring is what is tested."""
+    import re
+    import shlex
+
+    import meshio
+    from test_surface import icosphere
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = re.search(r"## Your own object.*?```bash\n(.*?)```", readme, re.DOTALL).group(1)
+    commands = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.startswith("licrom ")]
+    assert [c[1] for c in commands] == ["mesh", "scene", "generate", "train", "compare"]
+    v, f = icosphere(radius=0.04, subdivisions=2)
+    meshio.write(tmp_path / "potato.obj", meshio.Mesh(v * [1.5, 1.0, 0.8], [("triangle", f)]))
+    monkeypatch.chdir(tmp_path)
+    shorter = {"generate": ["--steps", "20", "-q"], "train": ["--epochs", "1", "-q"], "compare": ["--steps", "20", "-q"]}
+    for command in commands:
+        assert main(command[1:] + shorter.get(command[1], [])) == 0, (command, capsys.readouterr().err)
+    scene_object = (tmp_path / "potato.toml").read_text().split("[object]")[1].split("[material]")[0]
+    assert 'mesh = "potato.msh"' in scene_object and "resolution" not in scene_object
+    assert {"report.html", "summary.md"} <= {p.name for p in (tmp_path / "potato-compare").iterdir()}

@@ -159,11 +159,11 @@ def test_cli_generate(tmp_path):
     from licrom.cli import main
 
     out = tmp_path / "cli"
-    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q", "--jobs", "2"]) == 0
+    assert main(["generate", str(out), "--scene", "cheese", "--resolution", "4", "--steps", "2", "-q", "--jobs", "2"]) == 0
     m = json.loads((out / MANIFEST_NAME).read_text())
     assert len(m["trajectories"]) == 15 and m["complete"] and m["jobs"] == 2 and m["device"] == "cpu"
     assert (out / MESH_NAME).is_file()
-    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
+    assert main(["generate", str(out), "--scene", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 0
     assert all(t["skipped"] for t in json.loads((out / MANIFEST_NAME).read_text())["trajectories"])
     assert main(["generate", str(out), "--device", "gpu"]) == 2
 
@@ -182,7 +182,7 @@ def test_a_full_disk_stops_the_run_at_the_first_trajectory(tmp_path, monkeypatch
 
     monkeypatch.setattr(np, "savez_compressed", full_disk)
     out = tmp_path / "cli"
-    assert main(["generate", str(out), "--preset", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 2
+    assert main(["generate", str(out), "--scene", "cheese", "--resolution", "4", "--steps", "2", "-q"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("licrom: error: cannot write") and "traj_000" in err and "no space left on the device" in err
     # not recorded as one failed trajectory after another: stopped at the first write, nothing half-written

@@ -185,8 +185,8 @@ def test_cli_generate_takes_a_scene_file_and_flags(tmp_path, capsys):
     assert main(["generate", str(out), "--scene", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err == f"licrom: error: scene file '{bad}': planes[0].friction must be a number >= 0, got -1.0\n"
-    assert main(["generate", str(out), "--scene", str(scene), "--preset", "cheese"]) == 2
-    assert "give --scene or --preset, not both" in capsys.readouterr().err
+    assert main(["generate", str(out), "--preset", "cheese"]) == 2  # one way to name a scene: --scene
+    assert capsys.readouterr().err.startswith("licrom: error: No such option '--preset'")
 
 
 def test_cli_scene_copies_a_template(tmp_path, capsys):
@@ -244,3 +244,26 @@ def test_cli_scene_names_a_missing_or_surface_mesh_file(tmp_path, capsys):
     meshes.box(0.1, resolution=2).save(tmp_path / "parts" / "part.msh")
     assert main(["scene", str(scene)]) == 0
     assert "part.msh" in capsys.readouterr().out
+
+
+def test_scene_template_on_a_mesh_file(tmp_path, capsys, monkeypatch):
+    """`licrom scene demo -o FILE --mesh MESH`: the copy names the mesh relative to itself and has no resolution;
+    a mesh file that is not there leaves no copy behind."""
+    from licrom import meshes
+    from licrom.scene_file import builtin_scene_text, with_mesh_file
+
+    (tmp_path / "meshes").mkdir()
+    meshes.cheese(resolution=4).save(tmp_path / "meshes" / "mine.msh")
+    out = tmp_path / "scenes" / "mine.toml"
+    monkeypatch.chdir(tmp_path)
+    assert main(["scene", "demo", "-o", "scenes/mine.toml", "--mesh", "meshes/mine.msh"]) == 0
+    text = out.read_text()
+    assert 'mesh = "../meshes/mine.msh"' in text and "resolution" not in text.split("[material]")[0]
+    assert load_scene(out).object.build().n_tets == meshes.cheese(resolution=4).n_tets
+    missing = tmp_path / "other.toml"
+    assert main(["scene", "demo", "-o", str(missing), "--mesh", str(tmp_path / "nope.msh")]) == 2
+    assert "object.mesh" in capsys.readouterr().err and not missing.exists()
+    assert main(["scene", "demo", "--mesh", "x.msh"]) == 2
+    assert "--mesh needs --output" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match=r"no \[object\] table"):
+        with_mesh_file(builtin_scene_text("demo").replace("[object]", "[thing]"), "x.msh", tmp_path / "s.toml")

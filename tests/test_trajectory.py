@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from licrom import FileFormatError, Plane, Scene, ShapeError, SolverError, Trajectory, meshes
@@ -85,7 +87,12 @@ def test_repr_is_one_short_line_not_every_array():
     t = _traj(frames=50)
     text = repr(t)
     assert text == str(t) and "\n" not in text and len(text) < 200
-    assert text.startswith("Trajectory(50 frames, t = 0..0.49 s, 27 vertices, 48 tets") and "slope 0 deg, mu 0.5" in text
+    assert text.startswith("Trajectory(test: 50 frames, t = 0..0.49 s, 27 vertices, 48 tets") and "slope 0 deg, mu 0.5" in text
+    # A full and a reduced run of one scene print differently.
+    full = dataclasses.replace(t, info={"source": "full"})
+    reduced = dataclasses.replace(t, info={"source": "reduced", "frame": "body", "n_modes": 14, "cubature_points": 20})
+    assert repr(full).startswith("Trajectory(full: 50 frames")
+    assert repr(reduced).startswith("Trajectory(reduced, frame body, n modes 14, cubature points 20: 50 frames")
 
 
 @pytest.mark.parametrize(("member", "edit", "message"), [

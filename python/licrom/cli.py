@@ -74,11 +74,11 @@ def _print_mesh_summary(mesh, seconds: float | None = None) -> None:
 @click.option("--holes", type=int, default=None, help="Cheese: number of holes.")
 @click.option("--seed", type=int, default=None, help="Cheese: hole layout seed.")
 @click.option("--edge-length", type=float, default=None,
-              help="Surfaces: target tet edge length as a fraction of the bounding-box diagonal, in (0, 1] [0.05].")
+              show_default="0.05", help="Surfaces: target tet edge length as a fraction of the bounding-box diagonal, in (0, 1].")
 @click.option("--epsilon", type=float, default=None,
-              help="Surfaces: largest distance of the tet boundary from the surface, fraction of the diagonal, in (0, 0.1] [1e-3].")
-@click.option("--stop-energy", type=float, default=None, help="Surfaces: tet shape target (AMIPS energy > 3; lower: better, slower) [10].")
-@click.option("--scale", type=float, default=None, help="Surfaces: multiply the coordinates by this first (0.001 for mm) [1].")
+              show_default="1e-3", help="Surfaces: largest distance of the tet boundary from the surface, fraction of the diagonal, in (0, 0.1].")
+@click.option("--stop-energy", type=float, default=None, show_default="10", help="Surfaces: tet shape target (AMIPS energy > 3; lower: better, slower).")
+@click.option("--scale", type=float, default=None, show_default="1", help="Surfaces: multiply the coordinates by this first (0.001 for mm).")
 @click.option("--allow-open", is_flag=True,
               help="Surfaces: mesh a surface that is not closed anyway (fTetWild fills it into another shape; the change is printed).")
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -149,51 +149,62 @@ def mesh_command(source, resolution, size, radius, holes, seed, edge_length, eps
 @click.argument("source")
 @click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Copy the scene file here (a template to edit).")
-def scene_command(source, output) -> None:
+@click.option("--mesh", "mesh_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="With --output: the copy's object is this tet mesh file (its procedural resolution removed).")
+def scene_command(source, output, mesh_file) -> None:
     """Check a scene file (or a built-in scene: cheese, sphere, demo) and print what it describes.
 
-    With --output, copy it there: `licrom scene cheese -o my-scene.toml` starts a scene of your own.
+    With --output, copy it there: `licrom scene demo -o my-scene.toml --mesh my.msh` starts a
+    scene of your own on your mesh.
     """
     from ._io import atomic_path
-    from .scene_file import builtin_scene_text, load_scene
+    from .scene_file import builtin_scene_text, load_scene, with_mesh_file
 
-    scene = load_scene(source)
-    try:
-        scene.object.check()  # generate would stop at a missing mesh file; say so here
-    except LicromError as exc:
-        raise type(exc)(f"scene file {scene.source}: object.mesh: {exc}") from None
+    def checked(path_or_name: str | Path, name: str):
+        scene = load_scene(path_or_name)
+        try:
+            scene.object.check()  # generate would stop at a missing mesh file; say so here
+        except LicromError as exc:
+            raise type(exc)(f"scene file {name}: object.mesh: {exc}") from None
+        return scene
+
+    if mesh_file is not None and output is None:
+        raise ConfigError("--mesh needs --output: it sets the mesh of the copy")
+    if output is None:
+        click.echo(checked(source, load_scene(source).source).summary())
+        return
+    text = Path(source).read_text(encoding="utf-8") if Path(source).is_file() else builtin_scene_text(source)
+    if mesh_file is not None:
+        text = with_mesh_file(text, mesh_file, output)
+    with atomic_path(output) as tmp:  # the copy is checked beside where it goes, and kept only if it passes
+        tmp.write_text(text, encoding="utf-8")
+        scene = checked(tmp, f"'{output}'")
     click.echo(scene.summary())
-    if output is not None:
-        text = Path(source).read_text(encoding="utf-8") if Path(source).is_file() else builtin_scene_text(source)
-        with atomic_path(output) as tmp:
-            tmp.write_text(text, encoding="utf-8")
-        click.echo(f"wrote {output}")
+    click.echo(f"wrote {output}")
 
 
 @cli.command("generate")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--scene", "scene_source", default=None,
-              help="Scene file (.toml) or built-in scene (cheese, sphere, demo): object, material, planes, sweep, time [cheese].")
-@click.option("--preset", type=click.Choice(builtin_scenes()), default=None,
-              help="A built-in scene (the same as --scene NAME).")
-@click.option("--mesh", "mesh_source", default=None, help="Object: a tet mesh file, or box / sphere / cheese[:RES] [the scene's].")
+@click.option("--scene", "scene_source", default="cheese", show_default=True,
+              help=f"Scene file (.toml) or built-in scene ({', '.join(builtin_scenes())}): object, material, planes, sweep, time.")
+@click.option("--mesh", "mesh_source", default=None, show_default="the scene's", help="Object: a tet mesh file, or box / sphere / cheese[:RES].")
 @click.option("--resolution", "-r", type=click.IntRange(min=1), default=None, help="Procedural mesh resolution (cells along the longest side).")
-@click.option("--youngs-modulus", "-E", type=click.FloatRange(min=0, min_open=True), default=None, help="Young's modulus in Pa [the scene's].")
-@click.option("--poisson-ratio", type=click.FloatRange(-1, 0.5, min_open=True, max_open=True), default=None, help="Poisson ratio in (-1, 0.5) [the scene's].")
-@click.option("--density", type=click.FloatRange(min=0, min_open=True), default=None, help="Density in kg/m^3 [the scene's].")
-@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, help="Friction sweep: Coulomb coefficient (repeatable) [the scene's].")
-@click.option("--slope", type=SLOPE, multiple=True, help="Slope sweep: first plane's incline in degrees, [0, 90) (repeatable) [the scene's].")
-@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, help="Time step in s [the scene's].")
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps per trajectory [the scene's].")
-@click.option("--record-every", type=click.IntRange(min=1), default=None, help="Record every n-th step [the scene's].")
+@click.option("--youngs-modulus", "-E", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Young's modulus in Pa.")
+@click.option("--poisson-ratio", type=click.FloatRange(-1, 0.5, min_open=True, max_open=True), default=None, show_default="the scene's", help="Poisson ratio in (-1, 0.5).")
+@click.option("--density", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Density in kg/m^3.")
+@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, show_default="the scene's", help="Friction sweep: Coulomb coefficient (repeatable).")
+@click.option("--slope", type=SLOPE, multiple=True, show_default="the scene's", help="Slope sweep: first plane's incline in degrees, [0, 90) (repeatable).")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Time step in s.")
+@click.option("--steps", type=click.IntRange(min=1), default=None, show_default="the scene's", help="Time steps per trajectory.")
+@click.option("--record-every", type=click.IntRange(min=1), default=None, show_default="the scene's", help="Record every n-th step.")
 @click.option("--device", default="auto", show_default=True, help="Simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local: this machine (--jobs processes); ray: one task per run on a Ray cluster (RAY_ADDRESS, else a local one).")
-@click.option("--jobs", "-j", type=int, default=None, help="Processes of the local executor [1].")
+@click.option("--jobs", "-j", type=int, default=None, show_default="1", help="Processes of the local executor.")
 @click.option("--ray-timeout", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Seconds to wait for the Ray cluster at RAY_ADDRESS to answer [LICROM_RAY_TIMEOUT, else 30].")
+              show_default="LICROM_RAY_TIMEOUT, else 30", help="Seconds to wait for the Ray cluster at RAY_ADDRESS to answer.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-def generate_command(out_dir, scene_source, preset, mesh_source, resolution, youngs_modulus, poisson_ratio, density, friction, slope,
+def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modulus, poisson_ratio, density, friction, slope,
                      dt, steps, record_every, device, executor, jobs, ray_timeout, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
@@ -205,13 +216,11 @@ def generate_command(out_dir, scene_source, preset, mesh_source, resolution, you
     from .full_sim import check_device_name, resolve_device
     from .scene_file import load_scene
 
-    if scene_source is not None and preset is not None:
-        raise ConfigError("give --scene or --preset, not both")
     start = time.perf_counter()
     executor, n_jobs = check_executor(executor, jobs)
     device = resolve_device(device) if executor == "local" else check_device_name(device)
     where = f"{n_jobs} process{'es' if n_jobs > 1 else ''}" if executor == "local" else "Ray"
-    scene = load_scene(scene_source or preset or "cheese").overridden(
+    scene = load_scene(scene_source).overridden(
         mesh=mesh_source, resolution=resolution, youngs_modulus=youngs_modulus, poisson_ratio=poisson_ratio, density=density,
         frictions=friction or None, slopes=slope or None, dt=dt, steps=steps, record_every=record_every,
     )
@@ -268,30 +277,30 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
               help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame), "
                    "or auto: the smallest r whose leave-runs-out projection error meets --rank-tolerance.")
 @click.option("--rank-tolerance", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
-              help="With -r auto: held-out relative projection error to meet [0.05].")
-@click.option("--max-rank", type=click.IntRange(min=1), default=None, help="With -r auto: the largest r [120].")
+              show_default="0.05", help="With -r auto: held-out relative projection error to meet.")
+@click.option("--max-rank", type=click.IntRange(min=1), default=None, show_default="120", help="With -r auto: the largest r.")
 @click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
-              help="pod: regress the field onto the POD modes of the training frames; autoencoder: LiCROM's training [pod].")
+              show_default="pod", help="pod: regress the field onto the POD modes of the training frames; autoencoder: LiCROM's training.")
 @click.option("--pod-weighting", type=click.Choice(["run", "frame"]), default=None,
-              help="run: the training runs balanced in the POD (a run that deforms a lot counts little more than a gentle one); frame: every frame counts the same (plain POD) [run].")
-@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Passes over the training frames [TrainConfig default].")
-@click.option("--lr", type=float, default=None, help="Initial Adam learning rate [3e-3].")
+              show_default="run", help="run: the training runs balanced in the POD (a run that deforms a lot counts little more than a gentle one); frame: every frame counts the same (plain POD).")
+@click.option("--epochs", type=click.IntRange(min=1), default=None, show_default="200", help="Passes over the training frames.")
+@click.option("--lr", type=float, default=None, show_default="3e-3", help="Initial Adam learning rate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights, split and sampling.")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Training device (auto: CUDA when available).")
-@click.option("--gpus", type=int, default=None, help="GPUs to use (default all visible; >1 trains with DDP).")
-@click.option("--nodes", type=int, default=None, help="Machines of a multi-node DDP run, each with --gpus GPUs [1] (see docs/scaling.md).")
+@click.option("--gpus", type=int, default=None, show_default="all visible", help="GPUs to use (more than 1 trains with DDP).")
+@click.option("--nodes", type=int, default=None, show_default="1", help="Machines of a multi-node DDP run, each with --gpus GPUs (see docs/scaling.md).")
 @click.option("--join-timeout", type=float, default=None,
-              help="Seconds the processes of a multi-GPU or multi-node run wait for each other to join [120].")
-@click.option("--batch-frames", type=int, default=None, help="Frames per step [16].")
-@click.option("--points", type=int, default=None, help="Points sampled per step, shared by its frames [2048].")
-@click.option("--val-fraction", type=float, default=None, help="Fraction of trajectories held out [0.2].")
-@click.option("--width", type=int, default=None, help="Width of the neural field W(X) [256].")
-@click.option("--layers", type=int, default=None, help="Linear layers of the neural field W(X) [5].")
-@click.option("--projection-weight", type=float, default=None, help="Weight of the projection loss term [1; 0: plain LiCROM].")
-@click.option("--fourier", type=int, default=None, help="Random Fourier features of X fed to W(X) [32; 0: plain LiCROM].")
+              show_default="120", help="Seconds the processes of a multi-GPU or multi-node run wait for each other to join.")
+@click.option("--batch-frames", type=int, default=None, show_default="16", help="Frames per step.")
+@click.option("--points", type=int, default=None, show_default="2048", help="Points sampled per step, shared by its frames.")
+@click.option("--val-fraction", type=float, default=None, show_default="0.2", help="Fraction of trajectories held out.")
+@click.option("--width", type=int, default=None, show_default="256", help="Width of the neural field W(X).")
+@click.option("--layers", type=int, default=None, show_default="5", help="Linear layers of the neural field W(X).")
+@click.option("--projection-weight", type=float, default=None, show_default="1; 0: plain LiCROM", help="Weight of the projection loss term.")
+@click.option("--fourier", type=int, default=None, show_default="32; 0: plain LiCROM", help="Random Fourier features of X fed to W(X).")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def train_command(data, output, modes, rank_tolerance, max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, join_timeout, batch_frames,
@@ -378,12 +387,12 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
 @cli.command("compare")
 @click.argument("model_path", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--scene", "scene_source", default=None,
-              help="Scene file (.toml) or built-in scene: its held-out scenes (or its sweep), object and time [the model's scene].")
-@click.option("--slope", type=SLOPE, multiple=True, help="Incline angle in degrees, [0, 90) (repeatable) [the scene's].")
-@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, help="Coulomb coefficient (repeatable) [the scene's].")
+              show_default="the model's scene", help="Scene file (.toml) or built-in scene: its held-out scenes (or its sweep), object and time.")
+@click.option("--slope", type=SLOPE, multiple=True, show_default="the scene's", help="Incline angle in degrees, [0, 90) (repeatable).")
+@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, show_default="the scene's", help="Coulomb coefficient (repeatable).")
 @click.option("--mesh", "mesh_source", default=None,
-              help="Mesh to run on: a tet mesh file, or cheese:RES / sphere:RES / box:RES [the scene's, else the model's].")
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps [the scene's; 150 without --scene].")
+              show_default="the scene's, else the model's", help="Mesh to run on: a tet mesh file, or cheese:RES / sphere:RES / box:RES.")
+@click.option("--steps", type=click.IntRange(min=1), default=None, show_default="the scene's; 150 without --scene", help="Time steps.")
 @click.option("--cubature", default="fitted", show_default=True,
               help="Cubature: fitted (the model's, refitted on another mesh), full (every tet), naive (1000 random tets) or a number N (N naive tets).")
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
@@ -473,7 +482,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
               help="vtu: ParaView series (forces, deformation, planes); usd: time-sampled stage; png: filmstrip; gif: animation.")
 @click.option("--output", "-o", type=click.Path(path_type=Path), required=True,
               help="vtu: a folder; usd: a .usd/.usda/.usdc file; png/gif: the picture file.")
-@click.option("--label", "labels", multiple=True, help="Name of each run, in order (repeatable) [file names].")
+@click.option("--label", "labels", multiple=True, show_default="file names", help="Name of each run, in order (repeatable).")
 @click.option("--color-by", type=click.Choice(["deformation", "error"]), default="deformation", show_default=True,
               help="png/gif: colour by non-rigid deformation, or by distance from the first run.")
 @click.option("--frames", type=int, default=6, show_default=True, help="png: snapshots per run.")
@@ -528,19 +537,19 @@ DEMO_DEFAULTS = DemoConfig()
               help="Scene file (.toml) or built-in scene with [[held_out]] scenes: training sweep and held-out scenes.")
 @click.option("--out", type=click.Path(file_okay=False), default=DEMO_DEFAULTS.out_dir, show_default=True,
               help="Output folder.")
-@click.option("--resolution", type=click.IntRange(min=4), default=None, help="Procedural mesh resolution [the scene's].")
+@click.option("--resolution", type=click.IntRange(min=4), default=None, show_default="the scene's", help="Procedural mesh resolution.")
 @click.option("--epochs", type=click.IntRange(min=1), default=DEMO_DEFAULTS.epochs, show_default=True, help="Training epochs.")
 @click.option("--modes", "-r", type=click.IntRange(min=1), default=DEMO_DEFAULTS.modes, show_default=True, help="Learned modes r.")
 @click.option("--frame", type=click.Choice(["body", "world"]), default=DEMO_DEFAULTS.frame, show_default=True,
               help="Frame of the learned modes (world: LiCROM's model, for comparison).")
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Time steps per run [the scene's].")
+@click.option("--steps", type=click.IntRange(min=1), default=None, show_default="the scene's", help="Time steps per run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress display.")
 def demo_command(scene_source, out, resolution, epochs, modes, frame, steps, quiet) -> None:
-    """The whole pipeline at small scale on a scene file (default: the built-in cheese scene).
+    """The whole pipeline at small scale on a scene file (default: the built-in scene 'demo', a cheese on inclines).
 
     Full-space runs of the scene's sweep, training, and the reduced model on the scene's
-    held-out scenes next to the full simulation; summary, filmstrips, animations, error plot,
-    the runs (runs/*.npz) and VTU series go to the output folder.
+    held-out scenes next to the full simulation; report.html, the summary, filmstrips,
+    animations, error plot, the runs (runs/*.npz) and VTU series go to the output folder.
     """
     from dataclasses import replace
 
@@ -565,8 +574,10 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Abort:
         click.echo("licrom: aborted", err=True)
         return 130
-    except click.ClickException as exc:
-        exc.show()
+    except click.ClickException as exc:  # Click's own errors in licrom's one style
+        ctx = getattr(exc, "ctx", None)
+        hint = f" (see '{ctx.command_path} --help')" if isinstance(exc, click.UsageError) and ctx is not None else ""
+        click.echo(f"licrom: error: {exc.format_message()}{hint}", err=True)
         return exc.exit_code
     return 0
 

@@ -51,7 +51,10 @@ The guide ``docs/guide/own-mesh.md`` walks through a scene file of one's own obj
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import re
 import sys
 from dataclasses import dataclass, field, replace
 from importlib import resources
@@ -76,6 +79,7 @@ __all__ = [
     "SceneFile",
     "builtin_scenes",
     "load_scene",
+    "with_mesh_file",
 ]
 
 SCENE_FILE_VERSION = 1
@@ -477,6 +481,32 @@ def builtin_scene_text(name: str) -> str:
     if name not in builtin_scenes():
         raise ConfigError(f"no scene file {name!r} and no built-in scene of that name; built-in: {', '.join(builtin_scenes())}")
     return resources.files("licrom").joinpath("scenes", f"{name}.toml").read_text(encoding="utf-8")
+
+
+def with_mesh_file(text: str, mesh: str | Path, scene_path: str | Path) -> str:
+    """A scene file's ``text`` with its ``[object]`` set to the tet mesh file ``mesh``, written
+    relative to the folder of ``scene_path`` (where the scene file goes), and the procedural
+    shape's ``resolution`` removed (a mesh file has its own): a template for one's own object.
+
+    Raises:
+        ConfigError: the text has no ``[object]`` table with a ``mesh`` key.
+    """
+    mesh, folder = Path(mesh), Path(scene_path).resolve().parent
+    where = mesh if mesh.is_absolute() else Path(os.path.relpath(mesh.resolve(), folder))
+    lines, table, found = [], None, False
+    for line in text.splitlines(keepends=True):
+        head = re.match(r"\s*\[+([^\]]+)\]+", line)
+        if head:
+            table = head.group(1).strip()
+        key = re.match(r"\s*(\w+)\s*=", line)
+        if table == "object" and key and key.group(1) == "mesh":
+            lines.append(f"mesh = {json.dumps(where.as_posix())}\n")
+            found = True
+        elif not (table == "object" and key and key.group(1) == "resolution"):
+            lines.append(line)
+    if not found:
+        raise ConfigError("the scene file has no [object] table with a mesh key to set")
+    return "".join(lines)
 
 
 def load_scene(source: str | Path) -> SceneFile:

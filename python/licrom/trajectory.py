@@ -101,7 +101,10 @@ class Trajectory:
     def __repr__(self) -> str:
         span = f"t = {self.times[0]:.4g}..{self.times[-1]:.4g} s" if self.n_frames else "no frames"
         planes = "; ".join(f"slope {p.slope_deg:.3g} deg, mu {p.friction:g}" for p in self.scene.planes) or "none"
-        return (f"Trajectory({self.n_frames} frames, {span}, {len(self.rest_positions)} vertices, {len(self.tets)} tets, "
+        source = self.info.get("source", "unknown source")
+        if source == "reduced":
+            source += "".join(f", {k.replace('_', ' ')} {self.info[k]}" for k in ("frame", "n_modes", "cubature_points") if k in self.info)
+        return (f"Trajectory({source}: {self.n_frames} frames, {span}, {len(self.rest_positions)} vertices, {len(self.tets)} tets, "
                 f"{len(self.iterations)} steps ({int((~self.converged).sum())} unconverged), planes: {planes})")
 
     @cached_property
