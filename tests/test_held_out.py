@@ -30,7 +30,11 @@ def test_the_training_report_holds_each_held_out_run_replayed_with_the_defaults(
         assert row["flagged"] == (row["estimate"] > report["threshold"])
     assert report["worst_nonrigid_error"] == max(r["nonrigid_error"] for r in report["runs"])
     lines = held_out.held_out_lines(report)
-    assert len(lines) == len(report["runs"]) and "non-rigid error" in lines[0]
+    assert len(lines) == len(report["runs"]) + 2 and "non-rigid error" in lines[0]
+    for row, line in zip(report["runs"], lines):  # each run with its verdict, then what the numbers mean
+        ok = row["nonrigid_error"] < 0.1 and row["com_error"] < 0.02 and row["stick_slip_right"]
+        assert line.endswith("meets every target") == ok and ("misses" in line) == (not ok)
+    assert lines[-2].startswith("  non-rigid error (target < 10 %): How far")
 
 
 def test_a_held_out_run_above_the_threshold_is_named_in_an_accuracy_warning(tiny_demo, monkeypatch):

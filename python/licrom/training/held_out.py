@@ -93,13 +93,20 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
 
 def held_out_lines(report: dict[str, Any]) -> list[str]:
     """The check as lines of text for the training report (one per run)."""
+    from ..report import METRICS, verdict
+
     lines = []
     for r in report.get("runs", []):
         if "skipped" in r:
             lines.append(f"  {r['run']}: not checked ({r['skipped']})")
             continue
+        ok, missed = verdict({"nonrigid_error": r["nonrigid_error"], "final_com_error": r["com_error"],
+                              "stick_slip_agree": r["stick_slip_right"]})
         lines.append(
             f"  {r['run']}: non-rigid error {100 * r['nonrigid_error']:.1f} % (estimate {100 * r['estimate']:.1f} %"
             f"{', flagged' if r['flagged'] else ''}), final centre of mass {100 * r['com_error']:.2f} % of the size, "
-            f"stick/slip {'right' if r['stick_slip_right'] else 'WRONG'}, {r['step_ms']:.2f} ms a step")
+            f"stick/slip {'right' if r['stick_slip_right'] else 'WRONG'}, {r['step_ms']:.2f} ms a step: "
+            + ("meets every target" if ok else "misses " + ", ".join(missed)))
+    if len(lines) > 0:
+        lines += [f"  {m.name} (target {m.target}): {m.definition}" for m in METRICS if m.key in ("nonrigid_error", "final_com_error")]
     return lines
