@@ -7,8 +7,8 @@ from html.parser import HTMLParser
 
 import pytest
 from licrom import meshes
-from licrom.compare import compare
-from licrom.report import METRICS, Case, case_tag, verdict, write_report
+from licrom.compare import METRICS, compare, verdict
+from licrom.report import Case, case_tag, write_report
 from licrom.scene import Plane, Scene
 from licrom.training_data import make_synthetic_trajectories
 

@@ -523,3 +523,11 @@ def test_runs_without_deformation_are_refused_naming_the_runs(mesh, tmp_path):
     data = TrainingData([*still, make_synthetic_trajectories(mesh, count=1, frames=4, seed=2)[0]], val_fraction=0.0, frame="world")
     data.check_deformation()
     assert min(data.residual_rms().values()) == 0.0 and max(data.residual_rms().values()) > 1e-6 * mesh.size
+
+
+def test_progress_bar_counts_epochs_from_one(trajs, capsys):
+    """Two epochs show as 'Epoch 1/2' and 'Epoch 2/2' (Lightning's own bar ends at 'Epoch 1', or 'Epoch 1/1')."""
+    train(trajs, None, TrainConfig(**{**TINY, "progress": True, "cubature_points": 10}), ModelConfig(latent_dim=2, frame="world"))
+    shown = "".join(capsys.readouterr())  # Lightning's bars write to stdout
+    epochs = [part for part in shown.replace("\n", "\r").split("\r") if part.startswith("Epoch")]
+    assert any(p.startswith("Epoch 1/2: 100%") for p in epochs) and epochs[-1].startswith("Epoch 2/2: 100%")

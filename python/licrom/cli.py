@@ -160,8 +160,9 @@ def scene_command(source, output, mesh_file) -> None:
     from ._io import atomic_path
     from .scene_file import builtin_scene_text, load_scene, with_mesh_file
 
-    def checked(path_or_name: str | Path, name: str):
+    def checked(path_or_name: str | Path, name: str | None = None):
         scene = load_scene(path_or_name)
+        name = scene.source if name is None else name
         try:
             scene.object.check()  # generate would stop at a missing mesh file; say so here
         except LicromError as exc:
@@ -171,7 +172,7 @@ def scene_command(source, output, mesh_file) -> None:
     if mesh_file is not None and output is None:
         raise ConfigError("--mesh needs --output: it sets the mesh of the copy")
     if output is None:
-        click.echo(checked(source, load_scene(source).source).summary())
+        click.echo(checked(source).summary())
         return
     text = Path(source).read_text(encoding="utf-8") if Path(source).is_file() else builtin_scene_text(source)
     if mesh_file is not None:

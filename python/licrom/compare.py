@@ -14,12 +14,14 @@ first contact on, the peak deformation and the total rotation of each run.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from ._repr import concise_repr
+from .error_estimate import ERROR_THRESHOLD
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .rigid import body_frame_displacements, rigid_fit, rotation_angle
@@ -29,9 +31,12 @@ from .trajectory import Trajectory
 from .validity import CONTACT_TOLERANCE, first_touch
 
 __all__ = [
+    "METRICS",
     "Comparison",
+    "Metric",
     "compare",
     "first_contact_frame",
+    "judge",
     "nonrigid_error",
     "peak_nonrigid_deformation",
     "penetration_depths",
@@ -40,6 +45,7 @@ __all__ = [
     "slip_distance",
     "time_steps",
     "total_rotation",
+    "verdict",
 ]
 
 # An object "slides" when its contact points slip further than this fraction of its size
@@ -274,6 +280,70 @@ class Comparison:
         ]
         width = max(len(r[0]) for r in rows)
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One number of a comparison: how it is shown, what it means and its target.
+
+    Attributes:
+        key: the key in :meth:`licrom.compare.Comparison.summary`.
+        name: the column's name.
+        definition: what the number is, in a sentence.
+        target: the target in words ("" where there is none: the number informs).
+        meets: whether a value meets the target (None where there is none).
+        show: the value as text.
+    """
+
+    key: str
+    name: str
+    definition: str
+    target: str
+    meets: Callable[[Any], bool] | None
+    show: Callable[[Any], str]
+
+
+def _pct(v: float) -> str:
+    return f"{100 * v:.2f} %"
+
+
+METRICS = (
+    Metric("nonrigid_error", "non-rigid error",
+           "How far the reduced run's deformation is from the full run's: each frame's best rigid fit removed from both, "
+           "the mass-weighted distance between them over the full run's deformation, in the body frame, from first contact.",
+           "< 10 %", lambda v: v < 0.10, _pct),
+    Metric("final_com_error", "final centre-of-mass error",
+           "Distance between the two runs' centres of mass at the last frame, over the object's size (bounding-box diagonal).",
+           "< 2 % of the size", lambda v: v < 0.02, _pct),
+    Metric("stick_slip_agree", "stick/slip",
+           "Whether both runs slide, or both stick (a run slides when its contact points slip more than 1 % of the size "
+           "over the second half of the run).",
+           "the same in both", bool, lambda v: "agree" if v else "DISAGREE"),
+    Metric("error_estimate", "estimated non-rigid error",
+           "The reduced run's own estimate of its non-rigid error, made without the full run (the relative residual of the "
+           "full equations at the reconstructed state, licrom.error_estimate); an AccuracyWarning is raised above the target.",
+           f"< {100 * ERROR_THRESHOLD:.0f} %", lambda v: v < ERROR_THRESHOLD, _pct),
+    Metric("mean_error", "mean displacement error",
+           "Mean over frames of the mass-weighted distance between the runs' displacements over the full run's: mostly "
+           "measures the slide, so it stays small while the deformation is wrong; the non-rigid error measures that.",
+           "", None, _pct),
+    Metric("speedup", "speed-up per step",
+           "The full step's median wall time over the reduced step's, both in this process.", "", None, lambda v: f"{v:.0f}x"),
+)
+
+
+def judge(m: Metric, summary: dict[str, Any]) -> bool | None:
+    """Whether the summary's value meets the metric's target; None without a target or a value (NaN: not measured)."""
+    v = summary.get(m.key)
+    if m.meets is None or v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return None
+    return bool(m.meets(v))
+
+
+def verdict(summary: dict[str, Any]) -> tuple[bool, list[str]]:
+    """Whether a comparison's summary meets every target of :data:`METRICS` it has a value for, and the names of those it misses."""
+    missed = [m.name for m in METRICS if judge(m, summary) is False]
+    return not missed, missed
 
 
 def compare(full: Trajectory, reduced: Trajectory) -> Comparison:

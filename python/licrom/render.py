@@ -42,6 +42,7 @@ __all__ = [
     "RENDERERS",
     "RenderStyle",
     "animation",
+    "deformation_mm",
     "filmstrip",
     "pick_renderer",
     "pictures",
@@ -215,6 +216,13 @@ def _pyvista():
     return pv
 
 
+def deformation_mm(traj: Trajectory) -> np.ndarray:
+    """(f, n) length of each vertex's non-rigid deformation in each frame (the frame's best rigid fit removed), mm:
+    the colours of ``color_by="deformation"``."""
+    x = traj.rest_positions[None] + traj.displacements
+    return 1e3 * np.linalg.norm(nonrigid_displacements(x, traj.rest_positions, traj.mesh.vertex_masses(traj.scene.material.density)), axis=-1)
+
+
 def _check_runs(trajectories: Sequence[Trajectory], labels: Sequence[str], what: str) -> list[Trajectory]:
     runs = list(trajectories)
     if not runs or len(labels) != len(runs):
@@ -238,10 +246,7 @@ class _Views:
             self.scalars = [1e3 * np.linalg.norm(x - self.positions[0], axis=-1) for x in self.positions]
             self.scalar_label = f"distance from {self.labels[0]} (mm)"
         else:
-            self.scalars = [
-                1e3 * np.linalg.norm(nonrigid_displacements(x, t.rest_positions, t.mesh.vertex_masses(t.scene.material.density)), axis=-1)
-                for x, t in zip(self.positions, runs)
-            ]
+            self.scalars = [deformation_mm(t) for t in runs]
             self.scalar_label = "non-rigid deformation (mm)"
         top = max(float(s.max()) for s in self.scalars)
         # a rigid run: a scale of 0 to 10 micrometres, not of 0 to 0

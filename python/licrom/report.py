@@ -5,7 +5,8 @@ side, one colour scale shared by all scenes) and ``runs/full_TAG.npz``, ``runs/r
 then ``errors.png`` (error curves), ``summary.json``, ``summary.md`` and ``report.html``: a single
 self-contained page (pictures embedded) with the summary table, what each number means, its target
 and whether it is met. The metrics, their definitions and their targets are the table
-:data:`METRICS`, the one place the summaries and the report read them from.
+:data:`licrom.compare.METRICS`, the one place the summaries, the report and the training's
+held-out check read them from.
 """
 
 from __future__ import annotations
@@ -15,81 +16,16 @@ import html
 import json
 import math
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ._io import atomic_path, make_dir
-from .compare import Comparison
-from .error_estimate import ERROR_THRESHOLD
+from .compare import METRICS, Comparison, Metric, judge, verdict
 from .trajectory import Trajectory
 
-__all__ = ["METRICS", "Case", "Metric", "case_tag", "verdict", "write_report"]
-
-
-@dataclass(frozen=True)
-class Metric:
-    """One number of a comparison: how it is shown, what it means and its target.
-
-    Attributes:
-        key: the key in :meth:`licrom.compare.Comparison.summary`.
-        name: the column's name.
-        definition: what the number is, in a sentence.
-        target: the target in words ("" where there is none: the number informs).
-        meets: whether a value meets the target (None where there is none).
-        show: the value as text.
-    """
-
-    key: str
-    name: str
-    definition: str
-    target: str
-    meets: Callable[[Any], bool] | None
-    show: Callable[[Any], str]
-
-
-def _pct(v: float) -> str:
-    return f"{100 * v:.2f} %"
-
-
-METRICS = (
-    Metric("nonrigid_error", "non-rigid error",
-           "How far the reduced run's deformation is from the full run's: each frame's best rigid fit removed from both, "
-           "the mass-weighted distance between them over the full run's deformation, in the body frame, from first contact.",
-           "< 10 %", lambda v: v < 0.10, _pct),
-    Metric("final_com_error", "final centre-of-mass error",
-           "Distance between the two runs' centres of mass at the last frame, over the object's size (bounding-box diagonal).",
-           "< 2 % of the size", lambda v: v < 0.02, _pct),
-    Metric("stick_slip_agree", "stick/slip",
-           "Whether both runs slide, or both stick (a run slides when its contact points slip more than 1 % of the size "
-           "over the second half of the run).",
-           "the same in both", bool, lambda v: "agree" if v else "DISAGREE"),
-    Metric("error_estimate", "estimated non-rigid error",
-           "The reduced run's own estimate of its non-rigid error, made without the full run (the relative residual of the "
-           "full equations at the reconstructed state, licrom.error_estimate); an AccuracyWarning is raised above the target.",
-           f"< {100 * ERROR_THRESHOLD:.0f} %", lambda v: v < ERROR_THRESHOLD, _pct),
-    Metric("mean_error", "mean displacement error",
-           "Mean over frames of the mass-weighted distance between the runs' displacements over the full run's: mostly "
-           "measures the slide, so it stays small while the deformation is wrong; the non-rigid error measures that.",
-           "", None, _pct),
-    Metric("speedup", "speed-up per step",
-           "The full step's median wall time over the reduced step's, both in this process.", "", None, lambda v: f"{v:.0f}x"),
-)
-
-
-def _judge(m: Metric, summary: dict[str, Any]) -> bool | None:
-    """Whether the summary's value meets the metric's target; None without a target or a value (NaN: not measured)."""
-    v = summary.get(m.key)
-    if m.meets is None or v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return None
-    return bool(m.meets(v))
-
-
-def verdict(summary: dict[str, Any]) -> tuple[bool, list[str]]:
-    """Whether a comparison's summary meets every target of :data:`METRICS` it has a value for, and the names of those it misses."""
-    missed = [m.name for m in METRICS if _judge(m, summary) is False]
-    return not missed, missed
+__all__ = ["Case", "case_tag", "write_report"]
 
 
 @dataclass(frozen=True)
@@ -129,10 +65,10 @@ def write_report(cases: Sequence[Case], out: str | Path, title: str, description
         extra: more JSON-ready entries of ``summary.json`` (e.g. timings).
         footer: a last line of ``summary.md`` and the report.
     """
-    from .render import RenderStyle, pictures, plot_errors
+    from .render import RenderStyle, deformation_mm, pictures, plot_errors
 
     folder = make_dir(out)
-    top = max(_peak_mm(t) for c in cases for t in (c.full, c.reduced)) if cases else 1.0
+    top = max(float(deformation_mm(t).max()) for c in cases for t in (c.full, c.reduced)) if cases else 1.0
     style = RenderStyle(clim=(0.0, max(top, 0.01)))
     rows = []
     for c in cases:
@@ -153,13 +89,8 @@ def write_report(cases: Sequence[Case], out: str | Path, title: str, description
     return summary
 
 
-def _peak_mm(traj: Trajectory) -> float:
-    """Largest non-rigid displacement of a run, mm (the colour scale's top)."""
-    from .rigid import nonrigid_displacements
-
-    x = traj.rest_positions[None] + traj.displacements
-    d = nonrigid_displacements(x, traj.rest_positions, traj.mesh.vertex_masses(traj.scene.material.density))
-    return 1e3 * float(max((d ** 2).sum(axis=-1).max(), 0.0)) ** 0.5
+def _verdict_text(row: dict[str, Any]) -> str:
+    return "meets every target" if row["meets_targets"] else "misses: " + ", ".join(row["missed"])
 
 
 def _cell(m: Metric, row: dict[str, Any]) -> str:
@@ -170,14 +101,12 @@ def _cell(m: Metric, row: dict[str, Any]) -> str:
 
 
 def _markdown(summary: dict[str, Any], footer: str) -> str:
-    shown = METRICS
-    head = "| scene | " + " | ".join(m.name for m in shown) + " | full ms/step | reduced ms/step | verdict |\n"
-    head += "|---" * (len(shown) + 4) + "|\n"
+    head = "| scene | " + " | ".join(m.name for m in METRICS) + " | full ms/step | reduced ms/step | verdict |\n"
+    head += "|---" * (len(METRICS) + 4) + "|\n"
     for r in summary["cases"]:
-        verdict_text = "meets every target" if r["meets_targets"] else "misses: " + ", ".join(r["missed"])
-        head += (f"| {r['scene']} | " + " | ".join(_cell(m, r) for m in shown)
-                 + f" | {r['full_step_ms']:.2f} | {r['reduced_step_ms']:.3f} | {verdict_text} |\n")
-    defs = "\n".join(f"- **{m.name}**: {m.definition}" + (f" Target: {m.target}." if m.target else "") for m in shown)
+        head += (f"| {r['scene']} | " + " | ".join(_cell(m, r) for m in METRICS)
+                 + f" | {r['full_step_ms']:.2f} | {r['reduced_step_ms']:.3f} | {_verdict_text(r)} |\n")
+    defs = "\n".join(f"- **{m.name}**: {m.definition}" + (f" Target: {m.target}." if m.target else "") for m in METRICS)
     text = f"# {summary['title']}\n\n{summary['description']}\n\n{head}\n{defs}\n"
     return text + (f"\n{footer}\n" if footer else "")
 
@@ -200,13 +129,12 @@ def _html(summary: dict[str, Any], folder: Path, footer: str) -> str:
     for r in summary["cases"]:
         cells = []
         for m in METRICS:
-            judged = _judge(m, r)
+            judged = judge(m, r)
             cls = "" if judged is None else (' class="meets"' if judged else ' class="misses"')
             cells.append(f"<td{cls}>{e(_cell(m, r))}</td>")
-        verdict_text = "meets every target" if r["meets_targets"] else "misses: " + ", ".join(r["missed"])
         cls = "meets" if r["meets_targets"] else "misses"
         body.append(f"<tr><td>{e(r['scene'])}</td>{''.join(cells)}<td>{r['full_step_ms']:.2f}</td><td>{r['reduced_step_ms']:.3f}</td>"
-                    f'<td class="{cls}">{e(verdict_text)}</td></tr>')
+                    f'<td class="{cls}">{e(_verdict_text(r))}</td></tr>')
     table = (f"<table><tr><th>scene</th>{head}<th>full ms/step</th><th>reduced ms/step</th><th>verdict</th></tr>"
              + "".join(body) + "</table>")
     defs = "<dl>" + "".join(f"<dt>{e(m.name)}</dt><dd>{e(m.definition)}" + (f" <b>Target: {e(m.target)}.</b>" if m.target else "")

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..compare import compare
+from ..compare import METRICS, compare, verdict
 from ..error_estimate import ERROR_THRESHOLD
 from ..errors import AccuracyWarning, LicromError, LicromWarning
 from ..model import Model
@@ -93,8 +93,6 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
 
 def held_out_lines(report: dict[str, Any]) -> list[str]:
     """The check as lines of text for the training report (one per run)."""
-    from ..report import METRICS, verdict
-
     lines = []
     for r in report.get("runs", []):
         if "skipped" in r:
@@ -107,6 +105,6 @@ def held_out_lines(report: dict[str, Any]) -> list[str]:
             f"{', flagged' if r['flagged'] else ''}), final centre of mass {100 * r['com_error']:.2f} % of the size, "
             f"stick/slip {'right' if r['stick_slip_right'] else 'WRONG'}, {r['step_ms']:.2f} ms a step: "
             + ("meets every target" if ok else "misses " + ", ".join(missed)))
-    if len(lines) > 0:
+    if lines:
         lines += [f"  {m.name} (target {m.target}): {m.definition}" for m in METRICS if m.key in ("nonrigid_error", "final_com_error")]
     return lines
