@@ -24,7 +24,7 @@ from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, warn_estimate
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
+from .reduced_sim import _fitted_cubature, check_integrator, sampling, step_many, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import check_field, record_run
@@ -166,7 +166,7 @@ class BodyFrameSim:
             (:func:`licrom.basis.strain_jacobians`).
 
     Raises:
-        ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass, unknown strain.
+        ConfigError: missing mesh/scene, a scene integrator other than backward Euler, modes that carry momentum, singular modal mass, unknown strain.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
 
@@ -191,6 +191,7 @@ class BodyFrameSim:
                 raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
         if not isinstance(scene, Scene):
             raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        check_integrator(scene, "BodyFrameSim")
         self.basis, self.mesh, self.scene = basis, mesh, scene
         self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
         k = int(basis.n_modes)

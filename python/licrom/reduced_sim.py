@@ -149,7 +149,7 @@ class ReducedSim:
             :func:`licrom.basis.strain_jacobians`.
 
     Raises:
-        ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
+        ConfigError: unknown solver, missing mesh/scene, a scene integrator other than backward Euler, singular reduced mass matrix.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
         ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
@@ -181,6 +181,7 @@ class ReducedSim:
                 raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
         if not isinstance(scene, Scene):
             raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        check_integrator(scene, "ReducedSim")
         if solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
         check_basis(basis)
@@ -386,6 +387,17 @@ def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:
     """The fitted cubature on ``mesh`` of the model behind ``basis``, if it has one."""
     model = _model_behind(basis)
     return None if model is None else model.cubature_for(mesh)
+
+
+def check_integrator(scene: Scene, simulation: str) -> None:
+    """Refuse a scene whose integrator the reduced solvers do not have (they step with backward Euler).
+
+    Raises:
+        ConfigError: ``scene.integrator`` is not ``"backward_euler"``.
+    """
+    if scene.integrator != "backward_euler":
+        raise ConfigError(f"{simulation} integrates with backward Euler only: accepted scene.integrator 'backward_euler', got "
+                          f"{scene.integrator!r} (BDF2 is in the full simulation, licrom.FullSim, only for now)")
 
 
 def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: ContactPoints | None, basis: Any = None) -> tuple[Cubature, ContactPoints]:

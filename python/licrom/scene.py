@@ -18,6 +18,7 @@ from ._io import check_version
 from .errors import ConfigError, FileFormatError
 
 __all__ = [
+    "INTEGRATORS",
     "MAX_PLANE_OFFSET",
     "ROTATION_LIMIT",
     "SCENE_FORMAT_VERSION",
@@ -30,6 +31,10 @@ __all__ = [
 ]
 
 SCENE_FORMAT_VERSION = 1
+
+INTEGRATORS = ("backward_euler", "bdf2")
+"""Accepted ``Scene.integrator`` values: backward Euler, or the second-order backward differentiation formula
+(BDF2, full simulation only for now; its first step after a start or ``set_state`` is backward Euler)."""
 
 
 def _finite(name: str, value: float, *, positive: bool = False, nonnegative: bool = False) -> float:
@@ -287,6 +292,9 @@ class Scene:
         planes: frictional ground planes (any number, may be empty).
         gravity: gravitational acceleration in m/s^2 (z is up by convention).
         dt: time step h in s, > 0.
+        integrator: time integration, one of :data:`INTEGRATORS`: ``"backward_euler"`` (first order,
+            damps oscillations at large h) or ``"bdf2"`` (second order, far less damping; the full
+            simulation only, the reduced simulations refuse it for now).
         contact: contact and friction stiffnesses.
         solver: Newton settings.
         initial: initial placement and velocity.
@@ -296,6 +304,7 @@ class Scene:
     planes: tuple[Plane, ...] = (Plane(),)
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     dt: float = 0.01
+    integrator: str = "backward_euler"
     contact: ContactParams = field(default_factory=ContactParams)
     solver: SolverParams = field(default_factory=SolverParams)
     initial: InitialState = field(default_factory=InitialState)
@@ -314,6 +323,8 @@ class Scene:
         object.__setattr__(self, "planes", planes)
         object.__setattr__(self, "gravity", _vec3("Scene.gravity (m/s^2)", self.gravity))
         object.__setattr__(self, "dt", _finite("Scene.dt (s)", self.dt, positive=True))
+        if not isinstance(self.integrator, str) or self.integrator not in INTEGRATORS:
+            raise ConfigError(f"Scene.integrator must be one of {', '.join(repr(i) for i in INTEGRATORS)}, got {self.integrator!r}")
 
     def replace(self, **changes: Any) -> Scene:
         """A copy with some fields changed (``dataclasses.replace``)."""
@@ -352,6 +363,7 @@ class Scene:
                 planes=tuple(Plane(**p) for p in d["planes"]),
                 gravity=tuple(d["gravity"]),
                 dt=d["dt"],
+                integrator=d.get("integrator", "backward_euler"),  # absent in scenes written before BDF2
                 contact=ContactParams(**d["contact"]),
                 solver=SolverParams(**d["solver"]),
                 initial=InitialState(**d["initial"]),

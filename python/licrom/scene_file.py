@@ -23,7 +23,8 @@ radius = 0.05                    # sphere: radius, m
 [material]                       # youngs_modulus (Pa, > 0), poisson_ratio (-1, 0.5), density (kg/m^3, > 0)
 [contact]                        # normal_stiffness (N/m^3), normal_damping (N s/m^3), friction_stiffness (N s/m^3)
 [solver]                         # tolerance (m/s), max_iterations, on_failure ("raise" | "record")
-[time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1)
+[time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1),
+                                 # integrator ("backward_euler" | "bdf2": full simulation only)
 
 [[planes]]                       # any number; default: one horizontal ground, mu 0.5
 slope = 20.0                     # deg in [0, 90); or normal = [nx, ny, nz] instead of slope/azimuth
@@ -64,7 +65,7 @@ from typing import Any
 from ._io import name_too_long
 from .errors import ConfigError, FileFormatError
 from .mesh import Mesh
-from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
+from .scene import INTEGRATORS, ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -457,7 +458,7 @@ class SceneFile:
             f"scene {self.name} ({self.source}): {self.description}".rstrip(": "),
             f"object     {self.object.describe()}",
             f"material   E {m.youngs_modulus:g} Pa, nu {m.poisson_ratio:g}, density {m.density:g} kg/m^3",
-            f"time       dt {self.scene.dt:g} s x {self.steps} steps (record every {self.record_every})",
+            f"time       dt {self.scene.dt:g} s x {self.steps} steps (record every {self.record_every}), {self.scene.integrator}",
         ]
         for i, p in enumerate(self.scene.planes):
             lines.append(f"planes[{i}]  slope {p.slope_deg:.4g} deg, azimuth {p.azimuth_deg:.4g} deg, offset {p.offset:g} m, mu {p.friction:g}")
@@ -609,6 +610,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
     dt = tt.number("dt", 0.01, 0.0, lo_open=True, unit="s")
     steps = tt.integer("steps", 200)
     record_every = tt.integer("record_every", 1)
+    integrator = tt.string("integrator", "backward_euler", INTEGRATORS)
     tt.done()
 
     plane_tables = top.tables("planes")
@@ -641,7 +643,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
         held_out.append(h)
     top.done()
 
-    scene = Scene(material=material, planes=planes, gravity=gravity, dt=dt, contact=contact, solver=solver)
+    scene = Scene(material=material, planes=planes, gravity=gravity, dt=dt, integrator=integrator, contact=contact, solver=solver)
     return SceneFile(name=name, description=description, source=where, object=spec, scene=scene, frictions=frictions, slopes=slopes,
                      initial=initial, steps=steps, record_every=record_every, held_out=tuple(held_out))
 

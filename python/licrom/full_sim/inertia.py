@@ -1,4 +1,4 @@
-"""Backward-Euler bookkeeping: inertia term, predicted positions, velocities."""
+"""Time-integration bookkeeping (backward Euler and BDF2): inertia term, predicted positions, velocities."""
 
 from __future__ import annotations
 
@@ -43,24 +43,34 @@ def inertia_kernel(
 def predict_kernel(
     x: wp.array(dtype=vec3d),
     v: wp.array(dtype=vec3d),
+    x_prev: wp.array(dtype=vec3d),
     v_prev: wp.array(dtype=vec3d),
+    history: f64,
     h: f64,
     gravity: vec3d,
     extrapolate: f64,
+    ramp: f64,
+    x_now: wp.array(dtype=vec3d),
     x_start: wp.array(dtype=vec3d),
     x_tilde: wp.array(dtype=vec3d),
     x_out: wp.array(dtype=vec3d),
 ):
-    # x~ = x + h v + h^2 g. The Newton iterate starts from x + h v + h^2 a, with a the
-    # acceleration of the previous step (extrapolate = 1) or gravity (extrapolate = 0).
+    # Anchor x_a = x + history (x - x_prev), v_a likewise, and x~ = x_a + h v_a + h^2 g with the effective
+    # step h: backward Euler is history = 0 (x_a = x exactly); BDF2 is history = 1/3 with h = 2/3 of the
+    # step, x_a = (4 x_n - x_{n-1}) / 3. x_now keeps x_n (lagged normal forces, restoring a failed step).
+    # The Newton iterate starts from x~ + ramp (v - v_prev) - h^2 g with ramp = h^2 / (the real step), i.e.
+    # with the acceleration of the previous step, (v - v_prev) / step, instead of gravity (extrapolate = 1),
+    # or at x~ (extrapolate = 0).
     i = wp.tid()
     xi = x[i]
     vi = v[i]
-    xt = xi + h * vi + (h * h) * gravity
-    x_start[i] = xi
+    xa = xi + history * (xi - x_prev[i])
+    va = vi + history * (vi - v_prev[i])
+    xt = xa + h * va + (h * h) * gravity
+    x_now[i] = xi
+    x_start[i] = xa
     x_tilde[i] = xt
-    x_out[i] = xt + extrapolate * (h * (vi - v_prev[i]) - (h * h) * gravity)
-
+    x_out[i] = xt + extrapolate * (ramp * (vi - v_prev[i]) - (h * h) * gravity)
 
 
 @wp.kernel

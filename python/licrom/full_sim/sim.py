@@ -1,4 +1,4 @@
-"""The full-space solver: Newton on the incremental potential of backward Euler (see :mod:`licrom.full_sim`)."""
+"""The full-space solver: Newton on the incremental potential of backward Euler or BDF2 (see :mod:`licrom.full_sim`)."""
 
 from __future__ import annotations
 
@@ -52,7 +52,8 @@ class StepStats:
 
     Attributes:
         iterations: Newton directions computed.
-        residual: final convergence measure ``sqrt(dx^T M dx / m_total) / h`` in m/s.
+        residual: final convergence measure ``sqrt(dx^T M dx / m_total) / h_eff`` in m/s (``h_eff`` the step's
+            effective time step: ``h`` for backward Euler, ``2 h / 3`` for BDF2, whose velocity is ``(x - x_a) / h_eff``).
         converged: whether the residual met ``scene.solver.tolerance``.
         linear_iterations: conjugate-gradient iterations summed over the Newton iterations.
         energy_evaluations: incremental-potential evaluations of the line searches.
@@ -72,8 +73,8 @@ class FullSim:
 
     Args:
         mesh: the tet mesh (rest shape).
-        scene: material, planes, contact stiffnesses, time step, gravity, solver settings
-            and initial state (applied on construction).
+        scene: material, planes, contact stiffnesses, time step and integrator (backward Euler or
+            BDF2), gravity, solver settings and initial state (applied on construction).
         device: ``None`` or ``"auto"`` (default: CUDA when warp sees a GPU, else the CPU),
             ``"cpu"``, ``"cuda"`` or ``"cuda:N"``. :attr:`device` holds the one chosen.
         contact_points: where contact acts: ``None`` for every boundary vertex with its share
@@ -116,6 +117,8 @@ class FullSim:
         self._alpha = 1.0 + 0.75 * self._mu / self._lam
         h = scene.dt
         self._h = h
+        self._bdf2 = scene.integrator == "bdf2"
+        self._h_step = h  # effective step of the current step: h, or 2h/3 for a BDF2 step with history
         planes = scene.plane_array()
 
         f64 = wp.float64
@@ -142,7 +145,9 @@ class FullSim:
         self._v = vec()
         self._v_prev = vec()
         self._have_prev = False
-        self._x_start = vec()
+        self._x_start = vec()  # the step's anchor x_a: x_n for backward Euler, (4 x_n - x_{n-1}) / 3 for BDF2
+        self._x_now = vec()  # x_n during a step
+        self._x_prev = vec()  # x_{n-1}, when _have_prev
         self._x_tilde = vec()
         self._x_trial = vec()
         self._grad = vec()
@@ -245,6 +250,9 @@ class FullSim:
     def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
         """Set positions and/or velocities ((n, 3), m and m/s); an omitted one keeps its value.
 
+        The step history starts afresh: with ``scene.integrator == "bdf2"`` the next step is a
+        backward Euler step (BDF2's start), as after construction.
+
         Warns (:class:`~licrom.errors.PhysicsWarning`) when the positions put a
         vertex deeper inside a plane than ``licrom.validity.PENETRATION_LIMIT`` of the object's size.
 
@@ -266,19 +274,27 @@ class FullSim:
 
     # --- evaluation --------------------------------------------------------------------
     def _begin_step(self) -> None:
-        """x_start = x, x~ = x + h v + h^2 g, lagged normal forces; the iterate starts at x~."""
+        """Anchor x_a, x~ = x_a + h' v_a + h'^2 g, lagged normal forces at x_n; the iterate starts near x~.
+
+        Backward Euler: x_a = x_n, v_a = v_n, h' = h. BDF2 (with a previous step to use; else this step is
+        backward Euler): x_a = (4 x_n - x_{n-1}) / 3, v_a = (4 v_n - v_{n-1}) / 3, h' = 2h/3, so that the
+        minimiser and ``v = (x - x_a) / h'`` satisfy ``3 x_{n+1} - 4 x_n + x_{n-1} = 2 h v_{n+1}`` and
+        ``3 v_{n+1} - 4 v_n + v_{n-1} = 2 h M^-1 f(x_{n+1})``.
+        """
         wp = warp_ready()
         dev = self.device
-        h = self._h
+        history = self._bdf2 and self._have_prev
+        h = self._h_step = 2.0 * self._h / 3.0 if history else self._h
         wp.launch(
             inertia.predict_kernel, dim=self._n, device=dev,
-            inputs=[self._x, self._v, self._v_prev, wp.float64(h), wp.vec3d(*self.scene.gravity),
-                    wp.float64(1.0 if self._have_prev else 0.0), self._x_start, self._x_tilde, self._x],
+            inputs=[self._x, self._v, self._x_prev, self._v_prev, wp.float64(1.0 / 3.0 if history else 0.0), wp.float64(h),
+                    wp.vec3d(*self.scene.gravity), wp.float64(1.0 if self._have_prev else 0.0),
+                    wp.float64(h * h / self._h if history else h), self._x_now, self._x_start, self._x_tilde, self._x],
         )
         if len(self._contact_idx) and self._n_planes:
             wp.launch(
                 contact.lagged_normal_kernel, dim=(len(self._contact_idx), self._n_planes), device=dev,
-                inputs=[self._x_start, self._points, self._areas, self._normals, self._offsets,
+                inputs=[self._x_now, self._points, self._areas, self._normals, self._offsets,
                         wp.float64(self.scene.contact.normal_stiffness), self._fn_lag],
             )
 
@@ -298,7 +314,7 @@ class FullSim:
         if terms & 1:
             wp.launch(
                 inertia.inertia_kernel, dim=self._n, device=dev,
-                inputs=[x, self._x_tilde, self._mass, wp.float64(1.0 / self._h**2), mode, self._hess.diag_slots,
+                inputs=[x, self._x_tilde, self._mass, wp.float64(1.0 / self._h_step**2), mode, self._hess.diag_slots,
                         self._energy, self._grad, values],
             )
         if terms & 2:
@@ -318,7 +334,7 @@ class FullSim:
             contact.contact_kernel, dim=len(self._contact_idx), device=self.device,
             inputs=[x, self._x_start, self._points, self._areas, self._normals, self._offsets, self._frictions,
                     self._fn_lag, wp.float64(c.normal_stiffness), wp.float64(c.normal_damping),
-                    wp.float64(c.friction_stiffness), wp.float64(self._h), contact_terms, mode, self._hess.diag_slots,
+                    wp.float64(c.friction_stiffness), wp.float64(self._h_step), contact_terms, mode, self._hess.diag_slots,
                     self._energy, self._grad, self._hess.values, self._forces],
         )
 
@@ -344,8 +360,8 @@ class FullSim:
         n = self._n
         start = time.perf_counter()
         solver = self.scene.solver
-        h = self._h
         self._begin_step()
+        h = self._h_step
         iterations = 0
         linear_iterations = 0
         evaluations = 0
@@ -408,7 +424,7 @@ class FullSim:
             failure = f"no convergence in {iterations} Newton iterations"
         # NaN or inf leaves no finite iterate to record, so it raises either way.
         if not converged and (solver.on_failure == "raise" or nonfinite):
-            wp.copy(self._x, self._x_start)
+            wp.copy(self._x, self._x_now)
             self._has_forces = False
             self.last_stats = StepStats(iterations, residual, False, linear_iterations, evaluations, seconds)
             raise SolverError(
@@ -420,11 +436,12 @@ class FullSim:
                 step_index=self._step_index,
             )
         wp.launch(inertia.velocity_kernel, dim=n, device=dev, inputs=[self._x, self._x_start, wp.float64(1.0 / h), self._v, self._v_prev])
+        self._x_prev, self._x_now = self._x_now, self._x_prev
         self._have_prev = True
         if len(self._contact_idx) and self._n_planes:
             self._launch_contact(self._x, MODE_FORCES)
         self._has_forces = True
-        self.time += h
+        self.time += self._h
         self._step_index += 1
         self.last_stats = StepStats(iterations, residual, converged, linear_iterations, evaluations, time.perf_counter() - start)
         return iterations, residual
@@ -449,7 +466,7 @@ class FullSim:
         wp.launch(
             contact.stick_kernel, dim=len(self._contact_idx), device=dev,
             inputs=[self._x, self._x_start, self._y, self._points, self._areas, self._normals, self._frictions,
-                    self._fn_lag, wp.float64(c.friction_stiffness), wp.float64(self._h), self._hess.diag_slots,
+                    self._fn_lag, wp.float64(c.friction_stiffness), wp.float64(self._h_step), self._hess.diag_slots,
                     self._hess.values, self._rhs, self._count],
         )
         switched = int(self._count.numpy()[0])

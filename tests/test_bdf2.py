@@ -1,0 +1,200 @@
+"""BDF2 in the full simulation: the recurrence, its order and (lack of) damping, friction, and where it is refused."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from licrom import ConfigError, InitialState, Material, Scene, SolverError, SolverParams, meshes
+from licrom.basis import AffineBasis
+from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+from licrom.full_sim import FullSim
+from licrom.reduced_sim import ReducedSim
+from licrom.scene_file import load_scene
+from test_full_sim import G, _box_on_incline, _com
+
+SOFT = Material(youngs_modulus=2e4, poisson_ratio=0.3, density=1000.0)
+
+
+# --- the scene option -----------------------------------------------------------------------
+
+
+def test_integrator_is_checked_and_round_trips():
+    with pytest.raises(ConfigError, match=r"Scene.integrator must be one of 'backward_euler', 'bdf2', got 'rk4'"):
+        Scene(integrator="rk4")
+    scene = Scene(integrator="bdf2")
+    assert Scene.from_json(scene.to_json()) == scene
+    old = json.loads(Scene().to_json())
+    del old["integrator"]  # written before the option existed
+    assert Scene.from_dict(old).integrator == "backward_euler"
+
+
+def test_scene_file_reads_the_integrator(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('version = 1\n[object]\nmesh = "box"\nresolution = 1\n[time]\ndt = 0.005\nintegrator = "bdf2"\n')
+    assert load_scene(path).scene.integrator == "bdf2"
+    path.write_text('version = 1\n[object]\nmesh = "box"\n[time]\nintegrator = "bdf3"\n')
+    with pytest.raises(ConfigError, match=r"time.integrator must be one of 'backward_euler', 'bdf2', got 'bdf3'"):
+        load_scene(path)
+
+
+def test_reduced_simulations_refuse_bdf2():
+    mesh = meshes.box(0.1, resolution=1)
+    scene = Scene(integrator="bdf2")
+    with pytest.raises(ConfigError, match=r"ReducedSim integrates with backward Euler only.*'bdf2'.*full simulation"):
+        ReducedSim(AffineBasis(), mesh, scene)
+    with pytest.raises(ConfigError, match=r"BodyFrameSim integrates with backward Euler only.*'bdf2'.*full simulation"):
+        BodyFrameSim(BodyFrameBasis(mesh), mesh, scene)
+
+
+# --- the recurrence -------------------------------------------------------------------------
+
+
+def _free_fall(integrator="bdf2"):
+    v0 = np.array([0.5, -0.2, 1.0])
+    scene = Scene(material=Material(1e7, 0.3), planes=(), integrator=integrator, initial=InitialState(translation=(0, 0, 1), velocity=tuple(v0)))
+    return FullSim(meshes.box(0.1, resolution=2), scene), v0
+
+
+def test_free_fall_is_discrete_bdf2_after_a_backward_euler_start():
+    sim, v0 = _free_fall()
+    traj = sim.run(50)
+    h, g = sim.scene.dt, np.array(sim.scene.gravity)
+    worst = 0.0
+    for k in range(1, 51):
+        # BDF2 is exact for the quadratic fall but starts with a backward Euler step, h^2 g / 2 off; that offset
+        # e_k solves 3 e_{k+1} - 4 e_k + e_{k-1} = 0 (e_0 = 0, e_1 = h^2 g / 2): e_k = 3/4 h^2 g (1 - 3^-k).
+        t = k * h
+        x = np.array([0, 0, 1.0]) + v0 * t + 0.5 * g * t * t + 0.75 * h * h * g * (1.0 - 3.0**-k)
+        worst = max(worst, np.abs(traj.displacements[k] - x).max(), np.abs(traj.velocities[k] - (v0 + g * t)).max())
+    print(f"free fall, BDF2: max deviation from the recurrence {worst:.2e} (m, m/s)")
+    assert worst < 1e-10
+    assert traj.converged.all()
+
+
+def test_set_state_restarts_with_a_backward_euler_step():
+    bdf2, _ = _free_fall()
+    bdf2.run(5)
+    x, v = bdf2.positions, bdf2.velocities
+    bdf2.set_state(x, v)
+    bdf2.step()
+    be, _ = _free_fall("backward_euler")
+    be.set_state(x, v)
+    be.step()
+    np.testing.assert_array_equal(bdf2.positions, be.positions)
+    np.testing.assert_array_equal(bdf2.velocities, be.velocities)
+    bdf2.step()  # with history again: not backward Euler
+    be.step()
+    assert np.abs(bdf2.positions - be.positions).max() > 1e-7
+
+
+def test_failed_bdf2_step_keeps_the_history():
+    mesh, scene, _ = _box_on_incline(30.0, 0.3, speed=0.5, material=SOFT)
+    scene = scene.replace(integrator="bdf2")
+    ref = FullSim(mesh, scene)
+    ref.run(3)
+    sim = FullSim(mesh, scene)
+    sim.run(2)
+    x, v = sim.positions, sim.velocities
+    sim.scene = scene.replace(solver=SolverParams(tolerance=1e-14, max_iterations=1))
+    with pytest.raises(SolverError):
+        sim.step()
+    np.testing.assert_array_equal(sim.positions, x)
+    np.testing.assert_array_equal(sim.velocities, v)
+    sim.scene = scene
+    sim.step()
+    np.testing.assert_array_equal(sim.positions, ref.positions)
+
+
+# --- accuracy on a smooth problem: an elastic cube oscillating and spinning in free space ----------
+
+
+def _oscillating_cube(integrator, h):
+    mesh = meshes.box(0.1, resolution=2)
+    scene = Scene(material=SOFT, planes=(), gravity=(0.0, 0.0, 0.0), dt=h, integrator=integrator, solver=SolverParams(tolerance=1e-11))
+    sim = FullSim(mesh, scene, device="cpu")
+    arm = mesh.vertices - mesh.vertices.mean(axis=0)
+    v = 3.0 * arm * np.array([1.0, -0.3, -0.3]) + np.cross([0.0, 0.0, 2.0], arm)  # stretch along x, spin about z
+    sim.set_state(mesh.vertices, v - sim.masses @ v / sim.masses.sum())
+    return sim
+
+
+def _total_energy(sim):
+    return 0.5 * float(np.sum(sim.masses[:, None] * sim.velocities**2)) + sim.energy(terms="elastic")
+
+
+def test_bdf2_dissipates_far_less_than_backward_euler():
+    kept = {}
+    for integrator in ("backward_euler", "bdf2"):
+        sim = _oscillating_cube(integrator, 1e-3)
+        e0 = _total_energy(sim)
+        sim.run(100)  # about 4 periods of the stretch mode, some 25 steps a period
+        kept[integrator] = _total_energy(sim) / e0
+    print(f"energy kept after 100 steps of 1 ms: backward Euler {kept['backward_euler']:.3f}, BDF2 {kept['bdf2']:.4f}")
+    assert kept["bdf2"] > 0.95
+    assert kept["backward_euler"] < 0.7
+    assert 1.0 - kept["bdf2"] < 0.1 * (1.0 - kept["backward_euler"])
+
+
+def test_bdf2_converges_at_second_order_and_backward_euler_at_first():
+    duration = 0.04
+    reference = _oscillating_cube("bdf2", duration / 2560)
+    reference.run(2560)
+    errors = {}
+    for integrator in ("backward_euler", "bdf2"):
+        errors[integrator] = []
+        for steps in (40, 80, 160):
+            sim = _oscillating_cube(integrator, duration / steps)
+            sim.run(steps)
+            errors[integrator].append(np.abs(sim.positions - reference.positions).max())
+    orders = {k: [math.log2(e[i] / e[i + 1]) for i in range(2)] for k, e in errors.items()}
+    print(f"errors at h = 1, 0.5, 0.25 ms: {errors}; observed orders {orders}")
+    assert 0.8 < orders["backward_euler"][-1] < 1.2
+    assert 1.8 < orders["bdf2"][-1] < 2.2
+    assert errors["bdf2"][-1] < 0.05 * errors["backward_euler"][-1]
+
+
+# --- friction, as for backward Euler --------------------------------------------------------
+
+
+@pytest.mark.parametrize("theta, mu", [(10.0, 0.3), (30.0, 0.7)])
+def test_bdf2_box_sticks_on_incline_below_friction_angle(theta, mu):
+    assert math.tan(math.radians(theta)) < mu
+    mesh, scene, downhill = _box_on_incline(theta, mu)
+    sim = FullSim(mesh, scene.replace(integrator="bdf2"))
+    c0, _ = _com(sim)
+    sim.run(100)
+    c, v = _com(sim)
+    slide = (c - c0) @ downhill
+    print(f"BDF2 stick theta={theta} mu={mu}: moved {1e6 * slide:.2f} um down the slope in 1 s, speed {1e6 * abs(v @ downhill):.2f} um/s")
+    assert abs(slide) < 1e-4
+
+
+@pytest.mark.parametrize("theta, mu", [(30.0, 0.3), (40.0, 0.8)])
+def test_bdf2_box_slides_on_incline_with_coulomb_acceleration(theta, mu):
+    t = math.radians(theta)
+    assert math.tan(t) > mu
+    mesh, scene, downhill = _box_on_incline(theta, mu)
+    sim = FullSim(mesh, scene.replace(integrator="bdf2"))
+    traj = sim.run(100)
+    w = sim.masses / sim.masses.sum()
+    v = np.einsum("fnk,n,k->f", traj.velocities, w, downhill)
+    window = traj.times >= 0.3
+    a = np.polyfit(traj.times[window], v[window], 1)[0]
+    expected = G * (math.sin(t) - mu * math.cos(t))
+    print(f"BDF2 slide theta={theta} mu={mu}: a = {a:.5f} m/s^2, analytic {expected:.5f} m/s^2 (error {100 * (a / expected - 1):+.3f}%)")
+    assert a == pytest.approx(expected, rel=0.02)
+
+
+def test_bdf2_box_pushed_on_flat_ground_stops_at_analytic_distance():
+    mu, v0 = 0.3, 2.0
+    mesh, scene, direction = _box_on_incline(0.0, mu, speed=v0, dt=0.005)
+    sim = FullSim(mesh, scene.replace(integrator="bdf2"))
+    c0, _ = _com(sim)
+    sim.run(200)
+    c, v = _com(sim)
+    distance = (c - c0) @ direction
+    expected = v0**2 / (2 * mu * G)
+    print(f"BDF2 push v0={v0} mu={mu}: stopped after {distance:.5f} m, analytic {expected:.5f} m (error {100 * (distance / expected - 1):+.3f}%)")
+    assert np.linalg.norm(v) < 1e-3
+    assert distance == pytest.approx(expected, rel=0.03)
