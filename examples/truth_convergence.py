@@ -16,6 +16,9 @@ Studies, each against its finest member at matching frame times:
   ``sqrt(sum_t |d_t|_w^2 / sum_t |u_t|_w^2)`` taken over frames from the finest run's first contact;
 * **time step**: h = 10, 5, 2.5, 1 and 0.5 ms on one mesh for the same simulated time, frames
   recorded every 10 ms; non-rigid difference by :func:`licrom.compare.nonrigid_error`.
+  ``--integrator bdf2`` runs the steps with BDF2 and ``--reference-integrator backward_euler`` measures
+  them against backward Euler at the smallest step (the reference runs first; each row is saved as it
+  is measured).
 
 Both report the final centre of mass distance over the object's size. Full runs are cached as
 ``.npz`` under ``--work/runs`` (with their wall time beside them), so reruns skip them; the script
@@ -27,6 +30,8 @@ Section 12 was made on an H100 with, per family (``--work`` one folder per famil
 merged by ``--section-only``): the default (mesh study at the family's step, time study on the
 ~33k-tet mesh), ``--studies mesh --mesh-time-step 0.001``, and ``--studies time
 --time-resolutions 27 42`` (ball: ``22 32``) ``--time-steps 0.01 0.005 0.0025 0.001 0.0005 0.00025 0.000125``.
+Its BDF2 tables: ``--studies time --integrator bdf2 --reference-integrator backward_euler --time-steps 0.01 0.005
+0.0025 0.001 0.0005 0.000125`` on the ~33k-tet meshes.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import math
 import platform
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import licrom
@@ -44,7 +50,7 @@ import numpy as np
 from licrom import Material, Scene, Trajectory, meshes
 from licrom.compare import first_contact_frame, nonrigid_error
 from licrom.rigid import body_frame_displacements
-from licrom.scene import SolverParams
+from licrom.scene import INTEGRATORS, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from body_frame_experiments import _on_plane, incline, write_section
@@ -61,6 +67,8 @@ FAMILIES = {
                    resolutions=(7, 14, 22, 32), time_resolution=22, small_resolutions=(4, 5, 6), small_time_resolution=5),
 }
 TIME_STEPS = (0.01, 0.005, 0.0025, 0.001, 0.0005)
+BE = "backward_euler"
+INTEGRATOR_NAMES = {BE: "backward Euler", "bdf2": "BDF2"}
 
 
 def build_mesh(family: str, resolution: int) -> licrom.Mesh:
@@ -69,36 +77,37 @@ def build_mesh(family: str, resolution: int) -> licrom.Mesh:
     return meshes.sphere(radius=0.05, resolution=resolution)
 
 
-def build_scene(family: str, mesh: licrom.Mesh, dt: float) -> Scene:
-    """The held-out scene of ``body_frame_experiments`` on ``mesh`` with time step ``dt``."""
+def build_scene(family: str, mesh: licrom.Mesh, dt: float, integrator: str = BE) -> Scene:
+    """The held-out scene of ``body_frame_experiments`` on ``mesh`` with time step ``dt`` and ``integrator``."""
     # Unconverged steps (a 100-Newton-iteration cap met at a residual a few times the tolerance on fine meshes)
     # are recorded and counted rather than stopping the run.
     base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=dt,
-                 solver=SolverParams(on_failure="record"))
+                 integrator=integrator, solver=SolverParams(on_failure="record"))
     if family == "cheese":
         return _on_plane(mesh, base, incline(22.0, 0.0, 0.3), 0.06, (0.15, 0.1, 0.0))
     return _on_plane(mesh, base, incline(25.0, 0.0, 0.3), 0.1, velocity=(0.5, 0.0, -1.0))
 
 
-def run_name(family: str, resolution: int, dt: float, record_every: int) -> str:
-    return f"{family}_r{resolution}_h{dt * 1e3:g}ms_every{record_every}"
+def run_name(family: str, resolution: int, dt: float, record_every: int, integrator: str = BE) -> str:
+    return f"{family}_r{resolution}_h{dt * 1e3:g}ms_every{record_every}" + ("" if integrator == BE else f"_{integrator}")
 
 
-def full_run(work: Path, family: str, resolution: int, dt: float, duration: float, frame_dt: float) -> tuple[Trajectory, dict]:
+def full_run(work: Path, family: str, resolution: int, dt: float, duration: float, frame_dt: float,
+             integrator: str = BE) -> tuple[Trajectory, dict]:
     """The full run (cached under ``work/runs``) and its timing: frames every ``frame_dt``."""
     steps, every = round(duration / dt), max(1, round(frame_dt / dt))
-    name = run_name(family, resolution, dt, every)
+    name = run_name(family, resolution, dt, every, integrator)
     path, meta_path = work / "runs" / f"{name}.npz", work / "runs" / f"{name}.json"
     if path.exists() and meta_path.exists():
         return Trajectory.load(path), json.loads(meta_path.read_text())
     mesh = build_mesh(family, resolution)
-    sim = licrom.FullSim(mesh, build_scene(family, mesh, dt))
+    sim = licrom.FullSim(mesh, build_scene(family, mesh, dt, integrator))
     t0 = time.perf_counter()
     traj = sim.run(steps, record_every=every)
     wall = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
     traj.save(path, precision="float32")
-    meta = {"family": family, "resolution": resolution, "dt": dt, "steps": steps, "record_every": every,
+    meta = {"family": family, "resolution": resolution, "dt": dt, "integrator": integrator, "steps": steps, "record_every": every,
             "n_tets": int(mesh.n_tets), "n_vertices": int(mesh.vertices.shape[0]), "wall_s": wall,
             "step_ms": 1e3 * wall / steps, "median_step_ms": 1e3 * float(np.median(traj.step_seconds)) if len(traj.step_seconds) else None,
             "newton_its": float(np.mean(traj.iterations)) if len(traj.iterations) else None,
@@ -151,15 +160,21 @@ def mesh_study(work: Path, family: str, spec: dict, resolutions: tuple[int, ...]
     return rows
 
 
-def time_study(work: Path, family: str, resolution: int, duration: float, dts: tuple[float, ...], frame_dt: float) -> list[dict]:
-    runs = [full_run(work, family, resolution, dt, duration, frame_dt) for dt in dts]
-    ref, _ = runs[-1]
+def time_study(work: Path, family: str, resolution: int, duration: float, dts: tuple[float, ...], frame_dt: float,
+               integrator: str = BE, reference: str | None = None) -> Iterator[list[dict]]:
+    """Rows of ``dts`` with ``integrator`` against the smallest step with ``reference`` (default the same run).
+
+    Yields the rows measured so far after each run (the reference first), so that a long study keeps its results.
+    """
+    reference = reference or integrator
+    ref, ref_meta = full_run(work, family, resolution, min(dts), duration, frame_dt, reference)
     size, ref_com = ref.mesh.size, ref.centers_of_mass()[-1]
     rows = []
-    for traj, meta in runs:
+    for dt in dts:
+        traj, meta = (ref, ref_meta) if dt == min(dts) and reference == integrator else full_run(work, family, resolution, dt, duration, frame_dt, integrator)
         rows.append({**meta, "com": float(np.linalg.norm(traj.centers_of_mass()[-1] - ref_com) / size),
                      "nonrigid": float(nonrigid_error(ref, traj)), "start_frame": int(first_contact_frame(ref) or 0)})
-    return rows
+        yield rows + ([] if reference == integrator else [{**ref_meta, "com": 0.0, "nonrigid": 0.0, "start_frame": rows[-1]["start_frame"]}])
 
 
 # --- the section ----------------------------------------------------------------------------
@@ -204,29 +219,45 @@ def section(results: dict) -> str:
                 out.append(f"| {r['resolution']} | {r['n_tets']} | {r['n_vertices']} | {_pct(r['com'])} | {_pct(r['nonrigid'])} | "
                            f"{_ms(r['step_ms'])} ({_ms(r['median_step_ms'])}) | {r['newton_its']:.1f} | {r['wall_s']:.1f} |")
             out.append("")
-        for res, trows in fam.get("time", {}).items():
-            out += [f"Time step on the {trows[0]['n_tets']}-tet mesh (resolution {res}), against h = {1e3 * trows[-1]['dt']:g} ms:", "",
-                    "| h (ms) | steps | final COM / size | non-rigid difference | step ms (median) | Newton its/step | unconverged steps | run s |",
-                    "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-            for r in trows:
-                out.append(f"| {1e3 * r['dt']:g} | {r['steps']} | {_pct(r['com'])} | {_pct(r['nonrigid'])} | "
-                           f"{_ms(r['step_ms'])} ({_ms(r['median_step_ms'])}) | {r['newton_its']:.1f} | {r['unconverged']} | {r['wall_s']:.1f} |")
-            out.append("")
+        for key, integrator in _time_keys(fam):
+            for res, trows in fam[key].items():
+                ref = trows[-1]
+                ref_integrator = ref.get("integrator", BE)
+                against = f"h = {1e3 * ref['dt']:g} ms" if ref_integrator == integrator else f"{INTEGRATOR_NAMES[ref_integrator]} at h = {1e3 * ref['dt']:g} ms"
+                which = "" if integrator == BE else f", {INTEGRATOR_NAMES[integrator]},"
+                out += [f"Time step{which} on the {trows[0]['n_tets']}-tet mesh (resolution {res}), against {against}:", "",
+                        "| h (ms) | steps | final COM / size | non-rigid difference | step ms (median) | Newton its/step | unconverged steps | run s |",
+                        "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+                for r in trows:
+                    other = "" if r.get("integrator", BE) == integrator else f" ({INTEGRATOR_NAMES[r['integrator']]})"
+                    out.append(f"| {1e3 * r['dt']:g}{other} | {r['steps']} | {_pct(r['com'])} | {_pct(r['nonrigid'])} | "
+                               f"{_ms(r['step_ms'])} ({_ms(r['median_step_ms'])}) | {r['newton_its']:.1f} | {r['unconverged']} | {r['wall_s']:.1f} |")
+                out.append("")
         m = choose(rows, "mesh") if rows else None
-        times = fam.get("time", {})
-        t = choose(times[max(times, key=int)], "time") if times else None
-        choices.append((family, m, t, rows, times))
+        choices.append((family, m, rows, [(integrator, fam[key]) for key, integrator in _time_keys(fam)] or [(BE, {})]))
     out += ["### Choice", "",
             f"Targets: final centre of mass within {_pct(COM_TARGET)} of the size and non-rigid deformation within "
             f"{_pct(NONRIGID_TARGET)} of the finest. Smallest mesh and largest step that meet both, measured:", ""]
-    for family, m, t, rows, times in choices:
+    for family, m, rows, studies in choices:
         ms = (f"resolution {m['resolution']} ({m['n_tets']} tets)" if m and m is not rows[-1] else
               f"only the finest measured ({rows[-1]['n_tets']} tets)" if m else
               "none short of the finest" if rows else "not measured")
-        ts = (f"h = {1e3 * t['dt']:g} ms" if t and t is not times[max(times, key=int)][-1] else
-              f"none above the smallest measured h ({1e3 * times[max(times, key=int)][-1]['dt']:g} ms)" if times else "not measured")
-        out.append(f"- {family}: mesh {ms}; time step {ts}.")
+        steps = []
+        for integrator, times in studies:
+            trows = times[max(times, key=int)] if times else []
+            # The reference row of a study against another integrator is not a candidate.
+            candidates = [r for r in trows if r.get("integrator", BE) == integrator]
+            t = choose(candidates, "time") if candidates else None
+            ts = (f"h = {1e3 * t['dt']:g} ms" if t and t is not trows[-1] else
+                  f"none above the smallest measured h ({1e3 * trows[-1]['dt']:g} ms)" if trows else "not measured")
+            steps.append(f"time step{'' if integrator == BE else ' with ' + INTEGRATOR_NAMES[integrator]} {ts}")
+        out.append(f"- {family}: mesh {ms}; {'; '.join(steps)}.")
     return "\n".join(out) + "\n"
+
+
+def _time_keys(fam: dict) -> list[tuple[str, str]]:
+    """``(results key, integrator)`` of a family's time-step studies: ``time`` (backward Euler), ``time_bdf2``, ..."""
+    return [("time" if i == BE else f"time_{i}", i) for i in INTEGRATORS if fam.get("time" if i == BE else f"time_{i}")]
 
 
 def machine() -> str:
@@ -252,6 +283,8 @@ def main() -> None:
     p.add_argument("--mesh-time-step", type=float, help="s: the mesh study at this step (default the family's)")
     p.add_argument("--time-resolutions", type=int, nargs="+", help="meshes of the time-step study (default: per family)")
     p.add_argument("--time-steps", type=float, nargs="+", default=list(TIME_STEPS), help="s, largest first")
+    p.add_argument("--integrator", choices=INTEGRATORS, default=BE, help="of the time-step study's runs")
+    p.add_argument("--reference-integrator", choices=INTEGRATORS, help="of its reference at the smallest step (default: --integrator)")
     p.add_argument("--small", action="store_true", help="tiny meshes, 0.2 s (a smoke test on the CPU)")
     p.add_argument("--section-only", type=Path, nargs="+", metavar="RESULTS_JSON",
                    help="write the section from these results (families merged) and stop")
@@ -282,9 +315,12 @@ def main() -> None:
             results_path.write_text(json.dumps(results, indent=1))
         if "time" in a.studies:
             dts = tuple(a.time_steps[:2] if a.small else a.time_steps)
+            key = "time" if a.integrator == BE else f"time_{a.integrator}"
             for r in a.time_resolutions or [spec["small_time_resolution"] if a.small else spec["time_resolution"]]:
-                fam.setdefault("time", {})[str(r)] = time_study(a.work, family, r, duration, dts, max(dts))
-                results_path.write_text(json.dumps(results, indent=1))
+                for rows in time_study(a.work, family, r, duration, dts, max(dts), a.integrator, a.reference_integrator):
+                    fam.setdefault(key, {})[str(r)] = rows
+                    results_path.parent.mkdir(parents=True, exist_ok=True)
+                    results_path.write_text(json.dumps(results, indent=1))
     text = section(results)
     print(text)
     if not a.small:
