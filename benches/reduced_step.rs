@@ -155,7 +155,7 @@ fn newton_pieces(c: &mut Criterion) {
     let n = sys.n_dofs();
     let (q, qdot) = state(&m);
     let mut start = sys.step_start();
-    sys.begin_step(&q, &qdot, &mut start);
+    sys.begin_step(&q, &qdot, None, &mut start);
     let trial: Vec<f64> = q.iter().zip(&qdot).map(|(x, v)| x + m.scene.dt * v).collect();
     let mut ws = sys.workspace();
     let mut hess = vec![0.0; n * n];

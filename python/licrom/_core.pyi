@@ -87,6 +87,10 @@ class ReducedCore:
             iterations and steps, corrected by BFGS along each step, and assembled
             again when it drifts or after ``set_state``; a quasi-Newton method with
             the same minimiser) or ``"every_iteration"`` (plain Newton). Newton only.
+        integrator: ``"backward_euler"`` (default) or ``"bdf2"`` (second order: the same
+            minimisation with the anchor ``(4 q_n - q_{n-1})/3``, anchor velocity
+            ``(4 qdot_n - qdot_{n-1})/3`` and effective step ``2h/3``; a new state gets the
+            history of a free fall). See ``rust/core/src/integrator.rs``.
         cubature_vertex_basis: (V, 3, n) basis rows ``W_v`` at the mesh vertices, with
             ``cubature_tet_vertices`` (K, 4) int64, the vertices of each cubature point's
             tet, and ``cubature_shape_gradients`` (K, 4, 3), its shape functions' gradients
@@ -122,6 +126,7 @@ class ReducedCore:
         cubature_vertex_basis: _Float64Array | None = None,
         cubature_tet_vertices: _Int64Array | None = None,
         cubature_shape_gradients: _Float64Array | None = None,
+        integrator: str = "backward_euler",
     ) -> Self: ...
     @property
     def n_dofs(self) -> int:
@@ -213,6 +218,10 @@ class BodyFrameCore:
         dt: time step h in s, > 0.
         tolerance: convergence threshold on r in m/s, > 0.
         max_iterations: Newton directions allowed per step, >= 1.
+        integrator: ``"backward_euler"`` (default) or ``"bdf2"`` (second order: the same
+            minimisation with the anchor ``(4 x_n - x_{n-1})/3``, anchor velocity
+            ``(4 v_n - v_{n-1})/3`` and effective step ``2h/3``; a new state gets the
+            history of a free fall). See ``rust/core/src/integrator.rs``.
         cubature_vertex_basis: (V, 3, n) basis rows ``W_v`` at the mesh vertices, with
             ``cubature_tet_vertices`` (K, 4) int64, the vertices of each cubature point's
             tet, and ``cubature_shape_gradients`` (K, 4, 3), its shape functions' gradients
@@ -248,6 +257,7 @@ class BodyFrameCore:
         cubature_vertex_basis: _Float64Array | None = None,
         cubature_tet_vertices: _Int64Array | None = None,
         cubature_shape_gradients: _Float64Array | None = None,
+        integrator: str = "backward_euler",
     ) -> Self: ...
     @property
     def n_dofs(self) -> int:
@@ -261,10 +271,19 @@ class BodyFrameCore:
         angular_velocity: _Float64Array,
         qdot: _Float64Array,
     ) -> None:
-        """Replace the state; the previous pose becomes ``(c - h v, exp(-h [w]x) R, q - h qdot)``.
+        """Replace the state; the pose k steps back becomes ``(c - k h v, exp(-k h [w]x) R, q - k h qdot)``
+        (k = 1, 2, 3; BDF2: ``c - k h v + (k h)^2 g / 2``, the history of a free fall, its start).
 
         Raises:
             ShapeError: wrong shapes, NaN/inf, or ``rotation`` not orthonormal with
+                determinant +1 (to 1e-8).
+        """
+    def set_history(self, centers: _Float64Array, rotations: _Float64Array, q: _Float64Array) -> None:
+        """Replace the poses one, two and three steps back (nearest first; centres (3, 3), rotations
+        (3, 3, 3), q (3, n)) after :meth:`set_state`: the history BDF2 reads; velocities then read from it.
+
+        Raises:
+            ShapeError: wrong shapes, NaN/inf, or a rotation that is not orthonormal with
                 determinant +1 (to 1e-8).
         """
     def step(self) -> tuple[int, float]:
@@ -296,15 +315,22 @@ class BodyFrameCore:
     @property
     def q(self) -> _Float64Array:
         """(n,) modal coordinates."""
+    def previous_pose(self, steps_back: int) -> tuple[_Float64Array, _Float64Array, _Float64Array]:
+        """``(c, R, q)`` of the pose ``steps_back`` (1, 2 or 3) steps before the current one.
+
+        Raises:
+            ConfigError: ``steps_back`` is not 1, 2 or 3.
+        """
     @property
     def velocity(self) -> _Float64Array:
-        """(3,) ``(c - c_prev) / h`` in m/s."""
+        """(3,) ``(c - c_prev) / h`` in m/s (BDF2: ``(3 c - 4 c_prev + c_prev2) / (2h)``)."""
     @property
     def angular_velocity(self) -> _Float64Array:
-        """(3,) ``log(R R_prev^T) / h`` in rad/s (world frame)."""
+        """(3,) ``log(R R_prev^T) / h`` in rad/s (world frame; BDF2: ``(3 w_1 - w_2) / (2h)``
+        with ``w_k`` the turns ``log(R R_prev^T)`` of the last two steps)."""
     @property
     def qdot(self) -> _Float64Array:
-        """(n,) ``(q - q_prev) / h`` per second."""
+        """(n,) ``(q - q_prev) / h`` per second (BDF2: ``(3 q - 4 q_prev + q_prev2) / (2h)``)."""
     def contact_forces(self) -> _Float64Array:
         """(C, 3) contact + friction force on each contact point over the last step in N; zeros before any step."""
     def energy(self, center: _Float64Array, rotation: _Float64Array, q: _Float64Array) -> float:

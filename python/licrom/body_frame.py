@@ -24,7 +24,7 @@ from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, warn_estimate
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .reduced_sim import _fitted_cubature, check_integrator, sampling, step_many, step_or_record
+from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
 from .stepping import check_field, record_run
@@ -166,7 +166,7 @@ class BodyFrameSim:
             (:func:`licrom.basis.strain_jacobians`).
 
     Raises:
-        ConfigError: missing mesh/scene, a scene integrator other than backward Euler, modes that carry momentum, singular modal mass, unknown strain.
+        ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass, unknown strain.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
 
@@ -191,7 +191,6 @@ class BodyFrameSim:
                 raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
         if not isinstance(scene, Scene):
             raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
-        check_integrator(scene, "BodyFrameSim")
         self.basis, self.mesh, self.scene = basis, mesh, scene
         self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
         k = int(basis.n_modes)
@@ -235,6 +234,7 @@ class BodyFrameSim:
             dt=scene.dt,
             tolerance=scene.solver.tolerance,
             max_iterations=scene.solver.max_iterations,
+            integrator=scene.integrator,
             **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
@@ -287,18 +287,22 @@ class BodyFrameSim:
         """(n, 3) vertex positions ``c + R (Xbar + W q)`` in m."""
         return self.center + self._body_points(self.q) @ self.rotation.T
 
-    def _previous_positions(self) -> np.ndarray:
-        """(n, 3) positions of the previous pose ``(c - h v, exp(-h [w]x) R, q - h q_dot)`` that the next step starts from."""
-        h = self.scene.dt
-        rotation = Rotation.from_rotvec(-h * self.angular_velocity).as_matrix() @ self.rotation
-        return self.center - h * self.velocity + self._body_points(self.q - h * self.qdot) @ rotation.T
+    def _previous_positions(self, steps_back: int = 1) -> np.ndarray:
+        """(n, 3) positions of the pose ``steps_back`` (1-3) steps before the current one, which the
+        next step reads (after :meth:`set_state`: ``(c - k h v, exp(-k h [w]x) R, q - k h q_dot)``)."""
+        c, r, q = self._core.previous_pose(steps_back)
+        return c + self._body_points(q) @ r.T
 
     @property
     def velocities(self) -> np.ndarray:
-        """(n, 3) vertex velocities in m/s: ``(x - x_prev) / h``, the backward difference that
-        backward Euler carries, as in :class:`licrom.FullSim` (for a spinning body the
-        continuous ``v + w x R y`` differs from it by about ``h |w|^2 |R y| / 2``)."""
-        return (self.positions - self._previous_positions()) / self.scene.dt
+        """(n, 3) vertex velocities in m/s: the integrator's backward difference of the vertex
+        positions, as in :class:`licrom.FullSim`: ``(x - x_prev) / h`` for backward Euler,
+        ``(3 x - 4 x_prev + x_prev2) / (2h)`` for BDF2 (for a spinning body the continuous
+        ``v + w x R y`` differs from it by about ``h |w|^2 |R y| / 2``)."""
+        h = self.scene.dt
+        if self.scene.integrator == "bdf2":
+            return (1.5 * self.positions - 2.0 * self._previous_positions(1) + 0.5 * self._previous_positions(2)) / h
+        return (self.positions - self._previous_positions(1)) / h
 
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
         return check_field(name, a, self.mesh.n_vertices)
@@ -319,7 +323,8 @@ class BodyFrameSim:
         read as backward Euler reads them, as the difference to the previous positions
         ``x - h v`` (:class:`licrom.FullSim` predicts the step from ``x + h v``): the
         previous pose is fitted to those the same way, and ``(v, w, q_dot)`` are the pose
-        differences over h. (Read as the continuous ``v + w x R y``, a body spinning at
+        differences over h. With BDF2 the poses one to three steps back are fitted to the
+        full simulation's start history, ``x - k h v + (k h)^2 g / 2``. (Read as the continuous ``v + w x R y``, a body spinning at
         ``|w|`` would start its first step ``h^2 |w|^2 |R y| / 2`` off the full solver's:
         0.4 mm for a box spinning at 12 rad/s with h = 10 ms, four times the 0.1 mm of the
         noise floor of docs/results.md.) Warns
@@ -333,6 +338,12 @@ class BodyFrameSim:
         c0, r0, q0 = self._pose_of(x - h * vel)
         w = Rotation.from_matrix(r @ r0.T).as_rotvec() / h
         self._core.set_state(c, r, q, (c - c0) / h, w, (q - q0) / h)
+        if self.scene.integrator == "bdf2":
+            # BDF2 reads three poses back: those fitted to the full simulation's start, the free fall
+            # x - k h v + (k h)^2 g / 2 (rust/core/src/integrator.rs), as the first is fitted to x - h v.
+            g = np.asarray(self.scene.gravity)
+            earlier = [self._pose_of(x - k * h * vel + 0.5 * (k * h) ** 2 * g) for k in (1, 2, 3)]
+            self._core.set_history(*(np.array(part) for part in zip(*earlier)))
         if positions is not None:
             check_start(self.positions, self.scene.plane_array(), self.mesh.size, "the body-frame simulation")
 
@@ -362,7 +373,8 @@ class BodyFrameSim:
         the valid range (:mod:`licrom.validity`).
         """
         monitor = self._monitor
-        monitor.start(self._previous_positions()[monitor.vertices], self.positions[monitor.vertices])
+        history = [self._previous_positions(k) for k in range(monitor.history_length - 1, 0, -1)] + [self.positions]
+        monitor.start([x[monitor.vertices] for x in history])
 
         def step() -> tuple[int, float, bool]:
             outcome = step_or_record(self)

@@ -5,7 +5,8 @@ small fixed sample of vertices, the full-space residual of the reconstructed sta
 
     ``r_v = m_v (x_t - 2 x_{t-1} + x_{t-2}) / h^2 - m_v g - f_v(x_t)``
 
-(inertia, gravity, elastic force of the vertex's one-ring tets; contact acts only on a
+(BDF2: ``m_v (x_t - (24 x_{t-1} - 22 x_{t-2} + 8 x_{t-3} - x_{t-4}) / 9) / h'^2`` with
+``h' = 2h/3``, :data:`TARGET_WEIGHTS`) (inertia, gravity, elastic force of the vertex's one-ring tets; contact acts only on a
 vertex inside a plane, and such a sample is left out of that frame) is zero for the full
 solution. Divided by the vertex's own stiffness block (block Jacobi,
 ``K_vv = m_v / h^2 I + linear-elastic K_vv at rest``) it becomes a displacement,
@@ -50,7 +51,14 @@ from .errors import AccuracyWarning, ConfigError
 from .mesh import Mesh
 from .scene import Scene
 
-__all__ = ["ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "SAMPLE_COUNT", "ErrorMonitor", "sample_vertices", "warn_estimate"]
+__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "SAMPLE_COUNT", "TARGET_WEIGHTS", "ErrorMonitor", "sample_vertices", "warn_estimate"]
+
+TARGET_WEIGHTS = {"backward_euler": (2.0, -1.0), "bdf2": (24 / 9, -22 / 9, 8 / 9, -1 / 9)}
+"""Each integrator's predicted position ``xt - h'^2 g`` as weights of the positions of the steps before, newest
+first (``rust/core/src/integrator.rs``, ``Integrator::target_weights``)."""
+
+EFFECTIVE_STEP = {"backward_euler": 1.0, "bdf2": 2 / 3}
+"""Each integrator's effective step ``h'`` over the time step h."""
 
 SAMPLE_COUNT = 48
 """Vertices where the residual is evaluated."""
@@ -108,7 +116,7 @@ class ErrorMonitor:
         mesh: the simulated mesh.
         values: (n, 3, k) basis values at every vertex.
         rest: (n, 3) the rest term of the positions (``X`` or ``Xbar``), m.
-        scene: the scene (material, gravity, dt, planes).
+        scene: the scene (material, gravity, dt, integrator, planes).
         count: sample size (all vertices on meshes with fewer).
         stride: steps between two evaluations, an integer >= 1.
 
@@ -154,7 +162,8 @@ class ErrorMonitor:
         masses = mesh.vertex_masses(scene.material.density)
         self._m = masses[self.vertices]
         self._total_mass = float(masses.sum())
-        h = scene.dt
+        h = scene.dt * EFFECTIVE_STEP[scene.integrator]
+        self._target = np.array(TARGET_WEIGHTS[scene.integrator])
         mu, lam = scene.material.lame
         gg = own_grad[:, :, None] * own_grad[:, None, :]
         block = volumes[:, None, None] * (mu * np.einsum("tkk->t", gg)[:, None, None] * np.eye(3) + (mu + lam) * gg)
@@ -166,7 +175,7 @@ class ErrorMonitor:
         self._weight = np.asarray(scene.gravity, dtype=np.float64) * self._m[:, None]
         planes = scene.plane_array()
         self._normals, self._offsets = planes[:, :3], planes[:, 3]
-        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=2)
+        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=len(self._target))
         self._step = 0
         self._evaluations: list[tuple[int, float, float]] = []
 
@@ -181,17 +190,25 @@ class ErrorMonitor:
         stress = _core.snh_pk1((self._gradient @ near_positions.ravel()).reshape(-1, 3, 3), *self._snh)
         return (self._stress_to_force @ stress.ravel()).reshape(-1, 3)
 
-    def start(self, previous: np.ndarray, current: np.ndarray) -> None:
-        """Begin a run from the (s, 3) sample positions of the previous and the current state."""
+    @property
+    def history_length(self) -> int:
+        """States the residual reads before the step: 2 (backward Euler) or 4 (BDF2)."""
+        return len(self._target)
+
+    def start(self, history: list[np.ndarray]) -> None:
+        """Begin a run from the (s, 3) sample positions of the last :attr:`history_length` states, oldest first
+        (the current state last)."""
+        if len(history) != self.history_length:
+            raise ConfigError(f"the error estimate needs {self.history_length} states to start from, got {len(history)}")
         self._history.clear()
-        self._history.extend(((-1, previous), (0, current)))
+        self._history.extend((1 - len(history) + i, x) for i, x in enumerate(history))
         self._step = 0
         self._evaluations = []
 
     def after_step(self, state: Callable[[], tuple[np.ndarray, np.ndarray | None, np.ndarray | None]],
                    deformation: Callable[[np.ndarray], float]) -> None:
-        """Count a step; keep the sample positions of the two steps before an evaluation, and evaluate
-        every ``stride``-th step.
+        """Count a step; keep the sample positions of the steps before an evaluation that the residual
+        reads (:attr:`history_length`), and evaluate every ``stride``-th step.
 
         Args:
             state: ``(q, c, R)`` now (``c``, ``R`` None for world-frame models); called only when needed.
@@ -199,7 +216,7 @@ class ErrorMonitor:
         """
         self._step += 1
         wait = -self._step % self.stride
-        if wait > 2:
+        if wait > self.history_length:
             return
         q, center, rotation = state()
         if wait:
@@ -211,8 +228,9 @@ class ErrorMonitor:
         now = y[self._own]
         if rotation is not None:
             force, now = force @ rotation.T, center + now @ rotation.T
-        (_, earlier), (_, before) = self._history
-        residual = self._m[:, None] * (now - 2.0 * before + earlier) / self._h2 - self._weight - force
+        before = self._history[-1][1]
+        predicted = sum(w * x for w, (_, x) in zip(self._target, reversed(self._history)))
+        residual = self._m[:, None] * (now - predicted) / self._h2 - self._weight - force
         du = np.einsum("sij,sj->si", self._jacobi, residual)
         # A sample inside a plane now or at the start of the step (friction is lagged) feels contact: left out.
         free = (np.minimum(now @ self._normals.T, before @ self._normals.T) + self._offsets >= 0.0).all(axis=1)

@@ -149,7 +149,7 @@ class ReducedSim:
             :func:`licrom.basis.strain_jacobians`.
 
     Raises:
-        ConfigError: unknown solver, missing mesh/scene, a scene integrator other than backward Euler, singular reduced mass matrix.
+        ConfigError: unknown solver, missing mesh/scene, singular reduced mass matrix.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
         ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
@@ -181,7 +181,6 @@ class ReducedSim:
                 raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
         if not isinstance(scene, Scene):
             raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
-        check_integrator(scene, "ReducedSim")
         if solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
         check_basis(basis)
@@ -199,6 +198,7 @@ class ReducedSim:
         self._masses = mesh.vertex_masses(scene.material.density)
         self._projector = SubspaceProjector(self._values, self._masses)
         gravity_force = self._projector.reduce(self._masses[:, None] * np.asarray(scene.gravity))
+        self._free_fall = np.linalg.solve(self._projector.reduced_mass, gravity_force)  # gravity's acceleration of q
         mu, lam = scene.material.snh_parameters
         idx = self.contact_points.indices
         self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
@@ -221,6 +221,7 @@ class ReducedSim:
             tolerance=scene.solver.tolerance,
             max_iterations=scene.solver.max_iterations,
             solver=solver,
+            integrator=scene.integrator,
             **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
@@ -308,7 +309,12 @@ class ReducedSim:
         """
         before = self._core.stats()
         monitor = self._monitor
-        monitor.start(monitor.sample_positions(self.q - self.scene.dt * self.qdot), monitor.sample_positions(self.q))
+        # The states before: those of the integrator's history (BDF2's after set_state: a free fall,
+        # rust/core/src/integrator.rs; backward Euler reads q - h qdot).
+        h = self.scene.dt
+        fall = self._free_fall if self.scene.integrator == "bdf2" else np.zeros_like(self._free_fall)
+        back = range(monitor.history_length - 1, -1, -1)
+        monitor.start([monitor.sample_positions(self.q - k * h * self.qdot + 0.5 * (k * h) ** 2 * fall) for k in back])
 
         def deformation(q: np.ndarray) -> float:
             bent = body_frame_displacements(self._reconstruction.positions(q), self.mesh.vertices, self._masses)
@@ -387,17 +393,6 @@ def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:
     """The fitted cubature on ``mesh`` of the model behind ``basis``, if it has one."""
     model = _model_behind(basis)
     return None if model is None else model.cubature_for(mesh)
-
-
-def check_integrator(scene: Scene, simulation: str) -> None:
-    """Refuse a scene whose integrator the reduced solvers do not have (they step with backward Euler).
-
-    Raises:
-        ConfigError: ``scene.integrator`` is not ``"backward_euler"``.
-    """
-    if scene.integrator != "backward_euler":
-        raise ConfigError(f"{simulation} integrates with backward Euler only: accepted scene.integrator 'backward_euler', got "
-                          f"{scene.integrator!r} (BDF2 is in the full simulation, licrom.FullSim, only for now)")
 
 
 def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: ContactPoints | None, basis: Any = None) -> tuple[Cubature, ContactPoints]:

@@ -8,8 +8,8 @@ Each time step minimises the incremental potential of backward Euler,
 or, with ``scene.integrator == "bdf2"``, of BDF2, which is the same minimisation with the anchor
 ``x_a = (4 x_t - x_{t-1}) / 3`` in place of ``x_t``, ``v_a = (4 v_t - v_{t-1}) / 3`` in place of ``v_t`` and
 ``h' = 2h/3`` in place of ``h`` everywhere (inertia, friction and damping velocities ``(x - x_a) / h'``,
-the velocity update, the convergence measure); its first step (after construction or ``set_state``) is
-backward Euler's. The normal force of friction is lagged from ``x_t`` in both. With
+the velocity update, the convergence measure); after construction or ``set_state`` the state one step back is
+that of a free fall (``x_t - h v_t + h^2 g / 2``, ``v_t - h g``), as in the reduced simulations. The normal force of friction is lagged from ``x_t`` in both. With
 stable Neo-Hookean elasticity and, at each contact point j and plane p, a
 normal penalty, optional normal damping and a friction dissipation potential whose
 gradient is the force ``|f_t| = min(k_f |v_t|, mu f_n)`` with the normal force

@@ -118,7 +118,7 @@ class FullSim:
         h = scene.dt
         self._h = h
         self._bdf2 = scene.integrator == "bdf2"
-        self._h_step = h  # effective step of the current step: h, or 2h/3 for a BDF2 step with history
+        self._h_step = h  # effective step of a step: h, or 2h/3 for BDF2
         planes = scene.plane_array()
 
         f64 = wp.float64
@@ -147,7 +147,7 @@ class FullSim:
         self._have_prev = False
         self._x_start = vec()  # the step's anchor x_a: x_n for backward Euler, (4 x_n - x_{n-1}) / 3 for BDF2
         self._x_now = vec()  # x_n during a step
-        self._x_prev = vec()  # x_{n-1}, when _have_prev
+        self._x_prev = vec()  # x_{n-1} (BDF2's history; after set_state that of a free fall)
         self._x_tilde = vec()
         self._x_trial = vec()
         self._grad = vec()
@@ -250,8 +250,10 @@ class FullSim:
     def set_state(self, positions: np.ndarray | None = None, velocities: np.ndarray | None = None) -> None:
         """Set positions and/or velocities ((n, 3), m and m/s); an omitted one keeps its value.
 
-        The step history starts afresh: with ``scene.integrator == "bdf2"`` the next step is a
-        backward Euler step (BDF2's start), as after construction.
+        The step history starts afresh, as after construction: with ``scene.integrator == "bdf2"``
+        the state one step back becomes that of a free fall, ``x - h v + h^2 g / 2`` and ``v - h g``
+        (BDF2's start, the same in the reduced simulations), so every step is a BDF2 step and a
+        free fall is exact from the first.
 
         Warns (:class:`~licrom.errors.PhysicsWarning`) when the positions put a
         vertex deeper inside a plane than ``licrom.validity.PENETRATION_LIMIT`` of the object's size.
@@ -268,6 +270,10 @@ class FullSim:
             self._v.assign(wp.array(self._check_field("velocities", velocities), dtype=wp.vec3d, device=self.device))
         self._has_forces = False
         self._have_prev = False
+        if self._bdf2:  # BDF2's start: the history of a free fall, x - h v + h^2 g / 2 and v - h g
+            x, v, g, h = self._x.numpy(), self._v.numpy(), np.asarray(self.scene.gravity), self._h
+            self._x_prev.assign(wp.array(x - h * v + 0.5 * h * h * g, dtype=wp.vec3d, device=self.device))
+            self._v_prev.assign(wp.array(v - h * g, dtype=wp.vec3d, device=self.device))
 
     def _check_field(self, name: str, a: Any) -> np.ndarray:
         return check_field(name, a, self._n)
@@ -283,7 +289,7 @@ class FullSim:
         """
         wp = warp_ready()
         dev = self.device
-        history = self._bdf2 and self._have_prev
+        history = self._bdf2
         h = self._h_step = 2.0 * self._h / 3.0 if history else self._h
         wp.launch(
             inertia.predict_kernel, dim=self._n, device=dev,

@@ -17,7 +17,7 @@ fn main() {
         *qi = 1e-3 * ((i * 7) % 5) as f64 / 4.0;
     }
     let mut start = sys.step_start();
-    sys.begin_step(&q, &qdot, &mut start);
+    sys.begin_step(&q, &qdot, None, &mut start);
     let trial: Vec<f64> = q.iter().zip(&qdot).map(|(x, v)| x + m.scene.dt * v).collect();
     let mut ws = sys.workspace();
     let mut hess = vec![0.0; n * n];

@@ -32,6 +32,7 @@ pub mod cholesky;
 pub mod contact;
 mod dense;
 pub mod error;
+pub mod integrator;
 pub mod material;
 pub mod real;
 pub mod reconstruction;

@@ -6,6 +6,7 @@
 //! over all six faces. The ground is the plane through the origin, level or
 //! inclined about the y axis.
 
+use crate::integrator::Integrator;
 use nalgebra::Vector3;
 
 use crate::contact::Plane;
@@ -32,6 +33,8 @@ pub struct BlockScene {
     pub lam: f64,
     /// Time step, s.
     pub dt: f64,
+    /// Time integrator.
+    pub integrator: Integrator,
     /// Coulomb coefficient of the ground plane.
     pub friction: f64,
     /// Slope of the ground plane about the y axis, degrees: its normal is
@@ -79,6 +82,7 @@ impl Default for BlockScene {
             mu: 5.13e4,
             lam: 8.97e4,
             dt: 0.01,
+            integrator: Integrator::BackwardEuler,
             friction: 0.5,
             incline: 0.0,
             contact_on_all_faces: false,
@@ -299,6 +303,7 @@ impl BlockModel {
             normal_damping: self.scene.normal_damping,
             friction_stiffness: self.scene.friction_stiffness,
             dt: self.scene.dt,
+            integrator: self.scene.integrator,
         }
     }
 

@@ -6,6 +6,7 @@ use licrom_core::body_frame::rotation::is_rotation;
 use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver, ROTATION_TOLERANCE};
 use licrom_core::body_frame::{BodyFrameInputs, BodyFrameSystem, Pose};
 use licrom_core::contact::Plane;
+use licrom_core::integrator::Integrator;
 use licrom_core::StableNeoHookean;
 use nalgebra::{Matrix3, Vector3};
 use numpy::PyArrayDyn;
@@ -27,6 +28,9 @@ pub struct BodyFrameCore {
 }
 
 /// Row-major values of a 3x3 matrix.
+/// A pose as numpy arrays: centre, rotation, modal coordinates.
+type PoseArrays<'py> = (Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>);
+
 fn row_major(m: &Matrix3<f64>) -> Vec<f64> {
     m.transpose().as_slice().to_vec()
 }
@@ -58,7 +62,7 @@ impl BodyFrameCore {
         total_mass, inertia_moments, mode_moments, mode_products, gravity, cubature_jacobians, cubature_weights,
         mu, lam, contact_basis, contact_rest, contact_areas, planes, normal_stiffness, normal_damping,
         friction_stiffness, dt, tolerance, max_iterations, cubature_vertex_basis = None, cubature_tet_vertices = None,
-        cubature_shape_gradients = None
+        cubature_shape_gradients = None, integrator = "backward_euler"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -85,7 +89,9 @@ impl BodyFrameCore {
         cubature_vertex_basis: Option<&Bound<'_, PyAny>>,
         cubature_tet_vertices: Option<&Bound<'_, PyAny>>,
         cubature_shape_gradients: Option<&Bound<'_, PyAny>>,
+        integrator: &str,
     ) -> PyResult<Self> {
+        let integrator: Integrator = integrator.parse().py_err(py)?;
         let max_iterations = count(max_iterations, "max_iterations")?;
         let material = StableNeoHookean::new(mu, lam).py_err(py)?;
         let j = read(inertia_moments, "inertia_moments", &[Dim::Is(3), Dim::Is(3)])?;
@@ -122,6 +128,7 @@ impl BodyFrameCore {
             normal_damping,
             friction_stiffness,
             dt,
+            integrator,
         };
         let settings = BodyFrameSettings { tolerance, max_iterations };
         let inner = py.detach(|| BodyFrameSystem::new(&inputs).and_then(|system| BodyFrameSolver::new(system, settings))).py_err(py)?;
@@ -153,6 +160,19 @@ impl BodyFrameCore {
         let w = read(angular_velocity, "angular_velocity", &[Dim::Is(3)])?;
         let qdot = read(qdot, "qdot", &[Dim::Is(self.n)])?;
         solver.set_state(&pose, &v.data, &w.data, &qdot.data).py_err(py)
+    }
+
+    /// Replaces the poses one, two and three steps back (centres (3, 3),
+    /// rotations (3, 3, 3), q (3, n); nearest first), after `set_state`.
+    fn set_history(&self, py: Python<'_>, centers: &Bound<'_, PyAny>, rotations: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<()> {
+        let mut solver = exclusive(py, &self.inner)?;
+        let c = read(centers, "centers", &[Dim::Is(3), Dim::Is(3)])?;
+        let r = read(rotations, "rotations", &[Dim::Is(3), Dim::Is(3), Dim::Is(3)])?;
+        let q = read(q, "q", &[Dim::Is(3), Dim::Is(self.n)])?;
+        let n = self.n;
+        let pose = |k: usize| solver.make_pose(&c.data[3 * k..3 * k + 3], &r.data[9 * k..9 * k + 9], &q.data[n * k..n * (k + 1)]);
+        let earlier = [pose(0).py_err(py)?, pose(1).py_err(py)?, pose(2).py_err(py)?];
+        solver.set_history(earlier).py_err(py)
     }
 
     /// Advances one step; returns (iterations, residual in m/s).
@@ -207,6 +227,16 @@ impl BodyFrameCore {
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let q = exclusive(py, &self.inner)?.pose().q.clone();
         write(py, q, &[self.n])
+    }
+
+    /// The pose `steps_back` steps before the current one (1, 2 or 3): the
+    /// history the integrator reads ((3,) centre, (3, 3) rotation, (n,) q).
+    fn previous_pose<'py>(&self, py: Python<'py>, steps_back: usize) -> PyResult<PoseArrays<'py>> {
+        let solver = exclusive(py, &self.inner)?;
+        let pose = solver.previous_pose(steps_back).py_err(py)?;
+        let (center, rotation, q) = (pose.center.as_slice().to_vec(), row_major(&pose.rotation), pose.q.clone());
+        drop(solver);
+        Ok((write(py, center, &[3])?, write(py, rotation, &[3, 3])?, write(py, q, &[self.n])?))
     }
 
     /// Velocity of the centre of mass (3,), m/s.

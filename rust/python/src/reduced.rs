@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use licrom_core::contact::Plane;
+use licrom_core::integrator::Integrator;
 use licrom_core::reduced::{ReducedInputs, ReducedSystem, VertexStrainInputs};
 use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings, SolverStats};
 use licrom_core::StableNeoHookean;
@@ -31,7 +32,7 @@ impl ReducedCore {
         mass, gravity_force, cubature_jacobians, cubature_weights, mu, lam, contact_basis, contact_rest,
         contact_areas, planes, normal_stiffness, normal_damping, friction_stiffness, dt, total_mass,
         tolerance, max_iterations, solver = "newton", elastic_hessian = "lagged", cubature_vertex_basis = None,
-        cubature_tet_vertices = None, cubature_shape_gradients = None
+        cubature_tet_vertices = None, cubature_shape_gradients = None, integrator = "backward_euler"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -58,7 +59,9 @@ impl ReducedCore {
         cubature_vertex_basis: Option<&Bound<'_, PyAny>>,
         cubature_tet_vertices: Option<&Bound<'_, PyAny>>,
         cubature_shape_gradients: Option<&Bound<'_, PyAny>>,
+        integrator: &str,
     ) -> PyResult<Self> {
+        let integrator: Integrator = integrator.parse().py_err(py)?;
         let kind: SolverKind = solver.parse().py_err(py)?;
         let elastic_hessian: ElasticHessian = elastic_hessian.parse().py_err(py)?;
         let max_iterations = count(max_iterations, "max_iterations")?;
@@ -95,6 +98,7 @@ impl ReducedCore {
             normal_damping,
             friction_stiffness,
             dt,
+            integrator,
         };
         let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(total_mass, tolerance, max_iterations, kind) };
         let inner = py.detach(|| ReducedSystem::new(&inputs).and_then(|system| ReducedSolver::new(system, settings))).py_err(py)?;

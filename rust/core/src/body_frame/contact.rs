@@ -266,14 +266,16 @@ impl BodyContacts {
         Vector3::from(rows_dot::<M, 3>(&self.basis[3 * n * s..3 * n * (s + 1)], v))
     }
 
-    /// The lagged normal forces of the points at `pose`, and the positions of
-    /// those that might touch a plane (the only ones that use them).
-    pub fn begin(&self, pose: &Pose, start: &mut ContactStart) {
-        dispatch(BeginKernel { contacts: self, pose, start })
+    /// The lagged normal forces of the points at `pose`, and the anchor
+    /// positions of those that might touch a plane (the only ones that use
+    /// them): at `pose`, or `x + w (x - x_prev)` with `anchor = (prev, w)`
+    /// (BDF2's, [`crate::integrator`]).
+    pub fn begin(&self, pose: &Pose, anchor: Option<(&Pose, f64)>, start: &mut ContactStart) {
+        dispatch(BeginKernel { contacts: self, pose, anchor, start })
     }
 
     #[inline(always)]
-    fn begin_impl<M: Madd>(&self, pose: &Pose, start: &mut ContactStart) {
+    fn begin_impl<M: Madd>(&self, pose: &Pose, anchor: Option<(&Pose, f64)>, start: &mut ContactStart) {
         let n_planes = self.planes.len();
         let rt = pose.rotation.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -288,7 +290,10 @@ impl BodyContacts {
             let y = self.rest[s] + self.mode_motion::<M>(s, &pose.q);
             start.y_start[s] = y;
             let x = pose.center + pose.rotation * y;
-            start.x_prev[s] = x;
+            start.x_prev[s] = match anchor {
+                Some((prev, w)) => x + w * (x - prev.center - prev.rotation * (self.rest[s] + self.mode_motion::<M>(s, &prev.q))),
+                None => x,
+            };
             for (f, plane) in forces.iter_mut().zip(&self.planes) {
                 *f = self.model.lagged_normal_force(plane, self.areas[s], &x);
             }
@@ -631,6 +636,7 @@ impl WithMadd for StickKernel<'_> {
 struct BeginKernel<'a> {
     contacts: &'a BodyContacts,
     pose: &'a Pose,
+    anchor: Option<(&'a Pose, f64)>,
     start: &'a mut ContactStart,
 }
 
@@ -638,6 +644,6 @@ impl WithMadd for BeginKernel<'_> {
     type Output = ();
     #[inline(always)]
     fn run<M: Madd>(self) {
-        self.contacts.begin_impl::<M>(self.pose, self.start)
+        self.contacts.begin_impl::<M>(self.pose, self.anchor, self.start)
     }
 }

@@ -13,6 +13,7 @@ use super::rotation::axial;
 use super::Pose;
 use crate::dense::rows_dot_many;
 use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::integrator::Integrator;
 use crate::simd::{dispatch, Madd, WithMadd};
 
 /// Mass moments of the body over all its vertices, fixed for a mesh and basis.
@@ -117,7 +118,9 @@ impl MassMoments {
 }
 
 /// What the inertia needs from the start of a step: the predicted centre of
-/// mass `ct` and the moments `B0`, `B_k` against `a_v = 2 R^t y^t_v - R^{t-1} y^{t-1}_v`.
+/// mass `ct` and the moments `B0`, `B_k` against `a_v = sum_i w_i R^i y^i_v`
+/// over the poses i of the step's history with the integrator's weights w_i
+/// (`2 R^t y^t_v - R^{t-1} y^{t-1}_v` for backward Euler).
 #[derive(Debug, Clone)]
 pub struct InertiaTarget {
     pub(super) ct: Vector3<f64>,
@@ -141,24 +144,39 @@ impl InertiaTarget {
         }
     }
 
-    /// Fills the target of a step from pose `cur` (time t) and `prev` (t - 1).
-    pub fn begin(&mut self, m: &MassMoments, cur: &Pose, prev: &Pose, gravity: &Vector3<f64>, h: f64) {
-        dispatch(BeginKernel { target: self, m, cur, prev, gravity, h })
+    /// Fills the target of a step from the poses `history`, newest first (the
+    /// current one at time t, then t - 1, ...), weighted as `integrator` says,
+    /// with its effective step `h` (s).
+    ///
+    /// # Panics
+    /// If `history` holds fewer poses than the integrator reads (2 or 4).
+    pub fn begin(&mut self, m: &MassMoments, history: &[&Pose], integrator: Integrator, gravity: &Vector3<f64>, h: f64) {
+        let w = integrator.target_weights();
+        match integrator {
+            Integrator::BackwardEuler => {
+                dispatch(BeginKernel::<2> { target: self, m, poses: [history[0], history[1]], weights: [w[0], w[1]], gravity, h })
+            }
+            Integrator::Bdf2 => {
+                dispatch(BeginKernel::<4> { target: self, m, poses: [history[0], history[1], history[2], history[3]], weights: w, gravity, h })
+            }
+        }
     }
 
-    /// [`Self::begin`]: `O(9 n^2)`, both poses' `Y_k` in one pass over the
-    /// `Q_lk`, those of `cur` kept for the Gauss-Newton inertia.
+    /// [`Self::begin`]: `O(9 n^2)`, the V poses' `Y_k` in one pass over the
+    /// `Q_lk`, those of the current pose kept for the Gauss-Newton inertia.
     #[inline(always)]
-    fn begin_impl<M: Madd>(&mut self, m: &MassMoments, cur: &Pose, prev: &Pose, gravity: &Vector3<f64>, h: f64) {
-        self.ct = 2.0 * cur.center - prev.center + gravity * (h * h);
-        let (r1, r0) = (cur.rotation * 2.0, prev.rotation);
-        self.b0 = r1 * m.y_xbar(&cur.q) - r0 * m.y_xbar(&prev.q);
+    fn begin_impl<M: Madd, const V: usize>(&mut self, m: &MassMoments, poses: [&Pose; V], weights: [f64; V], gravity: &Vector3<f64>, h: f64) {
+        let cur = poses[0];
+        self.ct = poses.iter().zip(weights).fold(gravity * (h * h), |acc, (p, w)| acc + p.center * w);
+        let turns: [Matrix3<f64>; V] = std::array::from_fn(|i| poses[i].rotation * weights[i]);
+        self.b0 = poses.iter().zip(&turns).fold(Matrix3::zeros(), |acc, (p, r)| acc + r * m.y_xbar(&p.q));
         self.gn_c = m.j;
+        let qs: [&[f64]; V] = poses.map(|p| &p.q[..]);
         for (k, (b, a)) in self.bk.iter_mut().zip(self.gn_axial.iter_mut()).enumerate() {
-            let [y1, y0] = m.y_modes::<M, 2>([&cur.q, &prev.q], k);
-            *b = r1 * y1 - r0 * y0;
-            *a = axial(&y1);
-            self.gn_c += (m.p[k] + y1).transpose() * cur.q[k];
+            let ys = m.y_modes::<M, V>(qs, k);
+            *b = turns.iter().zip(&ys).fold(Matrix3::zeros(), |acc, (r, y)| acc + r * y);
+            *a = axial(&ys[0]);
+            self.gn_c += (m.p[k] + ys[0]).transpose() * cur.q[k];
         }
     }
 
@@ -252,19 +270,19 @@ fn add_cross(hess: &mut [f64], big: usize, k: usize, v: &Vector3<f64>) {
     }
 }
 
-struct BeginKernel<'a> {
+struct BeginKernel<'a, const V: usize> {
     target: &'a mut InertiaTarget,
     m: &'a MassMoments,
-    cur: &'a Pose,
-    prev: &'a Pose,
+    poses: [&'a Pose; V],
+    weights: [f64; V],
     gravity: &'a Vector3<f64>,
     h: f64,
 }
 
-impl WithMadd for BeginKernel<'_> {
+impl<const V: usize> WithMadd for BeginKernel<'_, V> {
     type Output = ();
     #[inline(always)]
     fn run<M: Madd>(self) {
-        self.target.begin_impl::<M>(self.m, self.cur, self.prev, self.gravity, self.h)
+        self.target.begin_impl::<M, V>(self.m, self.poses, self.weights, self.gravity, self.h)
     }
 }

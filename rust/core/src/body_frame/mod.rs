@@ -9,7 +9,11 @@
 //! **Energy of one backward-Euler step**, from the current pose `(c, R, q)`
 //! (time t) and the previous one (t - 1), with the predicted positions
 //! `xt_v = 2 x^t_v - x^{t-1}_v + h^2 g` (so that the vertex velocities
-//! `(x^t - x^{t-1})/h` are exact, as in the full-space solver):
+//! `(x^t - x^{t-1})/h` are exact, as in the full-space solver). A BDF2 step
+//! ([`crate::integrator`]) is the same with h replaced by its effective step
+//! h' = 2h/3 and `xt_v - h'^2 g` the weighted sum of the vertex positions of
+//! four poses ([`Integrator::target_weights`]), so every sum over vertices
+//! below stays one over the poses' moments:
 //!
 //! - inertia `1/(2h^2) sum_v m_v |c + R y_v - xt_v|^2`. With `sum m y = 0` it
 //!   splits into `M/(2h^2) |c - ct|^2`, `ct = 2c^t - c^{t-1} + h^2 g`, and
@@ -26,7 +30,8 @@
 //!   mass `Mqq`, no gravity force and no contact points, whose step starts at
 //!   q = qdot = 0, so that it evaluates exactly `q^T Mqq q/(2h^2) + elastic(q)`;
 //! - contact and friction at the contact points ([`contact`]), with the
-//!   lagged normal force and the slip measured from the positions at time t.
+//!   normal force lagged at time t and the slip measured from the anchor
+//!   positions (those at time t for backward Euler, `(4 x^t - x^{t-1})/3` for BDF2).
 //!
 //! **Variables** of the Newton iteration are `(dc, omega, dq)` (3 + 3 + n),
 //! the rotation moving as `R <- exp([omega]x) R`; gradients and Hessians are
@@ -47,6 +52,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::contact::{ContactModel, Plane};
 use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::integrator::Integrator;
 use crate::material::StableNeoHookean;
 use crate::reduced::{ElasticModel, ReducedInputs, ReducedSystem, StepStart, VertexStrainInputs, Workspace};
 use crate::validity::Validity;
@@ -90,6 +96,8 @@ pub struct BodyFrameInputs<'a> {
     pub friction_stiffness: f64,
     /// Time step h, s.
     pub dt: f64,
+    /// The time integrator ([`crate::integrator`]).
+    pub integrator: Integrator,
 }
 
 /// Position of the body: centre of mass c (m), rotation R, modal coordinates q.
@@ -197,7 +205,11 @@ impl BodyWorkspace {
 #[derive(Debug, Clone)]
 pub struct BodyFrameSystem {
     n: usize,
+    /// The integrator's effective step h' (the time step for backward Euler), s.
     h: f64,
+    /// The time step, s.
+    time_step: f64,
+    integrator: Integrator,
     gravity: Vector3<f64>,
     moments: MassMoments,
     elastic: Option<Elastic>,
@@ -212,7 +224,8 @@ impl BodyFrameSystem {
         let n = moments.n_modes();
         check_finite("gravity", &inp.gravity)?;
         check_positive("dt", inp.dt)?;
-        let contact_model = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
+        let h = inp.integrator.effective_step(inp.dt);
+        let contact_model = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, h)?;
         let contacts = BodyContacts::new(n, inp.contact_basis, inp.contact_rest, inp.contact_areas, inp.planes, contact_model)?;
         let k = inp.cubature_weights.len();
         if inp.cubature_jacobians.len() != 9 * n * k {
@@ -237,12 +250,13 @@ impl BodyFrameSystem {
                 normal_damping: inp.normal_damping,
                 friction_stiffness: inp.friction_stiffness,
                 dt: inp.dt,
+                integrator: inp.integrator,
             })?;
             let mut start = system.step_start();
-            system.begin_step(&zeros, &zeros, &mut start);
+            system.begin_step(&zeros, &zeros, None, &mut start);
             Some(Elastic { system, start })
         };
-        Ok(Self { n, h: inp.dt, gravity: Vector3::from(inp.gravity), moments, elastic, contacts })
+        Ok(Self { n, h, time_step: inp.dt, integrator: inp.integrator, gravity: Vector3::from(inp.gravity), moments, elastic, contacts })
     }
 
     /// Number of modes n (the Newton system has 6 + n unknowns).
@@ -257,7 +271,17 @@ impl BodyFrameSystem {
 
     /// Time step h, s.
     pub fn dt(&self) -> f64 {
+        self.time_step
+    }
+
+    /// The integrator's effective step h' (h for backward Euler, 2h/3 for BDF2), s.
+    pub fn effective_step(&self) -> f64 {
         self.h
+    }
+
+    /// The time integrator.
+    pub fn integrator(&self) -> Integrator {
+        self.integrator
     }
 
     /// Total mass M, kg.
@@ -293,10 +317,16 @@ impl BodyFrameSystem {
         }
     }
 
-    /// Fills `start` for a step from pose `cur` (time t) after `prev` (t - 1).
-    pub fn begin_step(&self, cur: &Pose, prev: &Pose, start: &mut BodyStart) {
-        start.inertia.begin(&self.moments, cur, prev, &self.gravity, self.h);
-        self.contacts.begin(cur, &mut start.contact);
+    /// Fills `start` for a step from the poses `history`, newest first: the
+    /// current one (time t), then t - 1, ...; backward Euler reads two, BDF2
+    /// four ([`Integrator::target_weights`]).
+    ///
+    /// # Panics
+    /// If `history` holds fewer poses than the integrator reads.
+    pub fn begin_step(&self, history: &[&Pose], start: &mut BodyStart) {
+        start.inertia.begin(&self.moments, history, self.integrator, &self.gravity, self.h);
+        let w = self.integrator.history();
+        self.contacts.begin(history[0], (w != 0.0).then(|| (history[1], w)), &mut start.contact);
     }
 
     /// The step's energy at `pose` (J, without the step's constant); with

@@ -85,6 +85,7 @@ use super::rotation::{exp_map, is_rotation, log_map};
 use super::{BodyFrameSystem, BodyHessian, BodyStart, BodyWorkspace, Pose};
 use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
+use crate::integrator::Integrator;
 use crate::reduced::ElasticModel;
 use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, ContactModelSteps, ModelOutcome, ModelSchedule};
 use crate::solver::direction::{elastic_drift, factor_definite, metric_norm, secant_update};
@@ -161,8 +162,11 @@ pub struct BodyFrameSolver {
     settings: BodyFrameSettings,
     pose: Pose,
     prev: Pose,
-    /// The pose two steps back (valid if `has_prev2`), for the initial guess.
+    /// The poses two and three steps back: BDF2's history (after a new
+    /// state, see [`Self::set_state`]) and, when `has_prev2`, the
+    /// initial guess's acceleration.
     prev2: Pose,
+    prev3: Pose,
     has_prev2: bool,
     current: BodyStart,
     /// Start of the last accepted step, for contact forces (valid if `has_last`).
@@ -231,6 +235,7 @@ impl BodyFrameSolver {
             pose: Pose::rest(n),
             prev: Pose::rest(n),
             prev2: Pose::rest(n),
+            prev3: Pose::rest(n),
             has_prev2: false,
             validity: Validity::default(),
             current: system.step_start(),
@@ -250,7 +255,7 @@ impl BodyFrameSolver {
             chol: Cholesky::new(big),
             stiffness: vec![0.0; n * n],
             elastic_valid: false,
-            mass_over_h2: system.mode_mass().iter().map(|m| m / (system.dt() * system.dt())).collect(),
+            mass_over_h2: system.mode_mass().iter().map(|m| m / (system.effective_step() * system.effective_step())).collect(),
             step_taken: vec![0.0; big],
             secant_error: vec![0.0; big],
             bfgs_as: vec![0.0; n],
@@ -281,21 +286,41 @@ impl BodyFrameSolver {
         &self.pose
     }
 
-    /// Velocity of the centre of mass, m/s.
+    /// The pose `steps_back` (1, 2 or 3) steps before the current one: the
+    /// history the integrator reads (after a new state, see [`Self::set_state`]).
+    pub fn previous_pose(&self, steps_back: usize) -> Result<&Pose> {
+        match steps_back {
+            1 => Ok(&self.prev),
+            2 => Ok(&self.prev2),
+            3 => Ok(&self.prev3),
+            other => Err(LicromError::invalid("steps_back", format!("must be 1, 2 or 3, got {other}"))),
+        }
+    }
+
+    /// Velocity of the centre of mass, m/s: the integrator's
+    /// ([`crate::integrator::Integrator::velocity_weights`]), `(c - c')/h` for
+    /// backward Euler.
     pub fn velocity(&self) -> Vector3<f64> {
-        (self.pose.center - self.prev.center) / self.system.dt()
+        let [a, b, c] = self.system.integrator().velocity_weights();
+        (self.pose.center * a + self.prev.center * b + self.prev2.center * c) / self.system.dt()
     }
 
-    /// Angular velocity in the world frame, rad/s: `log(R R'^T) / h`.
+    /// Angular velocity in the world frame, rad/s: the integrator's from the
+    /// turns `log(R R'^T)` of the last steps, `log(R R'^T) / h` for backward Euler.
     pub fn angular_velocity(&self) -> Vector3<f64> {
-        log_map(&(self.pose.rotation * self.prev.rotation.transpose())) / self.system.dt()
+        // Weights (a, b, c) summing to zero: a (x - x') + (a + b) (x' - x'').
+        let [a, b, _] = self.system.integrator().velocity_weights();
+        let turn = log_map(&(self.pose.rotation * self.prev.rotation.transpose())) * a;
+        let earlier = if a + b != 0.0 { log_map(&(self.prev.rotation * self.prev2.rotation.transpose())) * (a + b) } else { Vector3::zeros() };
+        (turn + earlier) / self.system.dt()
     }
 
-    /// Modal velocities into `out` (n), per second.
+    /// Modal velocities into `out` (n), per second, as [`Self::velocity`].
     pub fn qdot(&self, out: &mut [f64]) {
         let h = self.system.dt();
-        for ((o, q), p) in out.iter_mut().zip(&self.pose.q).zip(&self.prev.q) {
-            *o = (q - p) / h;
+        let [a, b, c] = self.system.integrator().velocity_weights();
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = (a * self.pose.q[i] + b * self.prev.q[i] + c * self.prev2.q[i]) / h;
         }
     }
 
@@ -326,8 +351,9 @@ impl BodyFrameSolver {
     }
 
     /// Replaces the state: pose and velocities (m/s, world angular velocity in
-    /// rad/s, modal per second). The previous pose becomes
-    /// `(c - h v, exp(-h [w]x) R, q - h qdot)`. Contact forces read zero until
+    /// rad/s, modal per second). The pose k steps back becomes
+    /// `(c - k h v, exp(-k h [w]x) R, q - k h qdot)` (k = 1, 2, 3), with BDF2
+    /// `c - k h v + (k h)^2 g/2` (a free fall, its start). Contact forces read zero until
     /// the next step, which starts with fresh elastic and contact Hessians, so
     /// that the steps from here depend on the state alone (the same as a new
     /// solver's, bit for bit).
@@ -338,24 +364,46 @@ impl BodyFrameSolver {
         self.check_vector("angular_velocity", angular_velocity, 3)?;
         self.check_vector("qdot", qdot, n)?;
         let h = self.system.dt();
-        let prev_center = pose.center - Vector3::from_column_slice(velocity) * h;
-        let prev_rotation = exp_map(&(Vector3::from_column_slice(angular_velocity) * -h)) * rotation;
-        let prev_q_finite = pose.q.iter().zip(qdot).all(|(q, v)| (q - h * v).is_finite());
-        if !(prev_q_finite && prev_center.iter().chain(prev_rotation.iter()).all(|v| v.is_finite())) {
-            return Err(LicromError::Overflow { what: "the previous pose (pose - dt x velocity)", input: "the velocities" });
+        let (v, w) = (Vector3::from_column_slice(velocity), Vector3::from_column_slice(angular_velocity));
+        // BDF2 starts from the history of a free fall ([`crate::integrator`]); backward Euler reads one pose
+        // back, whose difference to the current one is its velocity.
+        let g = if self.system.integrator() == Integrator::Bdf2 { self.system.gravity() } else { Vector3::zeros() };
+        // Checked at the farthest pose back, before anything changes: the nearer ones are then finite too.
+        let far = 3.0 * h;
+        let far_q_finite = pose.q.iter().zip(qdot).all(|(q, v)| (q - far * v).is_finite());
+        let far_center = pose.center - v * far + g * (0.5 * far * far);
+        if !(far_q_finite && far_center.iter().chain(exp_map(&(w * -far)).iter()).all(|v| v.is_finite())) {
+            return Err(LicromError::Overflow { what: "the previous poses (pose - k dt x velocity)", input: "the velocities" });
+        }
+        for (k, earlier) in [&mut self.prev, &mut self.prev2, &mut self.prev3].into_iter().enumerate() {
+            let back = h * (k + 1) as f64;
+            earlier.center = pose.center - v * back + g * (0.5 * back * back);
+            earlier.rotation = exp_map(&(w * -back)) * rotation;
+            for ((p, q), v) in earlier.q.iter_mut().zip(&pose.q).zip(qdot) {
+                *p = q - back * v;
+            }
         }
         self.pose.assign(pose);
         self.pose.rotation = rotation;
-        self.prev.center = prev_center;
-        self.prev.rotation = prev_rotation;
-        for ((p, q), v) in self.prev.q.iter_mut().zip(&pose.q).zip(qdot) {
-            *p = q - h * v;
-        }
         self.has_last = false;
         self.has_failed = false;
         self.has_prev2 = false;
         self.elastic_valid = false;
         self.contact.invalidate();
+        Ok(())
+    }
+
+    /// Replaces the poses one, two and three steps back (`earlier`, nearest
+    /// first) after [`Self::set_state`]: the history BDF2 reads, for a caller
+    /// that has it as positions (the full simulation's start, fitted by poses)
+    /// rather than as the velocities' extrapolation. Velocities then read from
+    /// these poses.
+    pub fn set_history(&mut self, earlier: [Pose; 3]) -> Result<()> {
+        for pose in &earlier {
+            self.check_pose(pose.center.as_slice(), pose.rotation.transpose().as_slice(), &pose.q)?;
+        }
+        let [p1, p2, p3] = earlier;
+        (self.prev, self.prev2, self.prev3) = (p1, p2, p3);
         Ok(())
     }
 
@@ -366,7 +414,7 @@ impl BodyFrameSolver {
         self.has_failed = false;
         self.stats.steps += 1;
         let h = self.system.dt();
-        self.system.begin_step(&self.pose, &self.prev, &mut self.current);
+        self.system.begin_step(&[&self.pose, &self.prev, &self.prev2, &self.prev3], &mut self.current);
         let (cur, prev, prev2) = (&self.pose, &self.prev, &self.prev2);
         let turn = self.angular_velocity() * h;
         let guess = &mut self.trial.pose;
@@ -552,6 +600,7 @@ impl BodyFrameSolver {
     fn finish_step(&mut self) {
         let pose = &mut self.iterate.pose;
         pose.rotation = reorthonormalize(&pose.rotation);
+        std::mem::swap(&mut self.prev3, &mut self.prev2);
         std::mem::swap(&mut self.prev2, &mut self.prev);
         std::mem::swap(&mut self.prev, &mut self.pose);
         self.pose.assign(pose);
@@ -581,7 +630,7 @@ impl BodyFrameSolver {
     /// The probes fail with [`LicromError::Overflow`] where the pose (or the
     /// state) is so large that the result is not finite.
     pub fn energy(&mut self, pose: &Pose) -> Result<f64> {
-        self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        self.system.begin_step(&[&self.pose, &self.prev, &self.prev2, &self.prev3], &mut self.probe);
         let e = self.system.evaluate(&self.probe, pose, false, &mut self.ws);
         check_output("the energy", "the pose", &[e])?;
         Ok(e)
@@ -589,7 +638,7 @@ impl BodyFrameSolver {
 
     /// Gradient (6 + n) at `pose` of a step from the current state.
     pub fn gradient(&mut self, pose: &Pose) -> Result<&[f64]> {
-        self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        self.system.begin_step(&[&self.pose, &self.prev, &self.prev2, &self.prev3], &mut self.probe);
         self.system.evaluate(&self.probe, pose, true, &mut self.ws);
         check_output("the gradient", "the pose", &self.ws.grad)?;
         Ok(&self.ws.grad)
@@ -598,7 +647,7 @@ impl BodyFrameSolver {
     /// Hessian ((6 + n)^2, full symmetric) at `pose` of a step from the current
     /// state: exact, or the solver's positive definite one.
     pub fn hessian(&mut self, pose: &Pose, exact: bool) -> Result<&[f64]> {
-        self.system.begin_step(&self.pose, &self.prev, &mut self.probe);
+        self.system.begin_step(&[&self.pose, &self.prev, &self.prev2, &self.prev3], &mut self.probe);
         // An energy out of range is where the projection's eigensystem breaks down.
         let e = self.system.evaluate(&self.probe, pose, false, &mut self.ws);
         check_output("the Hessian", "the pose", &[e])?;

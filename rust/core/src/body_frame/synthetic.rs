@@ -254,6 +254,7 @@ impl BodyBlock {
             normal_damping: s.normal_damping,
             friction_stiffness: s.friction_stiffness,
             dt: s.dt,
+            integrator: s.integrator,
         }
     }
 

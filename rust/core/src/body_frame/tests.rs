@@ -69,7 +69,7 @@ fn moments_match_sums_over_vertices() {
     let mut rng = Rng::new(11);
     let (cur, prev) = (random_pose(&mut rng, n, 0.05), random_pose(&mut rng, n, 0.05));
     let mut start = sys.step_start();
-    sys.begin_step(&cur, &prev, &mut start);
+    sys.begin_step(&[&cur, &prev], &mut start);
     let y = |pose: &Pose, v: usize| {
         let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
         b.vertices[v] + Vector3::from_fn(|c, _| (0..n).map(|k| w[c * n + k] * pose.q[k]).sum())
@@ -149,7 +149,7 @@ fn inertia_and_elastic_derivatives_match_finite_differences() {
         let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
         let (cur, prev) = (random_pose(&mut rng, b.n, 0.02), random_pose(&mut rng, b.n, 0.02));
         let mut start = sys.step_start();
-        sys.begin_step(&cur, &prev, &mut start);
+        sys.begin_step(&[&cur, &prev], &mut start);
         check_derivatives(&sys, &start, &random_pose(&mut rng, b.n, 0.05), &format!("{cubature} cubature points"));
     }
 }
@@ -163,7 +163,7 @@ fn contact_case(depth: f64, slide: f64, sink: f64) -> (BodyBlock, BodyFrameSyste
     let mut rng = Rng::new(5);
     let cur = Pose { center: Vector3::new(0.01, 0.02, b.scene.size / 2.0 - depth), rotation: Matrix3::identity(), q: vec![0.0; b.n] };
     let mut start = sys.step_start();
-    sys.begin_step(&cur, &cur, &mut start);
+    sys.begin_step(&[&cur, &cur], &mut start);
     let mut pose = cur.clone();
     pose.center += Vector3::new(slide, 0.3 * slide, -sink);
     pose.rotation = exp_map(&Vector3::new(0.0, 0.0, 1e-3 * slide / b.scene.size));
@@ -219,7 +219,7 @@ fn turned_case() -> (BodyBlock, BodyFrameSystem, BodyStart, Pose) {
     let mut prev = cur.clone();
     prev.center += Vector3::new(-5e-3, 2e-3, 1e-3);
     let mut start = sys.step_start();
-    sys.begin_step(&cur, &prev, &mut start);
+    sys.begin_step(&[&cur, &prev], &mut start);
     assert!(start.contact.normal_force.iter().filter(|f| **f > 0.0).count() >= 3);
     let mut pose = cur.clone();
     pose.retract(&cur, &[4e-3, -1e-3, -1e-4, 0.02, -0.01, 0.03, 1e-3, 0.0, -1e-3, 2e-3, 0.0, 0.0, 1e-3, -2e-3, 1e-3], 1.0);
@@ -259,7 +259,7 @@ fn contact_points_are_skipped_only_where_they_cannot_touch() {
         let center = plane.normal() * (g0 - plane.gap(&(rotation * y)));
         let cur = Pose { center, rotation, q };
         let mut start = sys.step_start();
-        sys.begin_step(&cur, &cur, &mut start);
+        sys.begin_step(&[&cur, &cur], &mut start);
         let loose = BodyStart { contact: start.contact.without_start_positions(), ..start.clone() };
         let t = (g0 + 1e-6) / sigma;
         let x: Vec<f64> = [0.0; 6].into_iter().chain(v.iter().map(|vi| -t * vi)).collect();

@@ -51,8 +51,8 @@ impl ContactHessian {
 }
 
 impl ReducedSystem {
-    /// The contact part of [`Self::begin_step`]: lagged normal forces, and the
-    /// start positions of the points that carry one.
+    /// The contact part of [`Self::begin_step`]: normal forces lagged at q, and
+    /// the anchor positions (at `start.q`, set before) of the points that carry one.
     #[inline(always)]
     pub(super) fn begin_contacts<M: Madd>(&self, q: &[f64], start: &mut StepStart) {
         let n_planes = self.planes.len();
@@ -71,10 +71,10 @@ impl ReducedSystem {
                     }
                 }
             }
-            // Only points with a lagged normal force use their start position.
+            // Only points with a lagged normal force use their anchor position.
             for (l, &j) in slots.iter().enumerate() {
                 if engaged & (1 << l) != 0 {
-                    let x = self.contact_position::<M>(j, q);
+                    let x = self.contact_position::<M>(j, &start.q);
                     start.x_prev[3 * j..3 * j + 3].copy_from_slice(x.as_slice());
                 }
             }

@@ -39,6 +39,7 @@ pub use workspace::Workspace;
 use crate::contact::{ContactModel, Plane};
 use crate::dense::{dot, offset_rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::integrator::Integrator;
 use crate::material::StableNeoHookean;
 use crate::simd::{dispatch, Madd, WithMadd};
 pub use layout::VertexStrainInputs;
@@ -77,6 +78,8 @@ pub struct ReducedInputs<'a> {
     pub friction_stiffness: f64,
     /// Time step h, s.
     pub dt: f64,
+    /// The time integrator ([`crate::integrator`]).
+    pub integrator: Integrator,
 }
 
 /// Validated, owned reduced model.
@@ -101,11 +104,16 @@ pub struct ReducedSystem {
     /// The contact points of non-zero area, packed by lanes.
     contacts: ContactLayout,
     planes: Vec<Plane>,
+    /// The contact model, with the integrator's effective step h'.
     contact: ContactModel,
+    integrator: Integrator,
+    /// The time step h, s.
+    time_step: f64,
 }
 
-/// Quantities fixed at the start of a step: the state, the inertial target
-/// `qt = q_t + h qdot_t`, contact point positions and lagged normal forces.
+/// Quantities fixed at the start of a step: the anchor `q_a`, the inertial
+/// target `qt = q_a + h' qdot_a` ([`crate::integrator`]), the contact points'
+/// anchor positions and lagged normal forces.
 #[derive(Debug, Clone)]
 pub struct StepStart {
     q: Vec<f64>,
@@ -118,7 +126,8 @@ pub struct StepStart {
 }
 
 impl StepStart {
-    /// Reduced coordinates at the start of the step.
+    /// The step's anchor `q_a` (the state's q for backward Euler): the
+    /// velocity after the step is `(q - q_a)/h'`.
     pub fn q(&self) -> &[f64] {
         &self.q
     }
@@ -175,7 +184,8 @@ impl ReducedSystem {
         if let Some(a) = inp.contact_areas.iter().find(|a| **a < 0.0) {
             return Err(LicromError::invalid("contact_areas", format!("must be >= 0, found {a}")));
         }
-        let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.dt)?;
+        check_positive("dt", inp.dt)?;
+        let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.integrator.effective_step(inp.dt))?;
         let mass = symmetrized_spd(inp.mass, n)?;
         let kept = kept_points(inp.cubature_weights);
         let vertices = match &inp.vertex_strain {
@@ -198,6 +208,8 @@ impl ReducedSystem {
             contacts: ContactLayout::new(inp.contact_basis, inp.contact_rest, inp.contact_areas, inp.planes, n),
             planes: inp.planes.to_vec(),
             contact,
+            integrator: inp.integrator,
+            time_step: inp.dt,
         })
     }
 
@@ -216,9 +228,20 @@ impl ReducedSystem {
         self.areas.len()
     }
 
-    /// Time step h, s.
+    /// The effective step h' of the step's minimisation, s: the time step h
+    /// for backward Euler, 2h/3 for BDF2 ([`crate::integrator`]).
     pub fn dt(&self) -> f64 {
         self.contact.dt
+    }
+
+    /// The time step h, s.
+    pub fn time_step(&self) -> f64 {
+        self.time_step
+    }
+
+    /// The time integrator.
+    pub fn integrator(&self) -> Integrator {
+        self.integrator
     }
 
     /// Reduced mass matrix (symmetrised), n x n, kg.
@@ -249,18 +272,28 @@ impl ReducedSystem {
         }
     }
 
-    /// Fills `start` for a step from state `(q, qdot)`: inertial target, contact
-    /// positions and lagged normal forces. Lengths must be n.
-    pub fn begin_step(&self, q: &[f64], qdot: &[f64], start: &mut StepStart) {
-        dispatch(BeginKernel { sys: self, q, qdot, start })
+    /// Fills `start` for a step from state `(q, qdot)` after `previous`
+    /// (`(q, qdot)` one step earlier; BDF2 needs it, backward Euler ignores it):
+    /// anchor, inertial target, the contact points' anchor positions and the
+    /// normal forces lagged at q. Lengths must be n.
+    pub fn begin_step(&self, q: &[f64], qdot: &[f64], previous: Option<(&[f64], &[f64])>, start: &mut StepStart) {
+        dispatch(BeginKernel { sys: self, q, qdot, previous, start })
     }
 
     #[inline(always)]
-    fn begin_impl<M: Madd>(&self, q: &[f64], qdot: &[f64], start: &mut StepStart) {
+    fn begin_impl<M: Madd>(&self, q: &[f64], qdot: &[f64], previous: Option<(&[f64], &[f64])>, start: &mut StepStart) {
         let h = self.dt();
+        let w = self.integrator.history();
         start.q.copy_from_slice(q);
-        for ((t, qi), vi) in start.qtilde.iter_mut().zip(q).zip(qdot) {
-            *t = qi + h * vi;
+        start.qtilde.copy_from_slice(qdot);
+        if let (Some((q_prev, qdot_prev)), true) = (previous, w != 0.0) {
+            for i in 0..self.n {
+                start.q[i] += w * (q[i] - q_prev[i]);
+                start.qtilde[i] += w * (qdot[i] - qdot_prev[i]);
+            }
+        }
+        for (t, qa) in start.qtilde.iter_mut().zip(&start.q) {
+            *t = qa + h * *t;
         }
         start.offset = -dot::<M>(&self.gravity, &start.qtilde);
         self.begin_contacts::<M>(q, start);
@@ -364,6 +397,7 @@ struct BeginKernel<'a> {
     sys: &'a ReducedSystem,
     q: &'a [f64],
     qdot: &'a [f64],
+    previous: Option<(&'a [f64], &'a [f64])>,
     start: &'a mut StepStart,
 }
 
@@ -371,7 +405,7 @@ impl WithMadd for BeginKernel<'_> {
     type Output = ();
     #[inline(always)]
     fn run<M: Madd>(self) {
-        self.sys.begin_impl::<M>(self.q, self.qdot, self.start)
+        self.sys.begin_impl::<M>(self.q, self.qdot, self.previous, self.start)
     }
 }
 

@@ -26,7 +26,7 @@ fn sliding_start(model: &BlockModel, sys: &ReducedSystem) -> (StepStart, Vec<f64
         *qi += 1e-2 * rng.uniform();
     }
     let mut start = sys.step_start();
-    sys.begin_step(&q, &qdot, &mut start);
+    sys.begin_step(&q, &qdot, None, &mut start);
     (start, q, qdot)
 }
 
@@ -247,7 +247,7 @@ fn rigid_rotation_has_zero_elastic_energy_and_force() {
     }
     q[9..12].copy_from_slice(&[0.3, -0.1, 0.5]);
     let mut start = sys.step_start();
-    sys.begin_step(&q, &vec![0.0; n], &mut start);
+    sys.begin_step(&q, &vec![0.0; n], None, &mut start);
     // With q = qtilde the inertia vanishes: what is left is -f.q + elastic.
     let gravity_work: f64 = model.gravity_force.iter().zip(&q).map(|(f, x)| f * x).sum();
     let elastic = sys.energy(&start, &q) + gravity_work;

@@ -16,6 +16,11 @@
 //! are written for any solver and shared with the body-frame one
 //! ([`crate::body_frame::solver`]).
 //!
+//! **Time integrator** ([`crate::integrator`]): the step minimises the system's
+//! potential from the anchor that [`ReducedSystem::begin_step`] forms from the
+//! state and the state one step back; h' below is its effective step (h for
+//! backward Euler). The velocity after the step is `(q - q_a)/h'`.
+//!
 //! **Initial guess.** `q_t + h qdot_t + h^2 a`, with `a` the acceleration of the
 //! previous step (`(qdot_t - qdot_{t-1}) / h`), or gravity alone (`M^-1 f`) on the
 //! first step after a new state. A body that rests, slides steadily or sticks is
@@ -28,7 +33,7 @@
 //! step, so that their differences keep their digits.
 //!
 //! **Convergence** is measured on the (outer) Newton direction `Delta` at the
-//! iterate as the velocity `r = sqrt(Delta^T M Delta / m_total) / h` (m/s),
+//! iterate as the velocity `r = sqrt(Delta^T M Delta / m_total) / h'` (m/s),
 //! invariant to the choice of basis; when `r < tolerance` the step `Delta` is
 //! taken and the solve stops. `iterations` counts these directions (outer
 //! iterations); the model's are counted in [`SolverStats`].
@@ -149,8 +154,12 @@ pub struct ReducedSolver {
     settings: SolverSettings,
     q: Vec<f64>,
     qdot: Vec<f64>,
-    /// Velocity before the last step, for the initial guess.
-    qdot_prev: Kept<Vec<f64>>,
+    /// The state one step back `(q, qdot)`: BDF2's history (after a new
+    /// state, that of a free fall, [`crate::integrator`]) and, when `guess_from_previous`,
+    /// the initial guess's acceleration.
+    q_prev: Vec<f64>,
+    qdot_prev: Vec<f64>,
+    guess_from_previous: bool,
     /// `h^2 M^-1 f`: the gravity part of the initial guess.
     free_fall: Vec<f64>,
     /// Start of the step in progress.
@@ -214,10 +223,11 @@ impl ReducedSolver {
         let n = system.n_dofs();
         let h = system.dt();
         let mass_over_h2: Vec<f64> = system.mass().iter().map(|m| m / (h * h)).collect();
+        let step = system.time_step();
         let mut chol = Cholesky::new(n);
         chol.factor_shifted(system.mass(), 0.0, system.mass())
             .map_err(|index| LicromError::SingularMass { reason: format!("Cholesky pivot {index} is not positive") })?;
-        let mut free_fall: Vec<f64> = system.gravity().iter().map(|f| f * h * h).collect();
+        let mut free_fall: Vec<f64> = system.gravity().iter().map(|f| f * step * step).collect();
         chol.solve_in_place(&mut free_fall);
         let mut ws = system.workspace();
         let zeros = vec![0.0; n];
@@ -251,7 +261,9 @@ impl ReducedSolver {
             settings,
             q: zeros.clone(),
             qdot: zeros.clone(),
-            qdot_prev: Kept::absent(zeros.clone()),
+            q_prev: zeros.clone(),
+            qdot_prev: zeros.clone(),
+            guess_from_previous: false,
             free_fall,
             ws,
             chol,
@@ -324,9 +336,15 @@ impl ReducedSolver {
         self.check_state("qdot", qdot)?;
         self.q.copy_from_slice(q);
         self.qdot.copy_from_slice(qdot);
+        // `free_fall` is `h^2 M^-1 f`: gravity's acceleration times h^2.
+        let h = self.system.time_step();
+        for ((((p, v), q), qdot), fall) in self.q_prev.iter_mut().zip(self.qdot_prev.iter_mut()).zip(q).zip(qdot).zip(&self.free_fall) {
+            *p = q - h * qdot + 0.5 * fall;
+            *v = qdot - fall / h;
+        }
+        self.guess_from_previous = false;
         self.last.clear();
         self.failed.clear();
-        self.qdot_prev.clear();
         self.contact.invalidate();
         match self.settings.kind {
             SolverKind::Newton => self.elastic.clear(),
@@ -346,14 +364,10 @@ impl ReducedSolver {
         self.failed.clear();
         self.stats.steps += 1;
         let n = self.system.n_dofs();
-        let h = self.system.dt();
-        self.system.begin_step(&self.q, &self.qdot, &mut self.current);
-        let prev = self.qdot_prev.get();
+        let h = self.system.time_step();
+        self.system.begin_step(&self.q, &self.qdot, Some((&self.q_prev, &self.qdot_prev)), &mut self.current);
         for i in 0..n {
-            let accel = match prev {
-                Some(prev) => h * (self.qdot[i] - prev[i]),
-                None => self.free_fall[i],
-            };
+            let accel = if self.guess_from_previous { h * (self.qdot[i] - self.qdot_prev[i]) } else { self.free_fall[i] };
             self.iterate.q[i] = self.q[i] + h * self.qdot[i] + accel;
         }
         let mut energy = self.system.evaluate(&self.current, &self.iterate.q, true, &mut self.ws);
@@ -473,13 +487,16 @@ impl ReducedSolver {
         Some(step)
     }
 
+    /// The iterate becomes the state, with the velocity `(q - q_a)/h'` from the step's anchor.
     fn finish_step(&mut self) {
         let h = self.system.dt();
-        std::mem::swap(self.qdot_prev.fill(), &mut self.qdot);
-        for ((v, x), q) in self.qdot.iter_mut().zip(&self.iterate.q).zip(&self.q) {
-            *v = (x - q) / h;
+        std::mem::swap(&mut self.qdot_prev, &mut self.qdot);
+        std::mem::swap(&mut self.q_prev, &mut self.q);
+        for ((v, x), a) in self.qdot.iter_mut().zip(&self.iterate.q).zip(self.current.q()) {
+            *v = (x - a) / h;
         }
         self.q.copy_from_slice(&self.iterate.q);
+        self.guess_from_previous = true;
         self.validity = self.iterate.validity;
         std::mem::swap(self.last.fill(), &mut self.current);
     }
@@ -524,7 +541,7 @@ impl ReducedSolver {
 
     fn prepare_probe(&mut self, q: &[f64]) -> Result<()> {
         self.check_state("q", q)?;
-        self.system.begin_step(&self.q, &self.qdot, &mut self.probe);
+        self.system.begin_step(&self.q, &self.qdot, Some((&self.q_prev, &self.qdot_prev)), &mut self.probe);
         Ok(())
     }
 
