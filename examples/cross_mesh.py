@@ -1,0 +1,260 @@
+"""Discretisation independence, fairly (issue 24, part 4): one model on other meshes, beside the truth's own gap.
+
+    python examples/cross_mesh.py [--model out/defaults/final/cheese.lcm] [--resolutions 8 12 16] [--work out/cross_mesh]
+                                  [--cache 10:out/body_frame_c10 --cache 8:out/body_frame] [--docs docs] [--small]
+
+The soft cheese of ``examples/body_frame_experiments.py``: a model trained on one mesh of it (``--model``, by
+default the ``licrom train`` defaults model of section 11, trained on the 1638-tet cheese, resolution
+``--training-resolution`` 10) and the family's 4 held-out scenes, built with the same placement code on other
+meshes of the same object (``meshes.cheese(resolution=R)`` for each ``--resolutions`` R). For each scene and
+other mesh M:
+
+* **(a) the model on M**: ``ReducedSim(model, scene=scene, mesh=M)`` (its fitted cubature refitted on M to the
+  stored training poses, :meth:`licrom.Model.cubature_for`) against M's own full run;
+* **(b) the truth's gap**: the training mesh's full run against M's full run;
+* **(c) their ratio** (a) / (b), against the target of at most 1.5x;
+* **(e)** the model on M against the training mesh's full run (does it follow the truth it was trained on?);
+
+and, for reference, **(d)** the model on its own training mesh against that mesh's full run. All are measured at
+M's vertices with M's lumped masses: the training mesh's run is interpolated there (barycentric coordinates in
+the containing tet of its own mesh, :func:`truth_convergence.sampled_positions`; vertices of M just outside it are
+clamped to the nearest tet). Non-rigid error: each frame's best rigid fit removed, mass-weighted,
+``sqrt(sum_t |d_t|^2 / sum_t |u_t|^2)`` from M's first contact with u the reference's body-frame displacement
+(:func:`truth_convergence.sampled_nonrigid`; at M's own vertices it is :func:`licrom.compare.nonrigid_error`);
+centre of mass: the final frame's mass-weighted centre at M's vertices, distance over M's size. Noise floor: M's
+full run against itself dropped 0.1 mm higher (``body_frame_experiments.nudged``).
+
+Full runs are cached as ``.npz`` (``body_frame_experiments.full_run``): under ``--cache R:DIR`` where given (the
+training mesh's and the 864-tet truths of the earlier sections), else under ``--work/rR``; missing ones run here
+(warp, the default device: the CPU on a machine without a GPU). Writes ``--work/cross_mesh.json`` and section 14 of
+``docs/results.md`` (a ``### Reading`` part written by hand is kept). ``--small``: tiny meshes (resolutions 5 and 4,
+6), 20 steps, one scene, a 1-epoch model trained here; writes nothing under ``--docs``, runs in under a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import body_frame_experiments as bfe
+from licrom import Model, ReducedSim, Trajectory
+from licrom._io import atomic_path
+from licrom.compare import first_contact_frame
+from licrom.training import TrainConfig
+from truth_convergence import sampled_nonrigid, sampled_positions
+
+SECTION_TITLE = "## 14. Discretisation independence, fairly"
+TARGET_RATIO = 1.5  # the model's cross-mesh error at most this times the truth's own gap
+SMALL_STEPS = 20
+Samples = tuple[np.ndarray, np.ndarray]  # rest (p, 3) and deformed (frames, p, 3) positions of material points
+
+
+def cheese(resolution: int) -> bfe.Family:
+    """The cheese family of ``body_frame_experiments`` on ``meshes.cheese(resolution=resolution)``."""
+    saved = bfe.CHEESE_RESOLUTION
+    bfe.CHEESE_RESOLUTION = resolution
+    try:
+        return bfe.FAMILIES["cheese"](False)
+    finally:
+        bfe.CHEESE_RESOLUTION = saved
+
+
+def truths(cache: Path, fam: bfe.Family, cases: list[bfe.Case], steps: int) -> dict[str, tuple[Trajectory, Trajectory]]:
+    """Each case's full run and its noise-floor run (dropped 0.1 mm higher) on the family's mesh, cached under ``cache``."""
+    return {c.name: (bfe.full_run(cache, c.name, fam.mesh, c.scene, steps),
+                     bfe.full_run(cache, c.name + "_nudged", fam.mesh, bfe.nudged(c.scene), steps)) for c in cases}
+
+
+def difference(ref: Samples, other: Samples, weights: np.ndarray, start: int, size: float) -> dict:
+    """Non-rigid difference (from frame ``start``) and final centre-of-mass distance / ``size`` of two sampled runs."""
+    com = [weights @ x[-1] / weights.sum() for _, x in (ref, other)]
+    return {"nonrigid": sampled_nonrigid(ref, other, weights, start), "com": float(np.linalg.norm(com[1] - com[0]) / size)}
+
+
+def reduced_run(model: Model, case: bfe.Case, steps: int, mesh=None) -> tuple[Trajectory, dict]:
+    """``ReducedSim(model, scene=case.scene, mesh=mesh)`` run for ``steps``, with its setup time and cubature size."""
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the error estimate's AccuracyWarning: its value is recorded
+        sim = ReducedSim(model, scene=case.scene, mesh=mesh)
+        setup = time.perf_counter() - t0
+        traj = sim.run(steps)
+    est = traj.error_estimate
+    return traj, {"setup_s": setup, "cubature": sim.cubature.count, "estimate": float(est[-1]) if len(est) else float("nan")}
+
+
+def slides(traj: Trajectory) -> bool:
+    """Whether the run slides (``licrom.compare``'s slip distance over the second half of the run)."""
+    return bfe.run_metrics(traj, traj)["slides"]
+
+
+def own_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]], cases: list[bfe.Case], steps: int) -> list[dict]:
+    """(d): the model on its training mesh against that mesh's full runs (``train``: full and noise-floor runs by case)."""
+    rows = []
+    for case in cases:
+        full, nudged = train[case.name]
+        reduced, info = reduced_run(model, case, steps)
+        rows.append({"name": case.name, "kind": case.kind, "tets": full.mesh.n_tets, "floor": bfe.run_metrics(full, nudged),
+                     "model": bfe.run_metrics(full, reduced), **info})
+        print(f"training mesh {case.name}: non-rigid {bfe._pct(rows[-1]['model']['nonrigid_error'])}, "
+              f"COM {bfe._pct(rows[-1]['model']['com_error'])}", flush=True)
+    return rows
+
+
+def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]], fam: bfe.Family, cases: list[bfe.Case],
+                    steps: int, cache: Path) -> list[dict]:
+    """(a), (b), (c), (e) for each case on the family's mesh (another mesh of the training object)."""
+    mesh = fam.mesh
+    t0 = time.perf_counter()
+    refit = model.cubature_for(mesh)
+    refit_s = time.perf_counter() - t0
+    weights = mesh.vertex_masses(cases[0].scene.material.density)
+    inside = mesh_inside(model.mesh, mesh.vertices)
+    rows = []
+    for case in cases:
+        full, nudged = truths(cache, fam, [case], steps)[case.name]
+        reduced, info = reduced_run(model, case, steps, mesh=mesh)
+        start, size = first_contact_frame(full) or 0, mesh.size
+        own, red = sampled_positions(full, mesh.vertices), sampled_positions(reduced, mesh.vertices)
+        trained = sampled_positions(train[case.name][0], mesh.vertices)
+        model_m, truth = difference(own, red, weights, start, size), difference(own, trained, weights, start, size)
+        metrics = bfe.run_metrics(full, reduced)
+        rows.append({"name": case.name, "kind": case.kind, "tets": mesh.n_tets, "vertices": mesh.n_vertices,
+                     "floor": bfe.run_metrics(full, nudged), "model": model_m, "truth_gap": truth,
+                     "ratio": {k: model_m[k] / truth[k] for k in model_m},
+                     "model_vs_training_truth": difference(trained, red, weights, start, size),
+                     "model_metrics": metrics,
+                     "slides": {"own": slides(full), "training": slides(train[case.name][0])}, "refit_cubature": refit.count, "refit_s": refit_s,
+                     "inside_training_mesh": inside, "full_step_ms": 1e3 * float(np.median(full.step_seconds)), **info})
+        print(f"{mesh.n_tets} tets {case.name}: model non-rigid {bfe._pct(model_m['nonrigid'])} (compare: "
+              f"{bfe._pct(metrics['nonrigid_error'])}), truth gap {bfe._pct(truth['nonrigid'])}; COM {bfe._pct(model_m['com'])} "
+              f"against {bfe._pct(truth['com'])}; {refit.count} tets refitted in {refit_s:.1f} s", flush=True)
+    return rows
+
+
+def mesh_inside(mesh, points: np.ndarray, tolerance: float = 1e-9) -> float:
+    """Fraction of ``points`` inside ``mesh`` (barycentric coordinates of the containing tet, before clamping, >= -tolerance)."""
+    tets, _ = mesh.locate(points)
+    x0 = mesh.vertices[mesh.tets[tets, 0]]
+    b = np.einsum("pij,pj->pi", mesh.shape_matrix_inverses[tets], points - x0)
+    return float(np.mean(np.minimum(b.min(axis=1), 1.0 - b.sum(axis=1)) >= -tolerance))
+
+
+def _ratio(x: float) -> str:
+    return f"{x:.2f}x" if np.isfinite(x) else "-"
+
+
+def report(result: dict) -> str:
+    """The section's tables and summary lines from the measured ``result``."""
+    model, train = result["model"], result["training_mesh"]
+    out = [f"Model: `{model['path']}` (section 11's `licrom train` defaults model: r = {model['r']}, trained on the "
+           f"{model['tets']}-tet cheese, {model['cubature']} fitted cubature tets). Held-out scenes of section 10, {result['steps']} steps of "
+           f"h = {1e3 * result['dt']:g} ms (backward Euler), built with the same placement code on each mesh. Full runs: warp on this machine's CPU "
+           "(2 shared cores); those of the training mesh and of the 864-tet mesh are the cached runs of sections 10-11.",
+           "", "Measured at the other mesh M's vertices, weighted by M's lumped masses: the training mesh's full run is interpolated "
+           "there (barycentric, containing tet of its own mesh). Non-rigid: each frame's best rigid fit removed, from M's first "
+           "contact; COM: final centre of mass, distance over M's size. (a) the model on M (`ReducedSim(model, scene=scene, "
+           "mesh=M)`, the fitted cubature refitted on M) against M's full run; (b) the truth's gap: the training mesh's full run "
+           f"against M's; ratio (a) / (b), target at most {TARGET_RATIO:g}x in both; (e) the model on M against the training "
+           "mesh's full run. Noise floor: M's full run against itself dropped 0.1 mm higher (non-rigid / COM).", "",
+           "| mesh M | held-out run | noise floor of M | non-rigid (a) model | (b) truth gap | ratio | COM (a) model | (b) truth gap "
+           "| ratio | stick/slip (model; truths agree) | (e) model vs training truth: non-rigid / COM | meets 1.5x |",
+           "|" + "---|" * 12]
+    for row in result["other_meshes"]:
+        a, b, ratio, e, floor = row["model"], row["truth_gap"], row["ratio"], row["model_vs_training_truth"], row["floor"]
+        agree = row["slides"]["own"] == row["slides"]["training"]
+        out.append(f"| {row['tets']} tets | {row['kind']} | {bfe._pct(floor['nonrigid_error'])} / {bfe._pct(floor['com_error'])} | "
+                   f"{bfe._pct(a['nonrigid'])} | {bfe._pct(b['nonrigid'])} | {_ratio(ratio['nonrigid'])} | {bfe._pct(a['com'])} | "
+                   f"{bfe._pct(b['com'])} | {_ratio(ratio['com'])} | {'right' if row['model_metrics']['stick_slip_right'] else 'WRONG'}; "
+                   f"{'yes' if agree else 'no'} | {bfe._pct(e['nonrigid'])} / {bfe._pct(e['com'])} | "
+                   f"{'yes' if max(ratio.values()) <= TARGET_RATIO else 'no'} |")
+    out += ["", f"(d) For reference, the model on its own training mesh ({train[0]['tets']} tets) against that mesh's full run "
+            "(section 11's default rows, rerun here):", "",
+            "| held-out run | noise floor (non-rigid / COM) | non-rigid error | final COM / size | stick/slip |", "|---|---|---|---|---|"]
+    for row in train:
+        m, floor = row["model"], row["floor"]
+        out.append(f"| {row['kind']} | {bfe._pct(floor['nonrigid_error'])} / {bfe._pct(floor['com_error'])} | {bfe._pct(m['nonrigid_error'])} | "
+                   f"{bfe._pct(m['com_error'])} | {'right' if m['stick_slip_right'] else 'WRONG'} |")
+    out += ["", "Per mesh: cubature refitted on M (tets, seconds), M's vertices inside the training mesh (the rest clamped to its "
+            "nearest tet), median reduced step over each run (ms, its setup s), median full step of M's cached runs (ms, when they ran):", "",
+            "| mesh M | vertices | refitted cubature | M's vertices inside the training mesh | reduced ms/step | reduced setup s | full ms/step |",
+            "|---|---|---|---|---|---|---|"]
+    for tets in dict.fromkeys(r["tets"] for r in result["other_meshes"]):
+        rows = [r for r in result["other_meshes"] if r["tets"] == tets]
+        first = rows[0]
+        steps = [r["model_metrics"]["step_ms"] for r in rows]
+        setups = [r["setup_s"] for r in rows]
+        fulls = [r["full_step_ms"] for r in rows]
+        out.append(f"| {tets} tets | {first['vertices']} | {first['refit_cubature']} tets, {first['refit_s']:.1f} s | "
+                   f"{100 * first['inside_training_mesh']:.0f} % | {min(steps):.2f}-{max(steps):.2f} | {min(setups):.1f}-{max(setups):.1f} | "
+                   f"{min(fulls):.0f}-{max(fulls):.0f} |")
+    return "\n".join(out)
+
+
+def small_model(path: Path, fam: bfe.Family, cache: Path) -> Model:
+    """A 1-epoch model trained here with ``licrom.train`` defaults on two of the family's training runs (smoke test)."""
+    import licrom
+
+    if not path.exists():
+        runs = [bfe.full_run(cache, c.name, fam.mesh, c.scene, SMALL_STEPS) for c in fam.training[:2]]
+        licrom.train(runs, path, TrainConfig(epochs=1, progress=False))
+    return Model.load(path)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", type=Path, default=Path("out/defaults/final/cheese.lcm"), help="model trained on the training mesh")
+    ap.add_argument("--training-resolution", type=int, default=10, help="cheese resolution of the model's mesh (10: 1638 tets)")
+    ap.add_argument("--resolutions", type=int, nargs="+", default=[8, 12, 16], help="other meshes (8: 864 tets, 12: 2748, 16: 6960)")
+    ap.add_argument("--work", type=Path, default=Path("out/cross_mesh"), help="results and full runs of meshes without --cache")
+    ap.add_argument("--cache", action="append", default=None, metavar="R:DIR",
+                    help="full runs of resolution R cached under DIR (default: 10:out/body_frame_c10 and 8:out/body_frame)")
+    ap.add_argument("--docs", type=Path, default=Path("docs"))
+    ap.add_argument("--small", action="store_true", help="tiny meshes, 20 steps, one scene, a 1-epoch model: writes nothing under --docs")
+    args = ap.parse_args()
+    t_start = time.perf_counter()
+    work = args.work / "small" if args.small else args.work
+    caches = {} if args.small else {10: Path("out/body_frame_c10"), 8: Path("out/body_frame")}
+    caches.update({int(r): Path(d) for r, d in (c.split(":", 1) for c in args.cache or [])})
+    train_res, resolutions = (5, [4, 6]) if args.small else (args.training_resolution, args.resolutions)
+
+    def cache(resolution: int) -> Path:
+        return caches.get(resolution, work / f"r{resolution}")
+
+    train_fam = cheese(train_res)
+    steps = SMALL_STEPS if args.small else train_fam.steps
+    cases = list(train_fam.held_out[:1] if args.small else train_fam.held_out)
+    model_path = work / "model.lcm" if args.small else args.model
+    model = small_model(model_path, train_fam, cache(train_res)) if args.small else Model.load(model_path)
+    if model.mesh.n_tets != train_fam.mesh.n_tets:
+        raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} cheese {train_fam.mesh.n_tets}: "
+                         "pass its --training-resolution")
+    train = truths(cache(train_res), train_fam, cases, steps)
+    result = {"steps": steps, "dt": cases[0].scene.dt, "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
+              "training_mesh": own_mesh_rows(model, train, cases, steps), "other_meshes": []}
+    for res in resolutions:
+        fam = cheese(res)
+        names = {c.name for c in cases}
+        result["other_meshes"] += other_mesh_rows(model, train, fam, [c for c in fam.held_out if c.name in names], steps, cache(res))
+    result["wall_s"] = time.perf_counter() - t_start
+    text = report(result)
+    print(text)
+    with atomic_path(work / "cross_mesh.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=1, default=float))
+    if args.small:
+        return
+    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\n`python examples/cross_mesh.py` (issue 24, part 4) on "
+                      f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {result['wall_s']:.0f} s "
+                      "(the training and 864-tet meshes' full runs cached).\n\n" + text + "\n", SECTION_TITLE)
+
+
+if __name__ == "__main__":
+    main()
