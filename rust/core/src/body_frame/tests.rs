@@ -60,6 +60,41 @@ fn check_derivatives(sys: &BodyFrameSystem, start: &BodyStart, pose: &Pose, what
     assert!(crate::cholesky::Cholesky::factor(&hess, big).is_ok(), "{what}: Gauss-Newton Hessian not positive definite");
 }
 
+/// BDF2's inertia: the prediction from the moments of four poses, with the
+/// effective step, against the sum over vertices of
+/// `m/(2h'^2) |x - sum_i w_i x_i - h'^2 g|^2` (up to the step's constant).
+#[test]
+fn bdf2_inertia_matches_the_sum_over_vertices_of_four_poses() {
+    let scene = BlockScene { learned_modes: 3, cubature_points: 0, contact_points: 0, integrator: Integrator::Bdf2, ..Default::default() };
+    let b = body_block(&scene, true).unwrap();
+    let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+    let n = b.n;
+    let h = Integrator::Bdf2.effective_step(b.scene.dt);
+    assert_eq!(sys.effective_step(), h);
+    let mut rng = Rng::new(12);
+    let history: Vec<Pose> = (0..4).map(|_| random_pose(&mut rng, n, 0.05)).collect();
+    let mut start = sys.step_start();
+    sys.begin_step(&history.iter().collect::<Vec<_>>(), &mut start);
+    let x = |pose: &Pose, v: usize| {
+        let w = &b.vertex_basis[3 * n * v..3 * n * (v + 1)];
+        pose.center + pose.rotation * (b.vertices[v] + Vector3::from_fn(|c, _| (0..n).map(|k| w[c * n + k] * pose.q[k]).sum()))
+    };
+    let g = sys.gravity();
+    let weights = Integrator::Bdf2.target_weights();
+    let brute = |pose: &Pose| -> f64 {
+        (0..b.masses.len())
+            .map(|v| {
+                let xt = history.iter().zip(weights).fold(g * (h * h), |acc, (p, w)| acc + x(p, v) * w);
+                0.5 * b.masses[v] * (x(pose, v) - xt).norm_squared() / (h * h)
+            })
+            .sum()
+    };
+    let (p1, p2) = (random_pose(&mut rng, n, 0.05), random_pose(&mut rng, n, 0.05));
+    let d_sys = sys.energy(&start, &p1) - sys.energy(&start, &p2);
+    let d_brute = brute(&p1) - brute(&p2);
+    assert!((d_sys - d_brute).abs() < 1e-10 * d_brute.abs(), "{d_sys} vs {d_brute}");
+}
+
 #[test]
 fn moments_match_sums_over_vertices() {
     let b = block(3, 0, 0, true);
