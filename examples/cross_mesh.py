@@ -47,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
+from licrom.body_frame import BodyFrameBasis
 from licrom.compare import first_contact_frame
 from licrom.training import TrainConfig
 from truth_convergence import sampled_nonrigid, sampled_positions
@@ -110,17 +111,19 @@ def own_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]],
 
 
 def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]], fam: bfe.Family, cases: list[bfe.Case],
-                    steps: int, cache: Path) -> list[dict]:
-    """(a), (b), (c), (e) for each case on the family's mesh (another mesh of the training object)."""
+                    steps: int, own_truths: dict[str, tuple[Trajectory, Trajectory]]) -> list[dict]:
+    """(a), (b), (c), (e) for each case on the family's mesh (another mesh of the training object), against ``own_truths``."""
     mesh = fam.mesh
     t0 = time.perf_counter()
     refit = model.cubature_for(mesh)
     refit_s = time.perf_counter() - t0
-    weights = mesh.vertex_masses(cases[0].scene.material.density)
+    density = cases[0].scene.material.density
+    weights = mesh.vertex_masses(density)
     inside = mesh_inside(model.mesh, mesh.vertices)
+    modes = BodyFrameBasis(mesh, model, density=density).values(mesh.vertices)
     rows = []
     for case in cases:
-        full, nudged = truths(cache, fam, [case], steps)[case.name]
+        full, nudged = own_truths[case.name]
         reduced, info = reduced_run(model, case, steps, mesh=mesh)
         start, size = first_contact_frame(full) or 0, mesh.size
         own, red = sampled_positions(full, mesh.vertices), sampled_positions(reduced, mesh.vertices)
@@ -131,12 +134,28 @@ def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]
                      "floor": bfe.run_metrics(full, nudged), "model": model_m, "truth_gap": truth,
                      "ratio": {k: model_m[k] / truth[k] for k in model_m},
                      "model_vs_training_truth": difference(trained, red, weights, start, size),
-                     "model_metrics": metrics,
+                     "learned_projection": bfe.body_projection_error(full, modes), "model_metrics": metrics,
                      "slides": {"own": slides(full), "training": slides(train[case.name][0])}, "refit_cubature": refit.count, "refit_s": refit_s,
+                     "refit_residual": refit.fit_error,
                      "inside_training_mesh": inside, "full_step_ms": 1e3 * float(np.median(full.step_seconds)), **info})
         print(f"{mesh.n_tets} tets {case.name}: model non-rigid {bfe._pct(model_m['nonrigid'])} (compare: "
               f"{bfe._pct(metrics['nonrigid_error'])}), truth gap {bfe._pct(truth['nonrigid'])}; COM {bfe._pct(model_m['com'])} "
               f"against {bfe._pct(truth['com'])}; {refit.count} tets refitted in {refit_s:.1f} s", flush=True)
+    return rows
+
+
+def truth_gaps(runs: dict[int, dict[str, Trajectory]]) -> list[dict]:
+    """The full runs of every pair of meshes against each other (``runs``: by tet count, then case), at the finer mesh's vertices."""
+    rows = []
+    tets = sorted(runs)
+    for i, coarse in enumerate(tets):
+        for fine in tets[i + 1:]:
+            for name, ref in runs[fine].items():
+                mesh = ref.mesh
+                weights = mesh.vertex_masses(ref.scene.material.density)
+                gap = difference(sampled_positions(ref, mesh.vertices), sampled_positions(runs[coarse][name], mesh.vertices),
+                                 weights, first_contact_frame(ref) or 0, mesh.size)
+                rows.append({"coarse": coarse, "fine": fine, "name": name, **gap})
     return rows
 
 
@@ -164,15 +183,17 @@ def report(result: dict) -> str:
            "contact; COM: final centre of mass, distance over M's size. (a) the model on M (`ReducedSim(model, scene=scene, "
            "mesh=M)`, the fitted cubature refitted on M) against M's full run; (b) the truth's gap: the training mesh's full run "
            f"against M's; ratio (a) / (b), target at most {TARGET_RATIO:g}x in both; (e) the model on M against the training "
-           "mesh's full run. Noise floor: M's full run against itself dropped 0.1 mm higher (non-rigid / COM).", "",
-           "| mesh M | held-out run | noise floor of M | non-rigid (a) model | (b) truth gap | ratio | COM (a) model | (b) truth gap "
-           "| ratio | stick/slip (model; truths agree) | (e) model vs training truth: non-rigid / COM | meets 1.5x |",
-           "|" + "---|" * 12]
+           "mesh's full run. Noise floor: M's full run against itself dropped 0.1 mm higher (non-rigid / COM). Learned projection: "
+           "M's full run with its body-frame displacements projected onto the model's modes on M (each frame keeping its rigid "
+           "fit), the subspace's own floor there (on the training mesh: 1.2 / 2.2 / 2.2 / 7.2 %, section 11).", "",
+           "| mesh M | held-out run | noise floor of M | learned projection on M | non-rigid (a) model | (b) truth gap | ratio | "
+           "COM (a) model | (b) truth gap | ratio | stick/slip (model; truths agree) | (e) model vs training truth: non-rigid / COM | "
+           f"meets {TARGET_RATIO:g}x |", "|" + "---|" * 13]
     for row in result["other_meshes"]:
         a, b, ratio, e, floor = row["model"], row["truth_gap"], row["ratio"], row["model_vs_training_truth"], row["floor"]
         agree = row["slides"]["own"] == row["slides"]["training"]
         out.append(f"| {row['tets']} tets | {row['kind']} | {bfe._pct(floor['nonrigid_error'])} / {bfe._pct(floor['com_error'])} | "
-                   f"{bfe._pct(a['nonrigid'])} | {bfe._pct(b['nonrigid'])} | {_ratio(ratio['nonrigid'])} | {bfe._pct(a['com'])} | "
+                   f"{bfe._pct(row['learned_projection'])} | {bfe._pct(a['nonrigid'])} | {bfe._pct(b['nonrigid'])} | {_ratio(ratio['nonrigid'])} | {bfe._pct(a['com'])} | "
                    f"{bfe._pct(b['com'])} | {_ratio(ratio['com'])} | {'right' if row['model_metrics']['stick_slip_right'] else 'WRONG'}; "
                    f"{'yes' if agree else 'no'} | {bfe._pct(e['nonrigid'])} / {bfe._pct(e['com'])} | "
                    f"{'yes' if max(ratio.values()) <= TARGET_RATIO else 'no'} |")
@@ -183,7 +204,16 @@ def report(result: dict) -> str:
         m, floor = row["model"], row["floor"]
         out.append(f"| {row['kind']} | {bfe._pct(floor['nonrigid_error'])} / {bfe._pct(floor['com_error'])} | {bfe._pct(m['nonrigid_error'])} | "
                    f"{bfe._pct(m['com_error'])} | {'right' if m['stick_slip_right'] else 'WRONG'} |")
-    out += ["", "Per mesh: cubature refitted on M (tets, seconds), M's vertices inside the training mesh (the rest clamped to its "
+    gaps = result["truth_gaps"]
+    kinds = {row["name"]: row["kind"] for row in train}
+    out += ["", "Truth against truth, every pair of meshes (full runs; the coarser interpolated at the finer's vertices, against "
+            "the finer's run; (b) above is measured at M's vertices, coarser or finer), non-rigid / final COM:", "",
+            "| meshes (tets) | " + " | ".join(kinds.values()) + " |", "|---|" + "---|" * len(kinds)]
+    for pair in dict.fromkeys((g["coarse"], g["fine"]) for g in gaps):
+        cells = {g["name"]: g for g in gaps if (g["coarse"], g["fine"]) == pair}
+        out.append(f"| {pair[0]} - {pair[1]} | " + " | ".join(f"{bfe._pct(cells[n]['nonrigid'])} / {bfe._pct(cells[n]['com'])}"
+                                                              for n in kinds) + " |")
+    out += ["", "Per mesh: cubature refitted on M (tets, relative force residual, seconds), M's vertices inside the training mesh (the rest clamped to its "
             "nearest tet), median reduced step over each run (ms, its setup s), median full step of M's cached runs (ms, when they ran):", "",
             "| mesh M | vertices | refitted cubature | M's vertices inside the training mesh | reduced ms/step | reduced setup s | full ms/step |",
             "|---|---|---|---|---|---|---|"]
@@ -193,7 +223,7 @@ def report(result: dict) -> str:
         steps = [r["model_metrics"]["step_ms"] for r in rows]
         setups = [r["setup_s"] for r in rows]
         fulls = [r["full_step_ms"] for r in rows]
-        out.append(f"| {tets} tets | {first['vertices']} | {first['refit_cubature']} tets, {first['refit_s']:.1f} s | "
+        out.append(f"| {tets} tets | {first['vertices']} | {first['refit_cubature']} tets, {first['refit_residual']:.1e}, {first['refit_s']:.1f} s | "
                    f"{100 * first['inside_training_mesh']:.0f} % | {min(steps):.2f}-{max(steps):.2f} | {min(setups):.1f}-{max(setups):.1f} | "
                    f"{min(fulls):.0f}-{max(fulls):.0f} |")
     return "\n".join(out)
@@ -238,12 +268,18 @@ def main() -> None:
         raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} cheese {train_fam.mesh.n_tets}: "
                          "pass its --training-resolution")
     train = truths(cache(train_res), train_fam, cases, steps)
-    result = {"steps": steps, "dt": cases[0].scene.dt, "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
+    result = {"steps": steps, "dt": cases[0].scene.dt,
+              "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
               "training_mesh": own_mesh_rows(model, train, cases, steps), "other_meshes": []}
+    names = {c.name for c in cases}
+    full_runs = {train_fam.mesh.n_tets: {k: v[0] for k, v in train.items()}}
     for res in resolutions:
         fam = cheese(res)
-        names = {c.name for c in cases}
-        result["other_meshes"] += other_mesh_rows(model, train, fam, [c for c in fam.held_out if c.name in names], steps, cache(res))
+        own_cases = [c for c in fam.held_out if c.name in names]
+        own = truths(cache(res), fam, own_cases, steps)
+        full_runs[fam.mesh.n_tets] = {k: v[0] for k, v in own.items()}
+        result["other_meshes"] += other_mesh_rows(model, train, fam, own_cases, steps, own)
+    result["truth_gaps"] = truth_gaps(full_runs)
     result["wall_s"] = time.perf_counter() - t_start
     text = report(result)
     print(text)
