@@ -56,7 +56,10 @@
 //! direction `Delta` at the iterate, `r = sqrt(Delta^T Mg Delta / M)` (m/s)
 //! with Mg the Gauss-Newton inertia (with `Mqq`) over h^2: the mass-weighted
 //! length of the vertex displacements over h. When `r < tolerance` the step
-//! `Delta` is taken and the solve stops.
+//! `Delta` is taken and the solve stops. Before forming a new matrix, each
+//! iteration first measures the direction on the last factored one: below
+//! [`LAST_FACTOR_SHARE`] of the tolerance, that step is taken and the solve
+//! stops.
 //!
 //! **Why, measured** (`cargo bench --bench body_frame_step`: the synthetic
 //! block, K = 1000 cubature and C = 1000 contact points, both solvers in one
@@ -106,6 +109,17 @@ pub const ROTATION_TOLERANCE: f64 = 1e-8;
 /// halved its step (3.2 to 1.6 ms); the landing bench kept its 139 / 147
 /// iterations.
 pub const BODY_ELASTIC_DRIFT: f64 = 0.4;
+
+/// A step is converged on the last factored Newton matrix, without forming
+/// and factoring another, when the direction that matrix gives from the
+/// iterate measures below this share of the tolerance. Near the solution the
+/// matrix changes little from one iterate to the next (the premise of the
+/// lagged elastic Hessian), and the margin covers that change; a check that
+/// fails costs two triangular solves. Most steps, and most minimisations of
+/// the contact model, end this way: their last direction, formerly a matrix
+/// formed and factored only to measure a residual already below the
+/// tolerance, reuses the factor of the one before.
+pub const LAST_FACTOR_SHARE: f64 = 0.5;
 
 /// Solver parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -194,6 +208,9 @@ pub struct BodyFrameSolver {
     hess: Vec<f64>,
     metric: Vec<f64>,
     chol: Cholesky,
+    /// Whether `chol` holds the factor of a Newton matrix (not a stick-switched
+    /// one) with `metric` its metric, for [`LAST_FACTOR_SHARE`].
+    newton_factor: bool,
     /// The lagged elastic Hessian `K_el` with its BFGS corrections (valid if
     /// `elastic_valid`), and `Mqq/h^2`, n x n.
     stiffness: Vec<f64>,
@@ -253,6 +270,7 @@ impl BodyFrameSolver {
             hess: vec![0.0; big * big],
             metric: vec![0.0; big * big],
             chol: Cholesky::new(big),
+            newton_factor: false,
             stiffness: vec![0.0; n * n],
             elastic_valid: false,
             mass_over_h2: system.mode_mass().iter().map(|m| m / (system.effective_step() * system.effective_step())).collect(),
@@ -389,6 +407,7 @@ impl BodyFrameSolver {
         self.has_failed = false;
         self.has_prev2 = false;
         self.elastic_valid = false;
+        self.newton_factor = false;
         self.contact.invalidate();
         Ok(())
     }
@@ -443,6 +462,11 @@ impl BodyFrameSolver {
             self.stats.iterations += 1;
             if !self.iterate.grad.iter().all(|g| g.is_finite()) {
                 return Err(LicromError::Diverged { iteration, what: "gradient" });
+            }
+            if let Some(residual) = self.converged_on_last_factor(self.settings.tolerance) {
+                self.take_direction();
+                self.finish_step();
+                return Ok(BodyStepReport { iterations: iteration, residual });
             }
             self.update_elastic(iteration);
             residual = self.direction(iteration)?;
@@ -520,7 +544,9 @@ impl BodyFrameSolver {
         if !self.hess.iter().all(|v| v.is_finite()) {
             return Err(LicromError::Diverged { iteration, what: "Hessian" });
         }
-        if !factor_definite(&mut self.chol, &mut self.hess, &self.metric) {
+        self.stats.factorizations += 1;
+        self.newton_factor = factor_definite(&mut self.chol, &mut self.hess, &self.metric);
+        if !self.newton_factor {
             return Err(LicromError::Diverged { iteration, what: "Hessian factorisation" });
         }
         for (d, g) in self.dir.iter_mut().zip(&self.iterate.grad) {
@@ -532,6 +558,21 @@ impl BodyFrameSolver {
             return Err(LicromError::Diverged { iteration, what: "direction" });
         }
         Ok(residual)
+    }
+
+    /// The direction from the iterate on the last factored Newton matrix into
+    /// `dir`, and its residual, when that is below [`LAST_FACTOR_SHARE`] of
+    /// `tolerance` (m/s): the outer iteration's, or the contact model's.
+    fn converged_on_last_factor(&mut self, tolerance: f64) -> Option<f64> {
+        if !self.newton_factor {
+            return None;
+        }
+        for (d, g) in self.dir.iter_mut().zip(&self.iterate.grad) {
+            *d = -g;
+        }
+        self.chol.solve_in_place(&mut self.dir);
+        let residual = metric_norm(&self.metric, &self.dir) / self.system.total_mass().sqrt();
+        (residual < LAST_FACTOR_SHARE * tolerance).then_some(residual)
     }
 
     /// Replaces the Newton direction `dir` from the iterate by the step to the
@@ -663,8 +704,11 @@ impl ContactModelSteps for BodyFrameSolver {
         &mut self.stats
     }
 
-    fn model_direction(&mut self) -> Result<f64> {
-        self.direction(0)
+    fn model_direction(&mut self, tolerance: f64) -> Result<f64> {
+        match self.converged_on_last_factor(tolerance) {
+            Some(residual) => Ok(residual),
+            None => self.direction(0),
+        }
     }
 
     fn take_direction(&mut self) {
@@ -679,6 +723,8 @@ impl ContactModelSteps for BodyFrameSolver {
 
     fn solve_switched(&mut self, rows: usize) -> Option<f64> {
         self.system.add_switch_rows(&self.ws, rows, &mut self.hess);
+        self.newton_factor = false;
+        self.stats.factorizations += 1;
         self.chol.factor_shifted(&self.hess, 0.0, &self.metric).ok()?;
         for a in self.stick_dir.iter_mut() {
             *a = -*a;

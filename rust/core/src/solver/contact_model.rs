@@ -125,8 +125,10 @@ pub(crate) trait ContactModelSteps {
     /// Work counters.
     fn stats_mut(&mut self) -> &mut SolverStats;
     /// The model's Newton direction at the iterate (into the direction); its
-    /// convergence measure r, m/s.
-    fn model_direction(&mut self) -> Result<f64>;
+    /// convergence measure r, m/s. A solver may answer with the direction of
+    /// its last factored matrix where that measures well below `tolerance`
+    /// (the inner iteration's, m/s), which ends the iteration as surely.
+    fn model_direction(&mut self, tolerance: f64) -> Result<f64>;
     /// Moves the iterate by the whole direction.
     fn take_direction(&mut self);
     /// Forms the stick switch of the direction (rows and right-hand side, see
@@ -166,7 +168,7 @@ pub(crate) fn minimise_contact_model(s: &mut impl ContactModelSteps, energy: f64
     for inner in 0..MAX_INNER {
         if inner > 0 {
             s.stats_mut().model_iterations += 1;
-            match s.model_direction() {
+            match s.model_direction(tolerance) {
                 Ok(r) if r < tolerance => {
                     s.take_direction();
                     if newton_step && inner == 1 {
@@ -287,7 +289,7 @@ impl ContactModelSteps for ReducedSolver {
         &mut self.stats
     }
 
-    fn model_direction(&mut self) -> Result<f64> {
+    fn model_direction(&mut self, _tolerance: f64) -> Result<f64> {
         self.direction(0, self.model.exact)
     }
 
@@ -357,7 +359,7 @@ mod tests {
         fn stats_mut(&mut self) -> &mut SolverStats {
             &mut self.stats
         }
-        fn model_direction(&mut self) -> Result<f64> {
+        fn model_direction(&mut self, _tolerance: f64) -> Result<f64> {
             self.dir = -(self.phi)(self.x).1 / self.curvature;
             Ok(self.dir.abs())
         }
