@@ -289,7 +289,7 @@ def main() -> None:
         return
     bfe.write_section(args.docs, f"{SECTION_TITLE}\n\n`python examples/cross_mesh.py` (issue 24, part 4) on "
                       f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {result['wall_s']:.0f} s "
-                      "(the training and 864-tet meshes' full runs cached).\n\n" + text + "\n", SECTION_TITLE)
+                      "(full runs read from the cache where present).\n\n" + text + "\n", SECTION_TITLE)
 
 
 if __name__ == "__main__":
