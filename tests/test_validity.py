@@ -91,9 +91,13 @@ def test_every_step_is_checked_not_only_the_recorded_frames(simulator):
         every = SIMULATORS[simulator](scene).run(4)
         fourth = SIMULATORS[simulator](scene).run(4, record_every=4)
     assert every.penetration[1] > 10 * every.penetration[4]  # the impact is over by the fourth step
-    # The one recorded frame holds the worst of the four steps before it.
-    assert fourth.penetration[1] == pytest.approx(every.penetration[1:].max(), rel=1e-6)
-    assert fourth.min_det_f[1] == pytest.approx(every.min_det_f[1:].min(), rel=1e-6)
+    # The one recorded frame holds the worst of the four steps before it. A step's own measure is taken at its
+    # last evaluated iterate, before the final correction below the solver's tolerance (a step may end on the
+    # last factored matrix, whose correction is up to half the tolerance): within 1e-3 of the recorded pose's
+    # measure, where the four steps differ by 2x or more.
+    assert fourth.penetration[1] == pytest.approx(every.penetration[1:].max(), rel=1e-3)
+    assert fourth.min_det_f[1] == pytest.approx(every.min_det_f[1:].min(), rel=1e-3)
+    assert every.min_det_f[1:].min() < 0.6 * np.sort(every.min_det_f[1:])[1]
 
 
 def test_an_inversion_between_frames_warns_and_marks_the_frame_invalid():
