@@ -19,42 +19,20 @@ pub fn rows_dot<M: Madd, const R: usize>(src: &[f64], x: &[f64]) -> [f64; R] {
 /// Products `src[r] . xs[v]` of the `R` rows of `src` (`R x n`, row-major)
 /// with each of the `V` vectors `xs`, in one pass over `src`.
 ///
-/// The dot products run interleaved, [`ROW_GROUP`] rows at a time with all V
-/// vectors: one dot alone is a chain of dependent additions, several keep the
-/// multiply-add units busy; V of them read `src` (the memory traffic) once.
-/// All R x V at once overflowed the vector registers (R = 9, V = 2: 36
-/// accumulators of four lanes for 16 registers), and the spills made the
-/// inertia target's pass over the mode products (`R = 9`) cost about five
-/// instructions per multiply-add. Each product's sum runs in the same order
-/// either way.
+/// The R x V dot products run interleaved: one dot alone is a chain of
+/// dependent additions, R of them keep the multiply-add units busy; V of them
+/// read `src` (the memory traffic) once.
 #[inline(always)]
 pub fn rows_dot_many<M: Madd, const R: usize, const V: usize>(src: &[f64], xs: [&[f64]; V]) -> [[f64; R]; V] {
     let n = src.len() / R;
     debug_assert!(src.len() == R * n && xs.iter().all(|x| x.len() == n));
-    let mut out = [[0.0; R]; V];
-    for first in (0..R).step_by(ROW_GROUP) {
-        let rows = ROW_GROUP.min(R - first);
-        let group = rows_dot_group::<M, V>(&src[first * n..(first + rows) * n], rows, n, &xs);
-        for (o, g) in out.iter_mut().zip(&group) {
-            o[first..first + rows].copy_from_slice(&g[..rows]);
-        }
-    }
-    out
-}
-
-/// Rows dotted together by [`rows_dot_many`].
-const ROW_GROUP: usize = 3;
-
-/// [`rows_dot_many`] for `rows <= ROW_GROUP` rows of length n in `src`.
-#[inline(always)]
-fn rows_dot_group<M: Madd, const V: usize>(src: &[f64], rows: usize, n: usize, xs: &[&[f64]; V]) -> [[f64; ROW_GROUP]; V] {
     let blocks = n / LANES;
-    let mut acc = [[[0.0; LANES]; ROW_GROUP]; V];
+    let mut acc = [[[0.0; LANES]; R]; V];
     for b in 0..blocks {
         let c0 = b * LANES;
-        for r in 0..rows {
+        for r in 0..R {
             let row = &src[r * n + c0..r * n + c0 + LANES];
-            for (a, x) in acc.iter_mut().zip(xs) {
+            for (a, x) in acc.iter_mut().zip(&xs) {
                 let xb = &x[c0..c0 + LANES];
                 for l in 0..LANES {
                     a[r][l] = M::madd(row[l], xb[l], a[r][l]);
@@ -62,9 +40,9 @@ fn rows_dot_group<M: Madd, const V: usize>(src: &[f64], rows: usize, n: usize, x
             }
         }
     }
-    let mut out = [[0.0; ROW_GROUP]; V];
-    for ((o, a), x) in out.iter_mut().zip(&acc).zip(xs) {
-        for (r, (o, a)) in o.iter_mut().zip(a).take(rows).enumerate() {
+    let mut out = [[0.0; R]; V];
+    for ((o, a), x) in out.iter_mut().zip(&acc).zip(&xs) {
+        for (r, (o, a)) in o.iter_mut().zip(a).enumerate() {
             let mut s = lane_sum(a);
             for c in blocks * LANES..n {
                 s = M::madd(src[r * n + c], x[c], s);
