@@ -19,8 +19,8 @@ import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, meshes
 from licrom.compare import time_steps
 from licrom.cubature import ContactPoints, Cubature
-from licrom.dataset import report_dataset_spec
 from licrom.placement import drop_state, initial_state_on_plane
+from licrom.scene_file import report_dataset_spec
 
 
 def polynomial_basis(mesh: licrom.Mesh, r: int) -> StackedBasis:

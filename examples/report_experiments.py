@@ -37,10 +37,10 @@ from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBa
 from licrom.affine import apply_affine, fit_affine
 from licrom.compare import Comparison, compare, time_steps
 from licrom.cubature import ContactPoints, Cubature
-from licrom.dataset import report_dataset_spec
 from licrom.model import ModelConfig
 from licrom.placement import initial_state_between_planes, initial_state_on_plane
 from licrom.render import filmstrip, pick_renderer, plot_errors
+from licrom.scene_file import report_dataset_spec
 from licrom.training import TrainConfig
 
 CHEESE_HELD_OUT = [  # (slope deg, mu, where it lies w.r.t. the training set)

@@ -330,11 +330,10 @@ def _state(sim):
 
 def test_step_many_equals_stepping_each_alone_bit_for_bit():
     from licrom.body_frame import BodyFrameSim
-    from licrom.reduced_sim import step_or_record
 
     steps = 8
     alone = _many_scenes()
-    expected = np.array([[step_or_record(s)[0] for _ in range(steps)] for s in alone])
+    expected = np.array([[s.step_or_record()[0] for _ in range(steps)] for s in alone])
     assert sum(isinstance(s, BodyFrameSim) for s in alone) == 2 and len(alone) == 6
     assert expected.max() > 1  # landing: real Newton solves, not free flight
     for threads in (1, 2, None):

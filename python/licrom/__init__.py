@@ -44,7 +44,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "export": (".export", None),
     "FullSim": (".full_sim", "FullSim"),
     "generate_dataset": (".dataset", "generate_dataset"),
-    "report_dataset_spec": (".dataset", "report_dataset_spec"),
+    "report_dataset_spec": (".scene_file", "report_dataset_spec"),
     "load_scene": (".scene_file", "load_scene"),
     "SceneFile": (".scene_file", "SceneFile"),
     "Surface": (".surface", "Surface"),
@@ -55,7 +55,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "StackedBasis": (".basis", "StackedBasis"),
     "Cubature": (".cubature", "Cubature"),
     "ReducedSim": (".reduced_sim", "ReducedSim"),
-    "BodyFrameBasis": (".body_frame", "BodyFrameBasis"),
+    "BodyFrameBasis": (".body_basis", "BodyFrameBasis"),
     "BodyFrameSim": (".body_frame", "BodyFrameSim"),
     "Model": (".model", "Model"),
     "ModelConfig": (".model", "ModelConfig"),
@@ -107,12 +107,13 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # pragma: no cover
     from . import export, meshes, render
     from .basis import AffineBasis, MeshBasis, StackedBasis
-    from .body_frame import BodyFrameBasis, BodyFrameSim
+    from .body_basis import BodyFrameBasis
+    from .body_frame import BodyFrameSim
     from .cubature import Cubature
-    from .dataset import generate_dataset, report_dataset_spec
+    from .dataset import generate_dataset
     from .full_sim import FullSim
     from .model import Model, ModelConfig
     from .reduced_sim import ReducedSim
-    from .scene_file import SceneFile, load_scene
+    from .scene_file import SceneFile, load_scene, report_dataset_spec
     from .surface import Surface, TetrahedralizeParams, tetrahedralize
     from .training import TrainConfig, train

@@ -20,134 +20,26 @@ from scipy.spatial.transform import Rotation
 
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
+from .body_basis import N_SYMMETRIC, BodyFrameBasis, rigid_momenta
 from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, warn_estimate
-from .errors import ConfigError, ShapeError
+from .errors import ConfigError
 from .mesh import Mesh
-from .reduced_sim import _fitted_cubature, sampling, step_many, step_or_record
+from .reduced_base import ReducedSimulation, _fitted_cubature, sampling
 from .rigid import center_of_mass, rigid_fit
 from .scene import Scene
-from .stepping import check_field, record_run
+from .stepping import record_run
 from .trajectory import Trajectory
 from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
 
 __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
-
-N_SYMMETRIC = 6
-"""Number of symmetric affine modes ``S Xbar`` (stretches and shears)."""
 
 # Relative size of the linear and angular momentum a mode may carry on the mesh
 # (round-off of the orthogonalisation on large meshes stays far below).
 _ORTHOGONALITY = 1e-8
 
 
-def _symmetric_matrices() -> np.ndarray:
-    """(6, 3, 3) basis of symmetric matrices: three stretches, three shears."""
-    out = np.zeros((N_SYMMETRIC, 3, 3))
-    for k, (a, b) in enumerate([(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]):
-        out[k, a, b] = out[k, b, a] = 1.0 if a == b else 0.5
-    return out
-
-
-def _skew(w: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices ``[w]x``."""
-    w = np.asarray(w)
-    out = np.zeros(w.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
-    return out
-
-
-def _inertia_tensor(arms: np.ndarray, masses: np.ndarray) -> np.ndarray:
-    """``sum m (|r|^2 I - r r^T)`` of (n, 3) arms about the centre of mass."""
-    second = np.einsum("v,vi,vj->ij", masses, arms, arms)
-    return np.trace(second) * np.eye(3) - second
-
-
-def _rigid_momenta(values: np.ndarray, xbar: np.ndarray, masses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per column k of (n, 3, k) values: the mean ``t_k`` and the infinitesimal rotation
-    ``w_k`` of the mass-weighted least-squares fit ``W^k ~ t_k + w_k x Xbar``."""
-    total = masses.sum()
-    t = np.einsum("v,vik->ki", masses, values) / total
-    moment = np.einsum("v,vik->ki", masses, np.cross(xbar[:, :, None], values, axis=1))
-    return t, np.linalg.solve(_inertia_tensor(xbar, masses), moment.T).T
-
-
-class BodyFrameBasis:
-    """Body-frame modes on a mesh: 6 symmetric affine modes plus learned ones.
-
-    Every column ``W^k`` is made mass-orthogonal to the rigid modes on this mesh by
-    subtracting its least-squares translation ``t_k`` and infinitesimal rotation
-    ``w_k x Xbar`` (the Jacobians change by ``-[w_k]x``). The symmetric affine modes
-    need it too: on an anisotropic body a shear carries angular momentum.
-
-    Args:
-        mesh: the mesh that defines the masses (and ``X_com``).
-        learned: a basis whose values are body-frame displacements at rest points
-            (a body-frame :class:`licrom.Model`, a :class:`licrom.MeshBasis`, ...),
-            or None for the affine modes alone. It must not contain affine modes.
-        density: kg/m^3; only weights the masses (uniform density: no effect on W).
-
-    Raises:
-        ShapeError: the learned basis returns arrays of the wrong shape or NaN/inf.
-        ConfigError: the learned basis is not a basis.
-    """
-
-    def __init__(self, mesh: Mesh, learned: Basis | None = None, density: float = 1000.0) -> None:
-        if learned is not None:
-            check_basis(learned, "learned")
-        if not (np.isfinite(density) and density > 0):
-            raise ConfigError(f"density must be a finite number > 0, got {density}")
-        self.mesh = mesh
-        self.learned = learned
-        self.density = float(density)
-        self.n_modes = N_SYMMETRIC + (int(learned.n_modes) if learned is not None else 0)
-        masses = mesh.vertex_masses(self.density)
-        self.center = center_of_mass(mesh.vertices, masses)
-        self._t, self._w = _rigid_momenta(self._raw_values(mesh.vertices), mesh.vertices - self.center, masses)
-
-    def _raw_values(self, points: np.ndarray) -> np.ndarray:
-        xbar = points - self.center
-        sym = np.einsum("kij,pj->pik", _symmetric_matrices(), xbar)
-        if self.learned is None:
-            return sym
-        learned = check_basis_output("values", self.learned.values(points), (len(points), 3, self.learned.n_modes))
-        return np.concatenate([sym, learned], axis=2)
-
-    def values(self, points: np.ndarray) -> np.ndarray:
-        """(p, 3) rest points -> (p, 3, n) orthogonalised mode values."""
-        p = self._points(points)
-        xbar = p - self.center
-        rigid = self._t.T[None] + np.cross(self._w[None], xbar[:, None], axis=2).transpose(0, 2, 1)
-        return self._raw_values(p) - rigid
-
-    def jacobians(self, points: np.ndarray) -> np.ndarray:
-        """(p, 3) rest points -> (p, 3, 3, n) ``dW_ic/dX_j`` of the orthogonalised modes."""
-        p = self._points(points)
-        sym = np.broadcast_to(_symmetric_matrices().transpose(1, 2, 0), (len(p), 3, 3, N_SYMMETRIC))
-        jac = sym
-        if self.learned is not None:
-            shape = (len(p), 3, 3, self.learned.n_modes)
-            jac = np.concatenate([sym, check_basis_output("jacobians", self.learned.jacobians(p), shape)], axis=3)
-        return jac - _skew(self._w).transpose(1, 2, 0)[None]
-
-    @staticmethod
-    def _points(points: np.ndarray) -> np.ndarray:
-        p = np.asarray(points, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
-        return p
-
-    def on(self, mesh: Mesh) -> BodyFrameBasis:
-        """The same modes orthogonalised on another mesh of the object."""
-        return BodyFrameBasis(mesh, self.learned, self.density)
-
-    def __repr__(self) -> str:
-        return f"BodyFrameBasis(n_modes={self.n_modes}, learned={self.learned!r})"
-
-
-class BodyFrameSim:
+class BodyFrameSim(ReducedSimulation):
     """Simulate a solid as a rigid frame plus body-frame modes.
 
     The user API is that of :class:`licrom.reduced_sim.ReducedSim`: ``step``, ``run``,
@@ -169,8 +61,6 @@ class BodyFrameSim:
         ConfigError: missing mesh/scene, modes that carry momentum, singular modal mass, unknown strain.
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
     """
-
-    step_many = staticmethod(step_many)
 
     def __init__(
         self,
@@ -199,7 +89,7 @@ class BodyFrameSim:
         total = float(self._masses.sum())
         self._xbar = mesh.vertices - center_of_mass(mesh.vertices, self._masses)
         self._values = check_basis_output("values", basis.values(mesh.vertices), (n, 3, k))
-        t, w = _rigid_momenta(self._values, self._xbar, self._masses)
+        t, w = rigid_momenta(self._values, self._xbar, self._masses)
         size = np.sqrt(np.einsum("v,vik,vik->", self._masses, self._values, self._values) / (total * max(k, 1)))
         if k and max(np.abs(t).max(), np.abs(w).max() * mesh.size) > _ORTHOGONALITY * max(size, 1e-300):
             raise ConfigError(
@@ -304,9 +194,6 @@ class BodyFrameSim:
             return (1.5 * self.positions - 2.0 * self._previous_positions(1) + 0.5 * self._previous_positions(2)) / h
         return (self.positions - self._previous_positions(1)) / h
 
-    def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
-        return check_field(name, a, self.mesh.n_vertices)
-
     def _project(self, field: np.ndarray) -> np.ndarray:
         return np.zeros(0) if self._projector is None else self._projector.project(field)
 
@@ -348,21 +235,6 @@ class BodyFrameSim:
             check_start(self.positions, self.scene.plane_array(), self.mesh.size, "the body-frame simulation")
 
     # --- stepping ----------------------------------------------------------------------
-    def step(self) -> tuple[int, float]:
-        """Advance one time step; return (Newton iterations, final residual in m/s).
-
-        Raises:
-            SolverError: no convergence within ``scene.solver.max_iterations`` (the state
-                is left at the start of the step).
-        """
-        result = self._core.step()
-        self.time += self.scene.dt
-        return result
-
-    def contact_forces(self) -> np.ndarray:
-        """(C, 3) contact + friction force at each contact point over the last step, N."""
-        return self._core.contact_forces()
-
     def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
         """Step ``steps`` times and record every ``record_every``-th state (frame 0 is now).
 
@@ -377,7 +249,7 @@ class BodyFrameSim:
         monitor.start([x[monitor.vertices] for x in history])
 
         def step() -> tuple[int, float, bool]:
-            outcome = step_or_record(self)
+            outcome = self.step_or_record()
             monitor.after_step(lambda: (self.q, self.center, self.rotation), lambda q: float(q @ self._modal_mass @ q))
             return outcome
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from ._repr import concise_repr
 from .basis import Basis, strain_jacobians
+from .body_basis import BodyFrameBasis
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
 from .scene import Material
@@ -318,8 +319,6 @@ def model_basis(model: Model, mesh: Mesh | None = None) -> Basis:
     mesh = model.mesh if mesh is None else mesh
     if model.frame != "body":
         return model
-    from .body_frame import BodyFrameBasis
-
     return BodyFrameBasis(mesh, learned=model, density=model.default_scene.material.density)
 
 

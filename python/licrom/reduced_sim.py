@@ -1,4 +1,4 @@
-"""Reduced-space simulation: ``x = X + W(X) q`` stepped by the Rust core.
+"""Reduced-space simulation in the world frame: ``x = X + W(X) q`` stepped by the Rust core.
 
 Python prepares, once, everything the subspace needs on the mesh — the exact
 reduced mass matrix and gravity force over all vertices, the basis Jacobians at the
@@ -12,111 +12,37 @@ the body-frame simulation :class:`licrom.body_frame.BodyFrameSim` of
 call runs either kind of model.
 
 :func:`step_many` (also ``ReducedSim.step_many``) steps many independent simulations of
-either kind in one call, spread over Rust threads without the GIL.
+either kind in one call, spread over Rust threads without the GIL; both kinds share
+:class:`licrom.reduced_base.ReducedSimulation`.
 """
 
 from __future__ import annotations
 
-import os
-import warnings
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from . import _core
 from .basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
+from .body_basis import BodyFrameBasis
+from .body_frame import BodyFrameSim
 from .cubature import ContactPoints, Cubature
 from .error_estimate import ErrorMonitor, warn_estimate
-from .errors import ConfigError, LicromWarning, SolverError
+from .errors import ConfigError
 from .mesh import Mesh
+from .reduced_base import CUBATURES, ReducedSimulation, _fitted_cubature, sampling, step_many
 from .rigid import body_frame_displacements
 from .scene import Scene
-from .stepping import check_field, check_run_arguments, record_run
+from .stepping import record_run
 from .trajectory import Trajectory
 from .validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
 
 __all__ = ["CUBATURES", "SOLVERS", "ReducedSim", "step_many"]
 
 SOLVERS = ("newton", "prefactored")
-_DEFAULT_CUBATURE_POINTS = 1000
 
 
-# Python ints are at most this in the native core (a signed 64-bit integer).
-_MAX_INT = 2**63 - 1
-# Bytes step_many holds per step and simulation for its results (native record, Python objects, arrays), an upper estimate.
-_STEP_RESULT_BYTES = 160
-
-
-def _max_batch_steps(n_sims: int) -> int:
-    """The most steps one step_many call can record for ``n_sims`` simulations within this machine's memory."""
-    try:
-        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, OSError, ValueError):
-        memory = 2**40
-    return min(_MAX_INT, memory // (_STEP_RESULT_BYTES * max(n_sims, 1)))
-
-
-def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step many independent reduced simulations at once, spread over cores (Rust threads, no GIL).
-
-    Each simulation (a :class:`ReducedSim` or a :class:`~licrom.body_frame.BodyFrameSim`,
-    of any models, both kinds in one call if need be) takes ``steps`` steps exactly as a loop
-    of ``step_or_record`` would: the states are the same, bit for bit, for any ``threads``.
-    A failed step follows the simulation's ``scene.solver.on_failure``: ``"record"`` goes on
-    from the last iterate; ``"raise"`` stops that simulation at the start of the failed step,
-    the others take all their steps, and then the first failure is raised.
-
-    Args:
-        sims: the simulations, each at most once.
-        steps: steps of each simulation, an integer >= 0 whose per-step results fit in memory.
-        threads: threads to spread the simulations over, 1..2**63 - 1 (default: every core).
-
-    Returns:
-        ``(iterations, residuals, converged)``, each of shape ``(len(sims), steps)``.
-
-    Raises:
-        ConfigError: a simulation given twice or not a reduced simulation, bad ``steps`` or ``threads``.
-        ConcurrencyError: a simulation is busy in another thread (named ``sims[i]``).
-        SolverError: a step failed in a simulation with ``on_failure == "raise"``; the message
-            names it (``sims[i]``) and its step.
-    """
-    steps, _ = check_run_arguments(steps, 1)
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
-                                or not 1 <= threads <= _MAX_INT):
-        raise ConfigError(f"threads must be None (every core) or an integer in 1..{_MAX_INT} (2**63 - 1), got {threads!r}")
-    try:
-        sims = list(sims)
-    except TypeError:
-        raise ConfigError(f"sims must be a sequence of ReducedSim or BodyFrameSim objects, got {type(sims).__name__}") from None
-    most = _max_batch_steps(len(sims))
-    if steps > most:
-        raise ConfigError(f"steps must be an integer in 0..{most} for {len(sims)} simulation(s), got {steps!r}: the "
-                          f"per-step results ({_STEP_RESULT_BYTES} bytes a step and simulation) must fit in this "
-                          f"machine's memory; step in chunks")
-    for i, sim in enumerate(sims):
-        if not isinstance(getattr(sim, "_core", None), (_core.ReducedCore, _core.BodyFrameCore)):
-            raise ConfigError(f"sims[{i}] must be a ReducedSim or BodyFrameSim, got {type(sim).__name__}")
-    outcomes = _core.step_many([sim._core for sim in sims], steps, None if threads is None else int(threads),
-                               [sim.scene.solver.on_failure == "record" for sim in sims])
-    failure = None
-    for i, (sim, (iterations, _, _, err)) in enumerate(zip(sims, outcomes)):
-        for _ in iterations:  # one addition per step, as step() does
-            sim.time += sim.scene.dt
-        if err is not None and failure is None:
-            failure = (i, len(iterations), err)
-    if failure is not None:
-        i, k, err = failure
-        message = f"sims[{i}], at its step {k + 1} of {steps}: {err}"
-        if isinstance(err, SolverError):
-            raise SolverError(message, iterations=err.iterations, residual=err.residual, step_index=k) from err
-        raise type(err)(message) from err
-    return (np.array([o[0] for o in outcomes], dtype=np.int64).reshape(len(sims), steps),
-            np.array([o[1] for o in outcomes], dtype=np.float64).reshape(len(sims), steps),
-            np.array([o[2] for o in outcomes], dtype=bool).reshape(len(sims), steps))
-
-
-class ReducedSim:
+class ReducedSim(ReducedSimulation):
     """Simulate a solid in a subspace of displacement fields.
 
     ``ReducedSim(model)`` runs a trained model on the mesh and default scene stored
@@ -153,8 +79,6 @@ class ReducedSim:
         ShapeError: the basis returns arrays of the wrong shape or with NaN/inf.
         ConcurrencyError: (from any method) the simulation is in use by another thread.
     """
-
-    step_many = staticmethod(step_many)
 
     def __new__(cls, basis: Basis | None = None, *args: Any, **kwargs: Any) -> Any:
         if cls is ReducedSim and getattr(basis, "frame", "world") == "body":
@@ -277,25 +201,7 @@ class ReducedSim:
         if positions is not None:
             check_start(self.positions, self.scene.plane_array(), self.mesh.size, "the reduced simulation")
 
-    def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
-        return check_field(name, a, self.mesh.n_vertices)
-
     # --- stepping ----------------------------------------------------------------------
-    def step(self) -> tuple[int, float]:
-        """Advance one time step; return (Newton iterations, final residual in m/s).
-
-        Raises:
-            SolverError: no convergence within ``scene.solver.max_iterations`` (the state
-                is left at the start of the step).
-        """
-        result = self._core.step()
-        self.time += self.scene.dt
-        return result
-
-    def contact_forces(self) -> np.ndarray:
-        """(C, 3) contact + friction force at each contact point over the last step, N."""
-        return self._core.contact_forces()
-
     def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
         """Step ``steps`` times and record every ``record_every``-th state (frame 0 is now).
 
@@ -321,7 +227,7 @@ class ReducedSim:
             return float(np.einsum("ni,ni,n->", bent, bent, self._masses))
 
         def step() -> tuple[int, float, bool]:
-            outcome = step_or_record(self)
+            outcome = self.step_or_record()
             monitor.after_step(lambda: (self.q, None, None), deformation)
             return outcome
 
@@ -379,77 +285,6 @@ class ReducedSim:
         return other
 
 
-CUBATURES = ("fitted", "naive", "full")
-"""Cubatures by name: the model's fitted one (:meth:`licrom.Model.cubature_for`), the report's naive
-random tets (:meth:`Cubature.naive`, 1000 tets) and every tet (:meth:`Cubature.full`)."""
-
-
-def _model_behind(basis: Any) -> Any:
-    """The trained model behind ``basis`` (itself, or a BodyFrameBasis' ``learned``), or None."""
-    return next((o for o in (basis, getattr(basis, "learned", None)) if callable(getattr(o, "cubature_for", None))), None)
-
-
-def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:
-    """The fitted cubature on ``mesh`` of the model behind ``basis``, if it has one."""
-    model = _model_behind(basis)
-    return None if model is None else model.cubature_for(mesh)
-
-
-def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: ContactPoints | None, basis: Any = None) -> tuple[Cubature, ContactPoints]:
-    """The reduced simulations' cubature and contact points, checked against the mesh.
-
-    ``cubature`` is a :class:`Cubature`, a name of :data:`CUBATURES`, or None: the fitted
-    cubature of the model behind ``basis`` when it has one (models trained since format 3),
-    else the naive scheme with 1000 tets (a :class:`~licrom.errors.LicromWarning` says so for
-    a model without one). Contact points default to every boundary vertex.
-
-    Raises:
-        ConfigError: an unknown name, ``"fitted"`` for a basis without a fitted cubature, or
-            tets / vertices that do not belong to ``mesh``.
-    """
-    if cubature is None or isinstance(cubature, str):
-        if cubature is not None and cubature not in CUBATURES:
-            raise ConfigError(f"cubature must be a licrom.Cubature or one of {CUBATURES}, got {cubature!r}")
-        fitted = _fitted_cubature(basis, mesh) if cubature in (None, "fitted") else None
-        if cubature == "fitted" and fitted is None:
-            raise ConfigError("cubature='fitted' needs a trained model that stores a fitted cubature (format version 3); "
-                              "fit one with licrom.Cubature.for_model(model, runs)")
-        if cubature is None and fitted is None and _model_behind(basis) is not None:
-            warnings.warn("this model stores no fitted cubature (saved before model format 3): using "
-                          f"{_DEFAULT_CUBATURE_POINTS} naive random tets, which can double the error; fit one with "
-                          "licrom.Cubature.for_model(model, runs) or retrain", LicromWarning, stacklevel=3)
-        cubature = fitted if fitted is not None else Cubature.full(mesh) if cubature == "full" else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
-    if not isinstance(cubature, Cubature):
-        raise ConfigError(f"cubature must be a licrom.Cubature or one of {CUBATURES}, got {type(cubature).__name__}")
-    contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
-    if not isinstance(contact_points, ContactPoints):
-        raise ConfigError(f"contact_points must be a licrom.cubature.ContactPoints or None, got {type(contact_points).__name__}")
-    if cubature.count and (int(cubature.tets.max()) >= mesh.n_tets or int(cubature.tets.min()) < 0):
-        raise ConfigError(f"cubature tets do not belong to this mesh (index out of range: accepted 0 to {mesh.n_tets - 1})")
-    if contact_points.count and (int(contact_points.indices.max()) >= mesh.n_vertices or int(contact_points.indices.min()) < 0):
-        raise ConfigError("contact points do not belong to this mesh (index out of range: accepted 0 to "
-                          f"{mesh.n_vertices - 1})")
-    return cubature, contact_points
-
-
-def step_or_record(sim: Any) -> tuple[int, float, bool]:
-    """One step of a reduced simulation; a failure raises, or with ``on_failure == "record"``
-    is recorded as unconverged and the simulation goes on from the last iterate. A step
-    that met NaN or inf raises either way: it left no finite iterate to go on from."""
-    try:
-        its, res = sim.step()
-        return its, res, True
-    except SolverError as exc:
-        if sim.scene.solver.on_failure == "raise":
-            raise
-        try:
-            sim._core.accept_last_iterate()
-        except ConfigError:
-            raise exc from None
-        sim.time += sim.scene.dt
-        return sim.scene.solver.max_iterations, float(np.nan if exc.residual is None else exc.residual), False
-
-
 def _body_frame_sim(
     model: Any,
     mesh: Mesh | None = None,
@@ -460,8 +295,6 @@ def _body_frame_sim(
     strain: str = "mesh",
 ) -> Any:
     """The body-frame simulation of a body-frame model, with ReducedSim's defaults."""
-    from .body_frame import BodyFrameBasis, BodyFrameSim
-
     if solver != "newton":
         raise ConfigError(f"a body-frame model runs with the 'newton' solver only, got solver={solver!r}")
     mesh = model.mesh if mesh is None else mesh

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ._io import atomic_path
+from ._plot import pyplot, save_png
 from .compare import Comparison
 from .errors import ConfigError, MissingDependencyError, ShapeError, require_optional
 from .export import downhill_direction, plane_patch
@@ -117,25 +118,6 @@ class RenderStyle:
 
 
 # --- matplotlib helpers ------------------------------------------------------------------
-
-
-def pyplot():
-    """matplotlib.pyplot on the headless Agg backend (imported on first use: it is slow to import)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def save_png(fig: Any, path: str | os.PathLike, dpi: float = 110) -> Path:
-    """Write a matplotlib figure as a PNG, atomically, and close it."""
-    out = Path(path)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
-    pyplot().close(fig)
-    return out
 
 
 def _figure_pixels(fig: Any) -> np.ndarray:

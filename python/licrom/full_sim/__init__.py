@@ -42,8 +42,8 @@ INFO level).
 Where things live: :mod:`.elastic` (stable Neo-Hookean per tet), :mod:`.contact` (penalty,
 damping and friction per contact point: the warp twin of ``rust/core/src/contact.rs``),
 :mod:`.inertia` (time-integration bookkeeping), :mod:`.pcg` (the block-sparse Hessian and its
-solve), :mod:`.line_search`, :mod:`.device` (devices and evaluation modes) and :mod:`.sim`
-(:class:`FullSim`, the Newton iteration).
+solve), :mod:`.device` (devices and evaluation modes) and :mod:`.sim` (:class:`FullSim`, the
+Newton iteration, whose line search is the reduced solvers' own, ``licrom._core.line_search``).
 """
 
 from .device import ACCEPTED_DEVICES, check_device_name, resolve_device

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .. import _core
 from ..errors import ConfigError, ShapeError, SolverError
 from ..mesh import Mesh
 from ..scene import Scene
@@ -30,7 +31,6 @@ from .device import (
     resolve_device,
     warp_ready,
 )
-from .line_search import line_search, sufficient_decrease
 
 __all__ = ["ENERGY_TERMS", "FullSim", "StepStats"]
 
@@ -44,6 +44,14 @@ ENERGY_TERMS = ("inertia", "elastic", "penalty", "damping", "friction")
 _PARTIALS = {"cpu": 1, "cuda": 256}
 _MAX_FORCING = 0.25  # loosest relative tolerance of the linear solves
 _MIN_FORCING = 1.0e-10  # tightest relative tolerance of the linear solves
+
+
+def _sufficient_decrease(e0: float, d0: float, e: float) -> bool:
+    """Armijo's test of the core's line search for the whole step (``rust/core/src/solver/line_search.rs``,
+    its constants ``licrom._core.LINE_SEARCH``), with its allowance for round-off."""
+    constants = _core.LINE_SEARCH
+    scale = max(abs(e0), abs(e))
+    return math.isfinite(e) and e <= e0 + constants["armijo"] * d0 + constants["roundoff_ulps"] * sys.float_info.epsilon * scale
 
 
 @dataclass(frozen=True)
@@ -403,7 +411,7 @@ class FullSim:
                 wp.launch(inertia.axpy_kernel, dim=n, device=dev, inputs=[self._x, self._y, wp.float64(-1.0), self._x])
                 converged = True
                 break
-            _alpha, accepted, evals = None, None, 0
+            accepted, evals = None, 0
             if self._stick_correction and len(self._contact_idx) and self._n_planes:
                 its, stick_slope = self._stick_direction(forcing, maxiter_cg)
                 linear_iterations += its
@@ -412,12 +420,12 @@ class FullSim:
                     self._y, self._y_alt = self._y_alt, self._y
                     e1, _ = self._trial(1.0, False)
                     evals += 1
-                    if sufficient_decrease(e0, -stick_slope, 1.0, e1):
-                        _alpha, accepted = 1.0, e1
+                    if _sufficient_decrease(e0, -stick_slope, e1):
+                        accepted = e1
                     else:
                         self._y, self._y_alt = self._y_alt, self._y
             if accepted is None:
-                _alpha, accepted, ls_evals = self._line_search(e0, slope)
+                accepted, ls_evals = self._line_search(e0, slope)
                 evals += ls_evals
             evaluations += evals
             if accepted is None:
@@ -499,12 +507,23 @@ class FullSim:
         wp.launch(pcg.stats_kernel, dim=n, device=dev, inputs=[self._grad, self._y, self._mass, self._stats])
         return e, -float(self._stats.numpy()[0].sum())
 
-    def _line_search(self, e0: float, slope: float) -> tuple[float, float | None, int]:
-        """Step length along ``-y`` from ``x`` (see :func:`~licrom.full_sim.line_search.line_search`).
+    def _line_search(self, e0: float, slope: float) -> tuple[float | None, int]:
+        """The reduced solvers' line search (``licrom._core.line_search``) along ``-y`` from ``x``:
+        the energy of the step taken (None when no step decreases it) and the evaluations made.
 
         The accepted point is left in ``_x_trial``.
         """
-        return line_search(e0, -slope, lambda alpha: self._trial(alpha, True))
+        evaluations = 0
+
+        def phi(alpha: float) -> tuple[float, float]:
+            nonlocal evaluations
+            evaluations += 1
+            return self._trial(alpha, True)
+
+        if not (math.isfinite(e0) and math.isfinite(slope) and slope > 0.0):  # not a descent direction
+            return None, evaluations
+        step = _core.line_search(e0, -slope, phi)
+        return (None if step is None else step[1]), evaluations
 
     @exclusive
     def contact_forces(self) -> np.ndarray:

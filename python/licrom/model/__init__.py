@@ -32,7 +32,7 @@ A model lives in one of two frames (:attr:`Model.frame`):
   non-rigid deformation seen in the body frame. :meth:`Model.values` and
   :meth:`Model.jacobians` then return the ``r`` learned modes only; the rigid
   motion and the symmetric affine modes are added by
-  :class:`licrom.body_frame.BodyFrameBasis`, which the reduced simulation of a
+  :class:`licrom.body_basis.BodyFrameBasis`, which the reduced simulation of a
   body-frame model uses. The learned modes are still mass-orthogonal to all 12
   affine modes, hence to the 6 rigid ones.
 

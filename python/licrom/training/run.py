@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._plot import pyplot, save_png
 from ..errors import ConfigError
 from ..model import LicromNet, Model, ModelConfig
 from ..model.finalize import finalize_basis
-from ..render import pyplot, save_png
 from ..rigid import check_frame
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
