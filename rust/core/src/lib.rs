@@ -7,16 +7,19 @@
 //! **Where things live.** The material ([`material`]: stable Neo-Hookean energy,
 //! stress, Hessian eigensystem, on [`svd3`]) and the contact point model
 //! ([`contact`]: penalty, damping and the Coulomb friction potential of one
-//! point against one plane) are per point. [`reduced`] sums them into the
+//! point against one plane) are per point; [`contact_points`] is the set of
+//! contact points both reduced models share (inputs, validation, the points
+//! with area, planes and model). [`reduced`] sums them into the
 //! incremental potential of one step in reduced coordinates: inertia in
-//! `reduced/mod.rs`, the elastic term in `reduced/elastic.rs`, contact and
+//! `reduced/mod.rs`, the elastic term over the cubature points in
+//! `reduced/elastic.rs` ([`reduced::ElasticTerm`]), contact and
 //! friction (gradient, incremental Hessian, the stick switch) in
 //! `reduced/contact.rs`, the lane packing in `reduced/layout.rs`. [`solver`]
 //! minimises it: the outer iteration in `solver/mod.rs`, the Newton matrix in
 //! `solver/direction.rs`, the contact model and friction's stick correction in
 //! `solver/contact_model.rs`, the line search in [`solver::line_search`](mod@solver::line_search).
 //! [`body_frame`] is the reduced model in the body frame (`x = c + R (Xbar + W q)`):
-//! the same elastic kernel, contact and friction pulled back through the rotation,
+//! the same elastic term, contact and friction pulled back through the rotation,
 //! the same line search. The full-space simulation of the same physics (per tet
 //! and per vertex, on the GPU with warp) is `python/licrom/full_sim/`: `elastic.py`,
 //! `contact.py` (friction and the stick switch) and `line_search.py` (this line
@@ -30,6 +33,7 @@ pub mod batch;
 pub mod body_frame;
 pub mod cholesky;
 pub mod contact;
+pub mod contact_points;
 mod dense;
 pub mod error;
 pub mod integrator;

@@ -10,9 +10,10 @@ use crate::integrator::Integrator;
 use nalgebra::Vector3;
 
 use crate::contact::Plane;
+use crate::contact_points::ContactInputs;
 use crate::error::Result;
 use crate::material::StableNeoHookean;
-use crate::reduced::ReducedInputs;
+use crate::reduced::{ElasticInputs, ReducedInputs};
 
 /// Description of the synthetic block scene.
 #[derive(Debug, Clone, Copy)]
@@ -291,17 +292,21 @@ impl BlockModel {
         ReducedInputs {
             mass: &self.mass,
             gravity_force: &self.gravity_force,
-            cubature_jacobians: &self.cubature_jacobians,
-            cubature_weights: &self.cubature_weights,
-            vertex_strain: None,
-            material: self.material,
-            contact_basis: &self.contact_basis,
-            contact_rest: &self.contact_rest,
-            contact_areas: &self.contact_areas,
-            planes: &self.planes,
-            normal_stiffness: self.scene.normal_stiffness,
-            normal_damping: self.scene.normal_damping,
-            friction_stiffness: self.scene.friction_stiffness,
+            elastic: ElasticInputs {
+                cubature_jacobians: &self.cubature_jacobians,
+                cubature_weights: &self.cubature_weights,
+                vertex_strain: None,
+                material: self.material,
+            },
+            contact: ContactInputs {
+                basis: &self.contact_basis,
+                rest: &self.contact_rest,
+                areas: &self.contact_areas,
+                planes: &self.planes,
+                normal_stiffness: self.scene.normal_stiffness,
+                normal_damping: self.scene.normal_damping,
+                friction_stiffness: self.scene.friction_stiffness,
+            },
             dt: self.scene.dt,
             integrator: self.scene.integrator,
         }

@@ -5,17 +5,16 @@ use std::collections::HashMap;
 use licrom_core::body_frame::rotation::is_rotation;
 use licrom_core::body_frame::solver::{BodyFrameSettings, BodyFrameSolver, ROTATION_TOLERANCE};
 use licrom_core::body_frame::{BodyFrameInputs, BodyFrameSystem, Pose};
-use licrom_core::contact::Plane;
 use licrom_core::integrator::Integrator;
-use licrom_core::StableNeoHookean;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 use std::sync::Mutex;
 
 use crate::arrays::{count, read, write, Dim};
 use crate::errors::{error, exclusive, CoreResultExt, Kind};
-use crate::reduced::{stats_dict, VertexForm};
+use crate::inputs::{ContactArrays, ElasticArrays, VertexArgs};
+use crate::reduced::stats_dict;
 
 /// Body-frame model, pose history and solver of one simulation.
 ///
@@ -93,40 +92,23 @@ impl BodyFrameCore {
     ) -> PyResult<Self> {
         let integrator: Integrator = integrator.parse().py_err(py)?;
         let max_iterations = count(max_iterations, "max_iterations")?;
-        let material = StableNeoHookean::new(mu, lam).py_err(py)?;
         let j = read(inertia_moments, "inertia_moments", &[Dim::Is(3), Dim::Is(3)])?;
         let p = read(mode_moments, "mode_moments", &[Dim::Any("n"), Dim::Is(3), Dim::Is(3)])?;
         let n = p.shape[0];
         let q = read(mode_products, "mode_products", &[Dim::Is(n), Dim::Is(n), Dim::Is(3), Dim::Is(3)])?;
         let g = read(gravity, "gravity", &[Dim::Is(3)])?;
-        let weights = read(cubature_weights, "cubature_weights", &[Dim::Any("K")])?;
-        let k = weights.shape[0];
-        let jacobians = read(cubature_jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
-        let vertex_form = VertexForm::read(cubature_vertex_basis, cubature_tet_vertices, cubature_shape_gradients, k, n)?;
-        let areas = read(contact_areas, "contact_areas", &[Dim::Any("C")])?;
-        let c = areas.shape[0];
-        let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
-        let rest = read(contact_rest, "contact_rest", &[Dim::Is(c), Dim::Is(3)])?;
-        let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(5)])?;
-        let planes =
-            planes.data.chunks_exact(5).map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4])).collect::<Result<Vec<_>, _>>().py_err(py)?;
+        let vertex = VertexArgs { basis: cubature_vertex_basis, tets: cubature_tet_vertices, grads: cubature_shape_gradients };
+        let elastic = ElasticArrays::read(py, cubature_jacobians, cubature_weights, vertex, (mu, lam), n)?;
+        let stiffness = (normal_stiffness, normal_damping, friction_stiffness);
+        let contact = ContactArrays::read(py, [contact_basis, contact_rest, contact_areas, planes], stiffness, n)?;
         let inputs = BodyFrameInputs {
             total_mass,
             inertia_moments: &j.data,
             mode_moments: &p.data,
             mode_products: &q.data,
             gravity: [g.data[0], g.data[1], g.data[2]],
-            cubature_jacobians: &jacobians.data,
-            cubature_weights: &weights.data,
-            vertex_strain: vertex_form.as_ref().map(VertexForm::inputs),
-            material,
-            contact_basis: &basis.data,
-            contact_rest: &rest.data,
-            contact_areas: &areas.data,
-            planes: &planes,
-            normal_stiffness,
-            normal_damping,
-            friction_stiffness,
+            elastic: elastic.inputs(),
+            contact: contact.inputs(),
             dt,
             integrator,
         };

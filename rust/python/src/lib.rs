@@ -5,6 +5,7 @@ mod arrays;
 mod batch;
 mod body_frame;
 mod errors;
+mod inputs;
 mod line_search;
 mod material;
 mod reconstruction;

@@ -2,18 +2,16 @@
 
 use std::collections::HashMap;
 
-use licrom_core::contact::Plane;
 use licrom_core::integrator::Integrator;
-use licrom_core::reduced::{ReducedInputs, ReducedSystem, VertexStrainInputs};
+use licrom_core::reduced::{ReducedInputs, ReducedSystem};
 use licrom_core::solver::{ElasticHessian, ReducedSolver, SolverKind, SolverSettings, SolverStats};
-use licrom_core::StableNeoHookean;
-use nalgebra::Vector3;
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 use std::sync::Mutex;
 
-use crate::arrays::{count, read, read_indices, write, Array, Dim};
+use crate::arrays::{count, read, write, Dim};
 use crate::errors::{error, exclusive, CoreResultExt, Kind};
+use crate::inputs::{ContactArrays, ElasticArrays, VertexArgs};
 
 /// Reduced model, state `(q, qdot)` and solver of one simulation.
 ///
@@ -65,41 +63,18 @@ impl ReducedCore {
         let kind: SolverKind = solver.parse().py_err(py)?;
         let elastic_hessian: ElasticHessian = elastic_hessian.parse().py_err(py)?;
         let max_iterations = count(max_iterations, "max_iterations")?;
-        let material = StableNeoHookean::new(mu, lam).py_err(py)?;
         let mass = read(mass, "mass", &[Dim::Any("n"), Dim::Any("n")])?;
         let n = mass.shape[0];
         if mass.shape[1] != n || n == 0 {
             return Err(error(py, Kind::Shape, format!("mass must have shape (n, n) with n >= 1, got {}", crate::arrays::shape_text(&mass.shape))));
         }
         let gravity = read(gravity_force, "gravity_force", &[Dim::Is(n)])?;
-        let weights = read(cubature_weights, "cubature_weights", &[Dim::Any("K")])?;
-        let k = weights.shape[0];
-        let jacobians = read(cubature_jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
-        let vertex_form = VertexForm::read(cubature_vertex_basis, cubature_tet_vertices, cubature_shape_gradients, k, n)?;
-        let areas = read(contact_areas, "contact_areas", &[Dim::Any("C")])?;
-        let c = areas.shape[0];
-        let basis = read(contact_basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
-        let rest = read(contact_rest, "contact_rest", &[Dim::Is(c), Dim::Is(3)])?;
-        let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(5)])?;
-        let planes =
-            planes.data.chunks_exact(5).map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4])).collect::<Result<Vec<_>, _>>().py_err(py)?;
-        let inputs = ReducedInputs {
-            mass: &mass.data,
-            gravity_force: &gravity.data,
-            cubature_jacobians: &jacobians.data,
-            cubature_weights: &weights.data,
-            vertex_strain: vertex_form.as_ref().map(VertexForm::inputs),
-            material,
-            contact_basis: &basis.data,
-            contact_rest: &rest.data,
-            contact_areas: &areas.data,
-            planes: &planes,
-            normal_stiffness,
-            normal_damping,
-            friction_stiffness,
-            dt,
-            integrator,
-        };
+        let vertex = VertexArgs { basis: cubature_vertex_basis, tets: cubature_tet_vertices, grads: cubature_shape_gradients };
+        let elastic = ElasticArrays::read(py, cubature_jacobians, cubature_weights, vertex, (mu, lam), n)?;
+        let stiffness = (normal_stiffness, normal_damping, friction_stiffness);
+        let contact = ContactArrays::read(py, [contact_basis, contact_rest, contact_areas, planes], stiffness, n)?;
+        let inputs =
+            ReducedInputs { mass: &mass.data, gravity_force: &gravity.data, elastic: elastic.inputs(), contact: contact.inputs(), dt, integrator };
         let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(total_mass, tolerance, max_iterations, kind) };
         let inner = py.detach(|| ReducedSystem::new(&inputs).and_then(|system| ReducedSolver::new(system, settings))).py_err(py)?;
         Ok(Self { n: inner.system().n_dofs(), inner: Mutex::new(inner) })
@@ -223,44 +198,4 @@ pub(crate) fn stats_dict(s: SolverStats) -> HashMap<&'static str, usize> {
     ]
     .into_iter()
     .collect()
-}
-
-/// The cubature Jacobians in vertex form (`cubature_vertex_basis` V x 3 x n,
-/// `cubature_tet_vertices` K x 4, `cubature_shape_gradients` K x 4 x 3): all
-/// three or none.
-pub(crate) struct VertexForm {
-    basis: Array,
-    tets: Vec<usize>,
-    grads: Array,
-}
-
-impl VertexForm {
-    pub(crate) fn read(
-        basis: Option<&Bound<'_, PyAny>>,
-        tets: Option<&Bound<'_, PyAny>>,
-        grads: Option<&Bound<'_, PyAny>>,
-        k: usize,
-        n: usize,
-    ) -> PyResult<Option<Self>> {
-        match (basis, tets, grads) {
-            (None, None, None) => Ok(None),
-            (Some(basis), Some(tets), Some(grads)) => Ok(Some(Self {
-                basis: read(basis, "cubature_vertex_basis", &[Dim::Any("V"), Dim::Is(3), Dim::Is(n)])?,
-                tets: read_indices(tets, "cubature_tet_vertices", &[Dim::Is(k), Dim::Is(4)])?,
-                grads: read(grads, "cubature_shape_gradients", &[Dim::Is(k), Dim::Is(4), Dim::Is(3)])?,
-            })),
-            (basis, ..) => {
-                let py = basis.or(tets).or(grads).map(|o| o.py()).expect("one of the three is given");
-                Err(error(
-                    py,
-                    Kind::Config,
-                    "cubature_vertex_basis, cubature_tet_vertices and cubature_shape_gradients go together: give all three or none".to_string(),
-                ))
-            }
-        }
-    }
-
-    pub(crate) fn inputs(&self) -> VertexStrainInputs<'_> {
-        VertexStrainInputs { vertex_basis: &self.basis.data, tet_vertices: &self.tets, shape_gradients: &self.grads.data }
-    }
 }

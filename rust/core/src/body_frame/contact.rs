@@ -1,7 +1,7 @@
 //! Contact and friction at the contact points of the body-frame model.
 //!
 //! Point j sits at `x_j = c + R (Xbar_j + W_j q)`; its energy, gradient and
-//! PSD Hessian in x come from [`ContactModel::evaluate`] (the model of the
+//! PSD Hessian in x come from [`ContactModel::evaluate`](crate::contact::ContactModel::evaluate) (the model of the
 //! world-frame and full simulations), pulled back to `(c, omega, q)` through
 //! `Jc = [I, -[p]x, R W_j]`, `p = R y_j`: gradient `[f; p x f; W_j^T R^T f]`,
 //! Gauss-Newton Hessian `Jc^T H_x Jc` and, for the exact Hessian, the
@@ -27,9 +27,10 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::Pose;
-use crate::contact::{ContactModel, Plane, RankOneTerms, CURVATURE_SLACK, DIRECTION_COS};
+use crate::contact::{Plane, RankOneTerms, CURVATURE_SLACK, DIRECTION_COS};
+use crate::contact_points::{ContactInputs, ContactPoints};
 use crate::dense::{add_gram, rows_dot, IncrementalGram};
-use crate::error::{check_finite, LicromError, Result};
+use crate::error::Result;
 use crate::simd::{dispatch, Madd, Separate, WithMadd};
 use crate::validity::Validity;
 
@@ -39,22 +40,20 @@ use crate::validity::Validity;
 /// much, the lag the world-frame solver allows its terms.
 pub const LEVER_SLACK: f64 = 0.1;
 
-/// The contact points with non-zero area, their basis rows and the planes.
+/// The contact points with non-zero area (the kept points of
+/// [`ContactPoints`]), with their rest positions, basis rows and areas in
+/// the order kept (slot s).
 #[derive(Debug, Clone)]
 pub struct BodyContacts {
     n: usize,
-    /// Number of contact points given (zero areas included).
-    total: usize,
-    /// Index of each kept point among those given.
-    index: Vec<usize>,
+    /// Which points carry area, the planes and the contact model.
+    points: ContactPoints,
     rest: Vec<Vector3<f64>>,
     /// `W_j`, 3 x n row-major per kept point.
     basis: Vec<f64>,
     /// `|W_j|_2` (largest singular value), m per unit of q: `|W_j q| <= reach |q|`.
     reach: Vec<f64>,
     areas: Vec<f64>,
-    planes: Vec<Plane>,
-    model: ContactModel,
 }
 
 /// Positions at the start of a step and lagged normal forces (per kept point and plane).
@@ -179,45 +178,30 @@ fn spectral_norm(w: &[f64], n: usize) -> f64 {
 }
 
 impl BodyContacts {
-    /// Validated contact points: `basis` C x 3 x n, `rest` (Xbar_j) C x 3,
-    /// `areas` C (>= 0).
-    pub fn new(n: usize, basis: &[f64], rest: &[f64], areas: &[f64], planes: &[Plane], model: ContactModel) -> Result<Self> {
-        let c = areas.len();
-        if basis.len() != 3 * n * c {
-            return Err(LicromError::shape("contact_basis", format!("({c}, 3, {n})"), format!("{} values", basis.len())));
-        }
-        if rest.len() != 3 * c {
-            return Err(LicromError::shape("contact_rest", format!("({c}, 3)"), format!("{} values", rest.len())));
-        }
-        check_finite("contact_basis", basis)?;
-        check_finite("contact_rest", rest)?;
-        check_finite("contact_areas", areas)?;
-        if let Some(a) = areas.iter().find(|a| **a < 0.0) {
-            return Err(LicromError::invalid("contact_areas", format!("must be >= 0, found {a}")));
-        }
-        let index: Vec<usize> = (0..c).filter(|&j| areas[j] > 0.0).collect();
-        let rows = |j: usize| &basis[3 * n * j..3 * n * (j + 1)];
+    /// Validated contact points of a model with n modes ([`ContactPoints::new`],
+    /// rest positions Xbar_j), the contact model with the effective step `h` (s).
+    pub fn new(n: usize, inp: &ContactInputs<'_>, h: f64) -> Result<Self> {
+        let points = ContactPoints::new(inp, n, h)?;
+        let rows = |j: usize| &inp.basis[3 * n * j..3 * n * (j + 1)];
+        let kept = points.kept();
         Ok(Self {
             n,
-            total: c,
-            rest: index.iter().map(|&j| Vector3::from_column_slice(&rest[3 * j..3 * j + 3])).collect(),
-            basis: index.iter().flat_map(|&j| rows(j).iter().copied()).collect(),
-            reach: index.iter().map(|&j| spectral_norm(rows(j), n)).collect(),
-            areas: index.iter().map(|&j| areas[j]).collect(),
-            index,
-            planes: planes.to_vec(),
-            model,
+            rest: kept.iter().map(|&j| Vector3::from_column_slice(&inp.rest[3 * j..3 * j + 3])).collect(),
+            basis: kept.iter().flat_map(|&j| rows(j).iter().copied()).collect(),
+            reach: kept.iter().map(|&j| spectral_norm(rows(j), n)).collect(),
+            areas: kept.iter().map(|&j| inp.areas[j]).collect(),
+            points,
         })
     }
 
     /// Number of contact points given.
     pub fn len(&self) -> usize {
-        self.total
+        self.points.len()
     }
 
     /// Whether no contact point was given.
     pub fn is_empty(&self) -> bool {
-        self.total == 0
+        self.points.is_empty()
     }
 
     /// Zeroed start-of-step buffers.
@@ -225,7 +209,7 @@ impl BodyContacts {
         let c = self.rest.len();
         ContactStart {
             x_prev: vec![Vector3::zeros(); c],
-            normal_force: vec![0.0; c * self.planes.len()],
+            normal_force: vec![0.0; c * self.points.planes().len()],
             y_start: vec![Vector3::zeros(); c],
             has_y: vec![false; c],
             q_start: vec![0.0; self.n],
@@ -234,26 +218,30 @@ impl BodyContacts {
 
     /// Whether any contact term can be non-zero (points with area and planes).
     pub fn any(&self) -> bool {
-        !self.rest.is_empty() && !self.planes.is_empty()
+        self.points.any()
     }
 
     /// Row scratch for the Hessian (up to three rows per point and plane).
     pub fn rows(&self) -> ContactRows {
-        let len = 3 * self.rest.len() * self.planes.len() * (6 + self.n);
+        let len = 3 * self.rest.len() * self.points.planes().len() * (6 + self.n);
         ContactRows { rows: vec![0.0; len], out: vec![0.0; len], count: 0 }
     }
 
     /// Buffers for the terms of an evaluation.
     pub fn terms(&self) -> ContactTerms {
         let c = self.rest.len();
-        ContactTerms { terms: vec![RankOneTerms::default(); c * self.planes.len()], y: vec![Vector3::zeros(); c], dx: vec![Vector3::zeros(); c] }
+        ContactTerms {
+            terms: vec![RankOneTerms::default(); c * self.points.planes().len()],
+            y: vec![Vector3::zeros(); c],
+            dx: vec![Vector3::zeros(); c],
+        }
     }
 
     /// An empty incremental contact Hessian, formed at its first update.
     pub fn hessian_state(&self) -> BodyContactHessian {
         let c = self.rest.len();
         BodyContactHessian {
-            used: vec![RankOneTerms::default(); c * self.planes.len()],
+            used: vec![RankOneTerms::default(); c * self.points.planes().len()],
             used_y: vec![Vector3::zeros(); c],
             gram: IncrementalGram::new(6 + self.n),
         }
@@ -276,14 +264,14 @@ impl BodyContacts {
 
     #[inline(always)]
     fn begin_impl<M: Madd>(&self, pose: &Pose, anchor: Option<(&Pose, f64)>, start: &mut ContactStart) {
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let rt = pose.rotation.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
         start.q_start.copy_from_slice(&pose.q);
         for s in 0..self.rest.len() {
             let forces = &mut start.normal_force[s * n_planes..(s + 1) * n_planes];
             forces.fill(0.0);
-            start.has_y[s] = self.planes.iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm));
+            start.has_y[s] = self.points.planes().iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm));
             if !start.has_y[s] {
                 continue;
             }
@@ -294,8 +282,8 @@ impl BodyContacts {
                 Some((prev, w)) => x + w * (x - prev.center - prev.rotation * (self.rest[s] + self.mode_motion::<M>(s, &prev.q))),
                 None => x,
             };
-            for (f, plane) in forces.iter_mut().zip(&self.planes) {
-                *f = self.model.lagged_normal_force(plane, self.areas[s], &x);
+            for (f, plane) in forces.iter_mut().zip(self.points.planes()) {
+                *f = self.points.model().lagged_normal_force(plane, self.areas[s], &x);
             }
         }
     }
@@ -327,7 +315,7 @@ impl BodyContacts {
     fn evaluate_impl<M: Madd>(&self, start: &ContactStart, pose: &Pose, mut out: ContactOut<'_>) -> f64 {
         let n = self.n;
         let big = 6 + n;
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let r = &pose.rotation;
         let rt = r.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -343,7 +331,8 @@ impl BodyContacts {
             // reached and the point carries no lagged force against it.
             let forces = &start.normal_force[s * n_planes..(s + 1) * n_planes];
             let engaged = self
-                .planes
+                .points
+                .planes()
                 .iter()
                 .zip(forces)
                 .any(|(plane, &f)| f > 0.0 || self.may_touch_in_step(plane, &pose.center, &rt, s, start, (q_norm, dq_norm)));
@@ -359,11 +348,11 @@ impl BodyContacts {
             let p = r * y;
             let x = pose.center + p;
             let mut f = Vector3::zeros();
-            for (k, (plane, &fn_lag)) in self.planes.iter().zip(forces).enumerate() {
+            for (k, (plane, &fn_lag)) in self.points.planes().iter().zip(forces).enumerate() {
                 if track {
                     validity.take_gap(plane.gap(&x));
                 }
-                let e = self.model.evaluate(plane, self.areas[s], fn_lag, &x, &start.x_prev[s]);
+                let e = self.points.model().evaluate(plane, self.areas[s], fn_lag, &x, &start.x_prev[s]);
                 energy += e.energy;
                 f += e.gradient;
                 if let Some(rows) = out.rows.as_deref_mut() {
@@ -475,7 +464,7 @@ impl BodyContacts {
     /// the rows in the matrix afterwards.
     #[inline(always)]
     fn update_rows_impl<M: Madd>(&self, terms: &ContactTerms, rows: &mut ContactRows, state: &mut BodyContactHessian) -> (usize, usize, usize) {
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let rebuild = state.gram.needs_rebuild();
         let (mut plus, mut minus, mut total) = (0, 0, 0);
         for s in 0..self.rest.len() {
@@ -533,7 +522,7 @@ impl BodyContacts {
         rhs: &mut [f64],
     ) -> usize {
         let big = 6 + self.n;
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let r = &pose.rotation;
         let rt = r.transpose();
         let (dc, w) = (Vector3::new(dir[0], dir[1], dir[2]), Vector3::new(dir[3], dir[4], dir[5]));
@@ -542,14 +531,14 @@ impl BodyContacts {
             // Slipping points carry a lagged normal force: they were evaluated.
             let forces = &start.normal_force[s * n_planes..(s + 1) * n_planes];
             let dx = terms.dx[s];
-            if !self.planes.iter().zip(forces).any(|(plane, &f)| self.model.slips(plane, self.areas[s], f, &dx)) {
+            if !self.points.planes().iter().zip(forces).any(|(plane, &f)| self.points.model().slips(plane, self.areas[s], f, &dx)) {
                 continue;
             }
             let p = r * terms.y[s];
             let motion = dc + w.cross(&p) + r * self.mode_motion::<M>(s, &dir[6..]);
             let mut force = Vector3::zeros();
-            for (plane, &f) in self.planes.iter().zip(forces) {
-                if let Some(switch) = self.model.stick_switch(plane, self.areas[s], f, &dx, &motion) {
+            for (plane, &f) in self.points.planes().iter().zip(forces) {
+                if let Some(switch) = self.points.model().stick_switch(plane, self.areas[s], f, &dx, &motion) {
                     for d in &switch.factors {
                         self.world_row::<M>(s, &p, &rt, d, &mut rows.rows[count * big..(count + 1) * big]);
                         count += 1;
@@ -573,12 +562,12 @@ impl BodyContacts {
     /// started at `start`: C x 3, zero for points without area.
     pub fn forces(&self, start: &ContactStart, pose: &Pose, out: &mut [f64]) {
         out.fill(0.0);
-        let n_planes = self.planes.len();
-        for (s, &j) in self.index.iter().enumerate() {
+        let n_planes = self.points.planes().len();
+        for (s, &j) in self.points.kept().iter().enumerate() {
             let x = pose.center + pose.rotation * (self.rest[s] + self.mode_motion::<Separate>(s, &pose.q));
             let mut f = Vector3::zeros();
-            for (p, plane) in self.planes.iter().enumerate() {
-                f -= self.model.evaluate(plane, self.areas[s], start.normal_force[s * n_planes + p], &x, &start.x_prev[s]).gradient;
+            for (p, plane) in self.points.planes().iter().enumerate() {
+                f -= self.points.model().evaluate(plane, self.areas[s], start.normal_force[s * n_planes + p], &x, &start.x_prev[s]).gradient;
             }
             out[3 * j..3 * j + 3].copy_from_slice(f.as_slice());
         }

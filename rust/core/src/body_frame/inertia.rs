@@ -14,6 +14,7 @@ use super::Pose;
 use crate::dense::rows_dot_many;
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::integrator::Integrator;
+use crate::reduced::symmetrized_spd;
 use crate::simd::{dispatch, Madd, WithMadd};
 
 /// Mass moments of the body over all its vertices, fixed for a mesh and basis.
@@ -28,7 +29,7 @@ pub struct MassMoments {
     /// `Q_lk = sum m W^l W^k^T` laid out for `Y_k`: the nine components
     /// (row-major) of `Q_lk` over l, nine rows of n per k.
     pub(super) q_by_mode: Vec<f64>,
-    /// `Mqq_kl = tr Q_kl`, n x n.
+    /// `Mqq_kl = tr Q_kl`, symmetrised (checked positive definite), n x n.
     pub(super) mode_mass: Vec<f64>,
     /// `b_k = tr P_k`.
     pub(super) b: Vec<f64>,
@@ -72,6 +73,8 @@ impl MassMoments {
                 }
             }
         }
+        let traces: Vec<f64> = qm.iter().map(|m| m.trace()).collect();
+        let mode_mass = if n == 0 { traces } else { symmetrized_spd(&traces, n)? };
         let pm: Vec<Matrix3<f64>> = (0..n).map(|i| block(p, i)).collect();
         let mut q_by_mode = vec![0.0; 9 * n * n];
         for k in 0..n {
@@ -82,14 +85,7 @@ impl MassMoments {
                 }
             }
         }
-        Ok(Self {
-            total: total_mass,
-            j: 0.5 * (jm + jm.transpose()),
-            b: pm.iter().map(|m| m.trace()).collect(),
-            p: pm,
-            q_by_mode,
-            mode_mass: qm.iter().map(|m| m.trace()).collect(),
-        })
+        Ok(Self { total: total_mass, j: 0.5 * (jm + jm.transpose()), b: pm.iter().map(|m| m.trace()).collect(), p: pm, q_by_mode, mode_mass })
     }
 
     /// Number of modes n.
@@ -97,7 +93,7 @@ impl MassMoments {
         self.p.len()
     }
 
-    /// `Mqq_kl = tr Q_kl`, n x n row-major.
+    /// `Mqq_kl = tr Q_kl` (symmetrised, positive definite), n x n row-major.
     pub fn mode_mass(&self) -> &[f64] {
         &self.mode_mass
     }

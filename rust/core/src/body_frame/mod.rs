@@ -26,9 +26,8 @@
 //!   ([`inertia`]). Cost O(9 n^2) per step and O(9 n) per evaluation,
 //!   independent of the mesh;
 //! - elastic `sum_k w_k Psi(I + G_k q)` (`Psi(R F) = Psi(F)` removes R): the
-//!   cubature kernel of [`crate::reduced`], through a [`ReducedSystem`] with
-//!   mass `Mqq`, no gravity force and no contact points, whose step starts at
-//!   q = qdot = 0, so that it evaluates exactly `q^T Mqq q/(2h^2) + elastic(q)`;
+//!   world-frame model's [`ElasticTerm`], evaluated beside the modal mass term
+//!   `q^T Mqq q/(2h^2)` in one pass (the modal part);
 //! - contact and friction at the contact points ([`contact`]), with the
 //!   normal force lagged at time t and the slip measured from the anchor
 //!   positions (those at time t for backward Euler, `(4 x^t - x^{t-1})/3` for BDF2).
@@ -50,11 +49,12 @@ mod tests;
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::contact::{ContactModel, Plane};
-use crate::error::{check_finite, check_positive, LicromError, Result};
+use crate::contact_points::ContactInputs;
+use crate::dense::offset_rows_dot;
+use crate::error::{check_finite, check_positive, Result};
 use crate::integrator::Integrator;
-use crate::material::StableNeoHookean;
-use crate::reduced::{ElasticModel, ReducedInputs, ReducedSystem, StepStart, VertexStrainInputs, Workspace};
+use crate::reduced::{ElasticInputs, ElasticModel, ElasticTerm, ElasticWorkspace};
+use crate::simd::{dispatch, Madd, WithMadd};
 use crate::validity::Validity;
 use contact::{BodyContactHessian, BodyContacts, ContactOut, ContactRows, ContactStart, ContactTerms};
 use inertia::{InertiaTarget, MassMoments};
@@ -72,28 +72,11 @@ pub struct BodyFrameInputs<'a> {
     pub mode_products: &'a [f64],
     /// Gravity acceleration, m/s^2.
     pub gravity: [f64; 3],
-    /// `G_k = dvec(F)/dq` at the K cubature points, K x 9 x n.
-    pub cubature_jacobians: &'a [f64],
-    /// Cubature weights w_k >= 0, K, m^3.
-    pub cubature_weights: &'a [f64],
-    /// The Jacobians in vertex form (see [`crate::reduced::ReducedInputs`]).
-    pub vertex_strain: Option<VertexStrainInputs<'a>>,
-    /// Material of the solid.
-    pub material: StableNeoHookean,
-    /// Basis rows W_j at the C contact points, C x 3 x n.
-    pub contact_basis: &'a [f64],
-    /// Rest positions relative to the centre of mass, Xbar_j, C x 3, m.
-    pub contact_rest: &'a [f64],
-    /// Boundary area a_j >= 0 carried by each contact point, C, m^2.
-    pub contact_areas: &'a [f64],
-    /// Contact planes.
-    pub planes: &'a [Plane],
-    /// k_n, N/m^3.
-    pub normal_stiffness: f64,
-    /// k_d, N s/m^3.
-    pub normal_damping: f64,
-    /// k_f, N s/m^3.
-    pub friction_stiffness: f64,
+    /// The elastic term.
+    pub elastic: ElasticInputs<'a>,
+    /// The contact points (rest positions relative to the centre of mass,
+    /// Xbar_j) and planes.
+    pub contact: ContactInputs<'a>,
     /// Time step h, s.
     pub dt: f64,
     /// The time integrator ([`crate::integrator`]).
@@ -162,19 +145,14 @@ pub enum BodyHessian {
     Exact,
 }
 
-/// The elastic part: a world-frame system on q alone, with its fixed start.
-#[derive(Debug, Clone)]
-struct Elastic {
-    system: ReducedSystem,
-    start: StepStart,
-}
-
 /// Preallocated scratch of the evaluations.
 #[derive(Debug, Clone)]
 pub struct BodyWorkspace {
     /// Gradient of the last evaluation with gradient, 6 + n.
     pub grad: Vec<f64>,
-    elastic: Option<Workspace>,
+    elastic: Option<ElasticWorkspace>,
+    /// Elastic energy (or its model's) of the last evaluation, J.
+    elastic_energy: f64,
     rows: ContactRows,
     /// The contact points' terms of the last evaluation with gradient.
     terms: ContactTerms,
@@ -189,13 +167,13 @@ pub struct BodyWorkspace {
 impl BodyWorkspace {
     /// Elastic energy (J) of the last [`BodyFrameSystem::evaluate`].
     pub fn elastic_energy(&self) -> f64 {
-        self.elastic.as_ref().map_or(0.0, |e| e.elastic_energy)
+        self.elastic_energy
     }
 
     /// Elastic part (n) of the q-gradient of the last [`BodyFrameSystem::evaluate`] with gradient into `out`.
     pub fn elastic_gradient(&self, out: &mut [f64]) {
         match &self.elastic {
-            Some(e) => e.elastic_gradient(out),
+            Some(e) => out.copy_from_slice(e.gradient()),
             None => out.fill(0.0),
         }
     }
@@ -212,7 +190,10 @@ pub struct BodyFrameSystem {
     integrator: Integrator,
     gravity: Vector3<f64>,
     moments: MassMoments,
-    elastic: Option<Elastic>,
+    /// The elastic term (none for a rigid body, n = 0).
+    elastic: Option<ElasticTerm>,
+    /// q = 0, the expansion point of the modal mass term `q^T Mqq q/(2h^2)`, n.
+    origin: Vec<f64>,
     contacts: BodyContacts,
 }
 
@@ -225,38 +206,19 @@ impl BodyFrameSystem {
         check_finite("gravity", &inp.gravity)?;
         check_positive("dt", inp.dt)?;
         let h = inp.integrator.effective_step(inp.dt);
-        let contact_model = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, h)?;
-        let contacts = BodyContacts::new(n, inp.contact_basis, inp.contact_rest, inp.contact_areas, inp.planes, contact_model)?;
-        let k = inp.cubature_weights.len();
-        if inp.cubature_jacobians.len() != 9 * n * k {
-            return Err(LicromError::shape("cubature_jacobians", format!("({k}, 9, {n})"), format!("{} values", inp.cubature_jacobians.len())));
-        }
-        let elastic = if n == 0 {
-            None
-        } else {
-            let zeros = vec![0.0; n];
-            let system = ReducedSystem::new(&ReducedInputs {
-                mass: moments.mode_mass(),
-                gravity_force: &zeros,
-                cubature_jacobians: inp.cubature_jacobians,
-                cubature_weights: inp.cubature_weights,
-                vertex_strain: inp.vertex_strain,
-                material: inp.material,
-                contact_basis: &[],
-                contact_rest: &[],
-                contact_areas: &[],
-                planes: &[],
-                normal_stiffness: inp.normal_stiffness,
-                normal_damping: inp.normal_damping,
-                friction_stiffness: inp.friction_stiffness,
-                dt: inp.dt,
-                integrator: inp.integrator,
-            })?;
-            let mut start = system.step_start();
-            system.begin_step(&zeros, &zeros, None, &mut start);
-            Some(Elastic { system, start })
-        };
-        Ok(Self { n, h, time_step: inp.dt, integrator: inp.integrator, gravity: Vector3::from(inp.gravity), moments, elastic, contacts })
+        let contacts = BodyContacts::new(n, &inp.contact, h)?;
+        let elastic = if n == 0 { None } else { Some(ElasticTerm::new(&inp.elastic, n)?) };
+        Ok(Self {
+            n,
+            h,
+            time_step: inp.dt,
+            integrator: inp.integrator,
+            gravity: Vector3::from(inp.gravity),
+            moments,
+            elastic,
+            origin: vec![0.0; n],
+            contacts,
+        })
     }
 
     /// Number of modes n (the Newton system has 6 + n unknowns).
@@ -308,7 +270,8 @@ impl BodyFrameSystem {
     pub fn workspace(&self) -> BodyWorkspace {
         BodyWorkspace {
             grad: vec![0.0; 6 + self.n],
-            elastic: self.elastic.as_ref().map(|e| e.system.workspace()),
+            elastic: self.elastic.as_ref().map(ElasticTerm::workspace),
+            elastic_energy: 0.0,
             rows: self.contacts.rows(),
             terms: self.contacts.terms(),
             square: vec![0.0; self.n * self.n],
@@ -347,14 +310,12 @@ impl BodyFrameSystem {
 
     fn evaluate_with(&self, start: &BodyStart, pose: &Pose, model: Option<&ElasticModel<'_>>, with_gradient: bool, ws: &mut BodyWorkspace) -> f64 {
         let mut e = 0.0;
-        if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
-            e += match model {
-                Some(m) => el.system.evaluate_model(&el.start, &pose.q, m, with_gradient, ews),
-                None => el.system.evaluate(&el.start, &pose.q, with_gradient, ews),
-            };
-            if with_gradient {
-                ws.grad[6..].copy_from_slice(&ews.grad);
-            }
+        if let (Some(elastic), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
+            let grad = with_gradient.then_some(&mut ws.grad[6..]);
+            let ews = (with_gradient && model.is_none()).then_some(ews);
+            let (modal, elastic_energy) = dispatch(ModalKernel { sys: self, elastic, q: &pose.q, model, grad, ws: ews });
+            e += modal;
+            ws.elastic_energy = elastic_energy;
         }
         if with_gradient {
             ws.grad[..6].fill(0.0);
@@ -370,9 +331,46 @@ impl BodyFrameSystem {
         };
         e += self.contacts.evaluate(&start.contact, pose, out);
         if with_gradient && model.is_none() {
-            ws.validity.min_det = ws.elastic.as_ref().map_or(f64::INFINITY, |e| e.validity.min_det);
+            ws.validity.min_det = ws.elastic.as_ref().map_or(f64::INFINITY, ElasticWorkspace::min_det);
         }
         e
+    }
+
+    /// The modal part `q^T Mqq q/(2h^2) + elastic(q)` (J), the elastic energy
+    /// replaced by `model` where given, and the elastic (or model) energy;
+    /// with `grad`, the modal part's gradient into it (n); with `ws`, the
+    /// elastic gradient and smallest `det F` into that.
+    #[inline(always)]
+    fn modal_impl<M: Madd>(
+        &self,
+        elastic: &ElasticTerm,
+        q: &[f64],
+        model: Option<&ElasticModel<'_>>,
+        mut grad: Option<&mut [f64]>,
+        ws: Option<&mut ElasticWorkspace>,
+    ) -> (f64, f64) {
+        let inv_h2 = 1.0 / (self.h * self.h);
+        let mut inertia = 0.0;
+        offset_rows_dot::<M>(self.moments.mode_mass(), q, &self.origin, |i, md| {
+            inertia = M::madd(q[i], md, inertia);
+            if let Some(g) = grad.as_deref_mut() {
+                g[i] = md * inv_h2;
+            }
+        });
+        let elastic_energy = match model {
+            Some(m) => m.evaluate::<M>(q, grad),
+            None => match ws {
+                Some(ws) => {
+                    let e = elastic.evaluate_impl::<M>(q, Some(&mut *ws));
+                    for (g, e) in grad.into_iter().flatten().zip(ws.gradient()) {
+                        *g += e;
+                    }
+                    e
+                }
+                None => elastic.evaluate_impl::<M>(q, None),
+            },
+        };
+        (0.5 * inertia * inv_h2 + elastic_energy, elastic_energy)
     }
 
     /// Energy alone (J), allocating its scratch: for tests and probes.
@@ -387,9 +385,9 @@ impl BodyFrameSystem {
             return;
         };
         let mut clamped = std::mem::take(&mut ws.square);
-        el.system.elastic_hessian(q, ews, out, exact.then_some(&mut clamped[..]));
+        el.hessian(q, ews, out, exact.then_some(&mut clamped[..]));
         let h2 = self.h * self.h;
-        for (i, (o, m)) in out.iter_mut().zip(el.system.mass()).enumerate() {
+        for (i, (o, m)) in out.iter_mut().zip(self.moments.mode_mass()).enumerate() {
             *o += m / h2 - if exact { clamped[i] } else { 0.0 };
         }
         ws.square = clamped;
@@ -398,13 +396,13 @@ impl BodyFrameSystem {
     /// The PSD-projected elastic Hessian `K_el` at q into `out` (n x n, full symmetric).
     pub fn elastic_stiffness(&self, q: &[f64], ws: &mut BodyWorkspace, out: &mut [f64]) {
         if let (Some(el), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
-            el.system.elastic_hessian(q, ews, out, None);
+            el.hessian(q, ews, out, None);
         }
     }
 
     /// The modal mass matrix `Mqq` (n x n, kg; empty for n = 0).
     pub fn mode_mass(&self) -> &[f64] {
-        self.elastic.as_ref().map_or(&[], |e| e.system.mass())
+        self.moments.mode_mass()
     }
 
     /// `out` zeroed but for the modal block `block` (n x n).
@@ -519,5 +517,22 @@ impl BodyFrameSystem {
     /// at `start`, C x 3.
     pub fn contact_forces(&self, start: &BodyStart, pose: &Pose, out: &mut [f64]) {
         self.contacts.forces(&start.contact, pose, out);
+    }
+}
+
+struct ModalKernel<'a> {
+    sys: &'a BodyFrameSystem,
+    elastic: &'a ElasticTerm,
+    q: &'a [f64],
+    model: Option<&'a ElasticModel<'a>>,
+    grad: Option<&'a mut [f64]>,
+    ws: Option<&'a mut ElasticWorkspace>,
+}
+
+impl WithMadd for ModalKernel<'_> {
+    type Output = (f64, f64);
+    #[inline(always)]
+    fn run<M: Madd>(self) -> (f64, f64) {
+        self.sys.modal_impl::<M>(self.elastic, self.q, self.model, self.grad, self.ws)
     }
 }

@@ -11,8 +11,10 @@ use nalgebra::{Matrix3, Vector3};
 use super::rotation::skew;
 use super::BodyFrameInputs;
 use crate::contact::Plane;
+use crate::contact_points::ContactInputs;
 use crate::error::Result;
 use crate::material::StableNeoHookean;
+use crate::reduced::ElasticInputs;
 use crate::synthetic::BlockScene;
 
 /// Owned arrays of a synthetic body-frame block, borrowed by [`BodyBlock::inputs`].
@@ -242,17 +244,21 @@ impl BodyBlock {
             mode_moments: &self.mode_moments,
             mode_products: &self.mode_products,
             gravity: [0.0, 0.0, -9.81],
-            cubature_jacobians: &self.cubature_jacobians,
-            cubature_weights: &self.cubature_weights,
-            vertex_strain: None,
-            material: self.material,
-            contact_basis: &self.contact_basis,
-            contact_rest: &self.contact_rest,
-            contact_areas: &self.contact_areas,
-            planes: &self.planes,
-            normal_stiffness: s.normal_stiffness,
-            normal_damping: s.normal_damping,
-            friction_stiffness: s.friction_stiffness,
+            elastic: ElasticInputs {
+                cubature_jacobians: &self.cubature_jacobians,
+                cubature_weights: &self.cubature_weights,
+                vertex_strain: None,
+                material: self.material,
+            },
+            contact: ContactInputs {
+                basis: &self.contact_basis,
+                rest: &self.contact_rest,
+                areas: &self.contact_areas,
+                planes: &self.planes,
+                normal_stiffness: s.normal_stiffness,
+                normal_damping: s.normal_damping,
+                friction_stiffness: s.friction_stiffness,
+            },
             dt: s.dt,
             integrator: s.integrator,
         }

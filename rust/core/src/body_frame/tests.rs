@@ -7,8 +7,11 @@ use super::rotation::{exp_map, log_map};
 use super::solver::{BodyFrameSettings, BodyFrameSolver};
 use super::synthetic::{body_block, BodyBlock};
 use super::*;
+use crate::contact::Plane;
+use crate::contact_points::ContactInputs;
 use crate::synthetic::BlockScene;
 use crate::testing::{check_validity, cubature_min_det, fd_gradient, fd_jacobian, point_positions, rel_err, Rng};
+use crate::LicromError;
 
 fn block(learned_modes: usize, cubature_points: usize, contact_points: usize, affine: bool) -> BodyBlock {
     let scene = BlockScene { learned_modes, cubature_points, contact_points, normal_damping: 5.0e3, ..Default::default() };
@@ -416,7 +419,8 @@ fn stick_switch_turns_slipping_points_into_sticking_ones() {
     sys.stick_switch(&start, &pose, &back, &mut ws, &mut vec![0.0; big]);
     sys.add_switch_rows(&ws, rows, &mut hess);
     let planes: Vec<Plane> = b.planes.iter().map(|p| Plane::new(p.normal(), p.offset(), 1e9).unwrap()).collect();
-    let sticky = BodyFrameSystem::new(&BodyFrameInputs { planes: &planes, ..b.inputs() }).unwrap();
+    let inputs = b.inputs();
+    let sticky = BodyFrameSystem::new(&BodyFrameInputs { contact: ContactInputs { planes: &planes, ..inputs.contact }, ..inputs }).unwrap();
     // The step start does not depend on the friction coefficient.
     let mut sticky_ws = sticky.workspace();
     sticky.evaluate(&start, &pose, true, &mut sticky_ws);

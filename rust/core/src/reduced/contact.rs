@@ -55,10 +55,10 @@ impl ReducedSystem {
     /// the anchor positions (at `start.q`, set before) of the points that carry one.
     #[inline(always)]
     pub(super) fn begin_contacts<M: Madd>(&self, q: &[f64], start: &mut StepStart) {
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         start.normal_force.fill(0.0);
-        let k = self.contact.normal_stiffness;
-        for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
+        let k = self.points.model().normal_stiffness;
+        for (g, slots) in self.points.kept().chunks(LANES).enumerate() {
             let mut engaged = 0u32;
             for p in 0..n_planes {
                 let gap = self.contacts.group_gap::<M>(g, p, q);
@@ -98,7 +98,7 @@ impl ReducedSystem {
     /// the gradient of the others are formed eight points at a time too.
     #[inline(always)]
     pub(super) fn contact_energy_impl<M: Madd>(&self, start: &StepStart, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let mut e = 0.0;
         if let Some(ws) = ws.as_deref_mut() {
             ws.validity.depth = 0.0;
@@ -110,7 +110,7 @@ impl ReducedSystem {
             ws.contact_lane_grad.fill([0.0; LANES]);
         }
         let mut any_force = false;
-        for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
+        for (g, slots) in self.points.kept().chunks(LANES).enumerate() {
             let mut active = 0u32;
             for p in 0..n_planes {
                 let gap = self.contacts.group_gap::<M>(g, p, q);
@@ -147,8 +147,8 @@ impl ReducedSystem {
                 let xj = Vector3::new(x[0][l], x[1][l], x[2][l]);
                 let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
                 let mut g3 = Vector3::zeros();
-                for (p, plane) in self.planes.iter().enumerate() {
-                    let c = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &xj, &xp);
+                for (p, plane) in self.points.planes().iter().enumerate() {
+                    let c = self.points.model().evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &xj, &xp);
                     e += c.energy;
                     g3 += c.gradient;
                     if let Some(ws) = ws.as_deref_mut() {
@@ -197,17 +197,17 @@ impl ReducedSystem {
     #[inline(always)]
     fn contact_rows_impl<M: Madd>(&self, start: &StepStart, q: &[f64], ws: &mut Workspace) -> usize {
         let n = self.n;
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let mut rows = 0;
         if n_planes == 0 {
             return 0;
         }
-        for &j in &self.contacts.points {
+        for &j in self.points.kept() {
             let x = self.contact_position::<M>(j, q);
             let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
             let mut count = 0;
-            for (p, plane) in self.planes.iter().enumerate() {
-                let e = self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
+            for (p, plane) in self.points.planes().iter().enumerate() {
+                let e = self.points.model().evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp);
                 count = e.hessian.write_factors(&mut ws.contact_coef, count);
             }
             if count > 0 {
@@ -224,7 +224,7 @@ impl ReducedSystem {
     /// less than about 6 degrees), else only unchanged ones.
     pub fn contact_hessian_state(&self, lagged: bool) -> ContactHessian {
         ContactHessian {
-            used: vec![RankOneTerms::default(); self.contacts.points.len() * self.planes.len()],
+            used: vec![RankOneTerms::default(); self.points.kept().len() * self.points.planes().len()],
             gram: IncrementalGram::new(self.n),
             lagged,
         }
@@ -247,10 +247,10 @@ impl ReducedSystem {
     #[inline(always)]
     fn update_contact_impl<M: Madd>(&self, ws: &mut Workspace, state: &mut ContactHessian, rebuild: bool) -> (usize, usize, usize) {
         let n = self.n;
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let (slack, cos) = if state.lagged { (CURVATURE_SLACK, DIRECTION_COS) } else { (1.0, 1.0) };
         let (mut plus, mut minus, mut rows) = (0, 0, 0);
-        for (slot, &j) in self.contacts.points.iter().enumerate() {
+        for (slot, &j) in self.points.kept().iter().enumerate() {
             let (mut count_in, mut count_out) = (0, 0);
             for p in 0..n_planes {
                 let k = slot * n_planes + p;
@@ -303,16 +303,16 @@ impl ReducedSystem {
     #[inline(always)]
     fn stick_impl<M: Madd>(&self, start: &StepStart, dir: &[f64], ws: &mut Workspace, rhs: &mut [f64]) -> usize {
         let n = self.n;
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         let mut rows = 0;
-        for (g, slots) in self.contacts.points.chunks(LANES).enumerate() {
+        for (g, slots) in self.points.kept().chunks(LANES).enumerate() {
             // Slipping points (all carry a lagged normal force, so they were
             // evaluated and their displacement kept).
             let mut slipping = 0u32;
             for (l, &j) in slots.iter().enumerate() {
                 let dx = Vector3::from(ws.contact_dx[g * LANES + l]);
-                for (p, plane) in self.planes.iter().enumerate() {
-                    if self.contact.slips(plane, self.areas[j], start.normal_force[j * n_planes + p], &dx) {
+                for (p, plane) in self.points.planes().iter().enumerate() {
+                    if self.points.model().slips(plane, self.areas[j], start.normal_force[j * n_planes + p], &dx) {
                         slipping |= 1 << l;
                     }
                 }
@@ -330,8 +330,8 @@ impl ReducedSystem {
                 let wd = Vector3::new(wd[0][l], wd[1][l], wd[2][l]);
                 let mut count = 0;
                 let mut force = Vector3::zeros();
-                for (p, plane) in self.planes.iter().enumerate() {
-                    if let Some(switch) = self.contact.stick_switch(plane, self.areas[j], start.normal_force[j * n_planes + p], &dx, &wd) {
+                for (p, plane) in self.points.planes().iter().enumerate() {
+                    if let Some(switch) = self.points.model().stick_switch(plane, self.areas[j], start.normal_force[j * n_planes + p], &dx, &wd) {
                         for f in switch.factors {
                             ws.contact_coef[count] = [f.x, f.y, f.z];
                             count += 1;
@@ -353,13 +353,13 @@ impl ReducedSystem {
     /// Contact force (N, world frame) on each contact point at `q`: minus the
     /// gradient of penalty + damping + friction w.r.t. its position. `out`: C x 3.
     pub fn contact_forces(&self, start: &StepStart, q: &[f64], out: &mut [f64]) {
-        let n_planes = self.planes.len();
+        let n_planes = self.points.planes().len();
         for j in 0..self.n_contacts() {
             let x = self.contact_position::<Separate>(j, q);
             let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
             let mut f = Vector3::zeros();
-            for (p, plane) in self.planes.iter().enumerate() {
-                f -= self.contact.evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp).gradient;
+            for (p, plane) in self.points.planes().iter().enumerate() {
+                f -= self.points.model().evaluate(plane, self.areas[j], start.normal_force[j * n_planes + p], &x, &xp).gradient;
             }
             out[3 * j..3 * j + 3].copy_from_slice(f.as_slice());
         }

@@ -1,6 +1,8 @@
 //! The elastic term `sum_k w_k Psi(F_k(q))` (stable Neo-Hookean at the
-//! cubature points): energy, gradient, and the square-root rows of its Hessian;
-//! and the quadratic stand-in for it used by the contact model.
+//! cubature points, `vec(F_k) = vec(I) + G_k q`): energy, gradient, and the
+//! square-root rows of its Hessian ([`ElasticTerm`], used by the world-frame
+//! system and, by rotation invariance `Psi(R F) = Psi(F)`, as it is by the
+//! body-frame one); and the quadratic stand-in for it used by the contact model.
 //!
 //! **Hessian.** The elastic part is `B^T B`, where B stacks, per cubature
 //! point, `sqrt(w_k lambda_i) e_i^T G_k` for the positive eigenpairs of the SNH
@@ -9,15 +11,144 @@
 //! a time (one per lane) into a column-major stack of cache size and multiplied
 //! chunk by chunk by faer's blocked symmetric kernels.
 
-use crate::validity::lowest_dets;
+use crate::validity::{lowest_dets, Validity};
 use faer::Accum;
 
 use crate::dense::{mirror_lower, offset_rows_dot, syrk_columns};
+use crate::error::{check_finite, LicromError, Result};
+use crate::material::StableNeoHookean;
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
-use super::layout::{lanes_at, widened_at, VertexLayout};
-use super::{ReducedSystem, Workspace};
+use super::layout::{kept_points, lanes_at, widened_at, CubatureLayout, VertexLayout, VertexStrainInputs};
+
+/// Borrowed description of the elastic term; arrays row-major (C order).
+#[derive(Debug, Clone, Copy)]
+pub struct ElasticInputs<'a> {
+    /// `G_k = dvec(F)/dq` at the K cubature points, K x 9 x n.
+    pub cubature_jacobians: &'a [f64],
+    /// Cubature weights w_k >= 0, K, m^3.
+    pub cubature_weights: &'a [f64],
+    /// The same Jacobians as the linear-tet gradient of vertex values, where
+    /// they are that (the `"mesh"` strain): energy and gradient then go
+    /// through the vertices when that is cheaper ([`VertexStrainInputs`]).
+    pub vertex_strain: Option<VertexStrainInputs<'a>>,
+    /// Material of the solid.
+    pub material: StableNeoHookean,
+}
+
+/// Validated, owned elastic term over n reduced coordinates.
+#[derive(Debug, Clone)]
+pub struct ElasticTerm {
+    n: usize,
+    /// Number of cubature points given (zero weights included).
+    n_cubature: usize,
+    /// The cubature points of positive weight, packed by lanes.
+    cubature: CubatureLayout,
+    /// Their vertex form, where given and cheaper than the Jacobians for the
+    /// energy and gradient (the Hessian always uses the Jacobians).
+    pub(super) vertices: Option<VertexLayout>,
+    material: StableNeoHookean,
+}
+
+/// Preallocated buffers of the elastic term's evaluations.
+#[derive(Debug, Clone)]
+pub struct ElasticWorkspace {
+    /// The elastic gradient of the last evaluation with gradient, n.
+    gradient: Vec<f64>,
+    /// Smallest `det F` at the cubature points of the last evaluation with
+    /// gradient (+inf without any).
+    min_det: f64,
+    /// Square-root rows of `chunk` groups of cubature points at a time,
+    /// column-major with column stride `row_stride`: positive ones in `rows`,
+    /// clamped ones in `clamped_rows`.
+    rows: Vec<f64>,
+    clamped_rows: Vec<f64>,
+    row_stride: usize,
+    chunk: usize,
+    /// Per-lane partial sums of the gradient: one per varying column of G,
+    /// then the nine components of `sum_k w_k P_k` (for the constant ones).
+    lane_grad: Vec<F8>,
+    /// Vertex displacements `u_v` and vertex forces of the vertex form of the
+    /// cubature (3 per used vertex; empty without it).
+    vertex_u: Vec<f64>,
+    vertex_force: Vec<f64>,
+}
+
+impl ElasticWorkspace {
+    /// The elastic gradient of the last evaluation with gradient, n.
+    pub fn gradient(&self) -> &[f64] {
+        &self.gradient
+    }
+
+    /// Smallest `det F` at the cubature points of the last evaluation with gradient.
+    pub fn min_det(&self) -> f64 {
+        self.min_det
+    }
+}
+
+impl ElasticTerm {
+    /// Validates and packs the inputs for n reduced coordinates: consistent
+    /// sizes, finite values, non-negative weights, a vertex form that
+    /// reproduces the Jacobians.
+    pub fn new(inp: &ElasticInputs<'_>, n: usize) -> Result<Self> {
+        let k = inp.cubature_weights.len();
+        if inp.cubature_jacobians.len() != k * 9 * n {
+            return Err(LicromError::shape("cubature_jacobians", format!("({k}, 9, {n})"), format!("{} values", inp.cubature_jacobians.len())));
+        }
+        check_finite("cubature_jacobians", inp.cubature_jacobians)?;
+        check_finite("cubature_weights", inp.cubature_weights)?;
+        if let Some(w) = inp.cubature_weights.iter().find(|w| **w < 0.0) {
+            return Err(LicromError::invalid("cubature_weights", format!("must be >= 0, found {w}")));
+        }
+        let kept = kept_points(inp.cubature_weights);
+        let vertices = match &inp.vertex_strain {
+            Some(vs) => Some(VertexLayout::new(vs, inp.cubature_jacobians, &kept, k, n)?),
+            None => None,
+        };
+        // Per point the Jacobians cost 9 n multiply-adds each way, the vertex form 3 n per used vertex.
+        let vertices = vertices.filter(|v| 3 * v.n_vertices(n) < 9 * kept.len());
+        Ok(Self {
+            n,
+            n_cubature: k,
+            cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, &kept, n),
+            vertices,
+            material: inp.material,
+        })
+    }
+
+    /// Number of cubature points K.
+    pub fn n_cubature(&self) -> usize {
+        self.n_cubature
+    }
+
+    /// Buffers for the evaluations.
+    pub fn workspace(&self) -> ElasticWorkspace {
+        let n = self.n;
+        // Chunks of rows of about 256 KiB: they stay in cache between being
+        // written and being multiplied.
+        let chunk = (256 * 1024 / (9 * LANES * 8 * n)).clamp(1, self.cubature.groups().max(1));
+        let row_stride = 9 * LANES * chunk;
+        let vertices = self.vertices.as_ref().map_or(0, |v| 3 * v.n_vertices(n));
+        ElasticWorkspace {
+            gradient: vec![0.0; n],
+            min_det: f64::INFINITY,
+            rows: vec![0.0; row_stride * n],
+            clamped_rows: vec![0.0; row_stride * n],
+            row_stride,
+            chunk,
+            lane_grad: vec![[0.0; LANES]; self.cubature.var_cols.len() + 9],
+            vertex_u: vec![0.0; vertices],
+            vertex_force: vec![0.0; vertices],
+        }
+    }
+
+    /// The elastic energy at `q` (J) and, with `ws`, its gradient and the
+    /// smallest `det F` into `ws`.
+    pub fn evaluate(&self, q: &[f64], ws: Option<&mut ElasticWorkspace>) -> f64 {
+        dispatch(ElasticKernel { term: self, q, ws })
+    }
+}
 
 /// A quadratic stand-in for the elastic energy about `origin`:
 /// `energy + gradient . d + d^T hessian d / 2`, `d = q - origin`.
@@ -36,7 +167,7 @@ pub struct ElasticModel<'a> {
 impl ElasticModel<'_> {
     /// The model's energy at `q`, and its gradient added to `grad` when given.
     #[inline(always)]
-    pub(super) fn evaluate<M: Madd>(&self, q: &[f64], mut grad: Option<&mut [f64]>) -> f64 {
+    pub(crate) fn evaluate<M: Madd>(&self, q: &[f64], mut grad: Option<&mut [f64]>) -> f64 {
         let mut em = self.energy;
         offset_rows_dot::<M>(self.hessian, q, self.origin, |i, kd| {
             em = M::madd(q[i] - self.origin[i], self.gradient[i] + 0.5 * kd, em);
@@ -83,40 +214,24 @@ fn write_rows<M: Madd>(at: usize, gs: &[F8; 9], coefs: [&[[F8; 9]; 9]; 2], count
     }
 }
 
-impl ReducedSystem {
-    /// The elastic energy `sum_k w_k Psi(F_k(q))` alone (J) and, with
-    /// `with_gradient`, its gradient into `ws.grad`: for solvers that bring
-    /// their own inertia and contact terms.
-    pub fn elastic(&self, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
-        if with_gradient {
-            ws.grad.fill(0.0);
+impl ElasticTerm {
+    /// Elastic energy and, with `ws`, its gradient and smallest `det F` into
+    /// `ws`: through the vertices where the term has their form, else through
+    /// the Jacobians.
+    #[inline(always)]
+    pub(crate) fn evaluate_impl<M: Madd>(&self, q: &[f64], ws: Option<&mut ElasticWorkspace>) -> f64 {
+        match &self.vertices {
+            Some(vertices) => self.elastic_vertices::<M>(vertices, q, ws),
+            None => self.elastic_points::<M>(q, ws),
         }
-        dispatch(ElasticKernel { sys: self, q, ws: with_gradient.then_some(ws) })
     }
 
-    /// Elastic energy and, with `ws`, its gradient into `ws.elastic_grad` and
-    /// added to `ws.grad`: through the vertices where the system has their
-    /// form, else through the Jacobians.
+    /// [`Self::evaluate_impl`] through the Jacobians, eight points at a time;
+    /// the gradient into `ws.gradient`.
     #[inline(always)]
-    pub(super) fn elastic_impl<M: Madd>(&self, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
-        let e = match &self.vertices {
-            Some(vertices) => self.elastic_vertices::<M>(vertices, q, ws.as_deref_mut()),
-            None => self.elastic_points::<M>(q, ws.as_deref_mut()),
-        };
-        if let Some(ws) = ws {
-            for (g, e) in ws.grad.iter_mut().zip(&ws.elastic_grad) {
-                *g += e;
-            }
-        }
-        e
-    }
-
-    /// [`Self::elastic_impl`] through the Jacobians, eight points at a time;
-    /// the gradient into `ws.elastic_grad`.
-    #[inline(always)]
-    fn elastic_points<M: Madd>(&self, q: &[f64], ws: Option<&mut Workspace>) -> f64 {
-        let (lane_grad, grad, validity): (&mut [F8], &mut [f64], _) = match ws {
-            Some(ws) => (&mut ws.lane_grad[..], &mut ws.elastic_grad[..], Some(&mut ws.validity)),
+    fn elastic_points<M: Madd>(&self, q: &[f64], ws: Option<&mut ElasticWorkspace>) -> f64 {
+        let (lane_grad, grad, min_det): (&mut [F8], &mut [f64], _) = match ws {
+            Some(ws) => (&mut ws.lane_grad[..], &mut ws.gradient[..], Some(&mut ws.min_det)),
             None => (&mut [][..], &mut [][..], None),
         };
         let mut low = [f64::INFINITY; LANES];
@@ -160,9 +275,8 @@ impl ReducedSystem {
                 }
             }
         }
-        if let Some(v) = validity {
-            v.min_det = f64::INFINITY;
-            v.take_lanes(&low);
+        if let Some(min_det) = min_det {
+            *min_det = lowest(&low);
         }
         if with_gradient {
             grad.fill(0.0);
@@ -171,13 +285,13 @@ impl ReducedSystem {
         lane_sum(&elastic)
     }
 
-    /// [`Self::elastic_impl`] through the vertices ([`VertexLayout`]): `u_v =
+    /// [`Self::evaluate_impl`] through the vertices ([`VertexLayout`]): `u_v =
     /// W_v q` of the used vertices, each point's F from its tet's four, and the
     /// gradient `sum_v W_v^T f_v` from the vertex forces `f_v` of the points'
-    /// stresses (into `ws.elastic_grad`). Without `ws` the `u_v` are formed per
+    /// stresses (into `ws.gradient`). Without `ws` the `u_v` are formed per
     /// point, by the same products, so the energy is the same to the last bit.
     #[inline(always)]
-    fn elastic_vertices<M: Madd>(&self, vertices: &VertexLayout, q: &[f64], mut ws: Option<&mut Workspace>) -> f64 {
+    fn elastic_vertices<M: Madd>(&self, vertices: &VertexLayout, q: &[f64], mut ws: Option<&mut ElasticWorkspace>) -> f64 {
         let n = self.n;
         if let Some(ws) = ws.as_deref_mut() {
             for (v, u) in ws.vertex_u.chunks_exact_mut(3).enumerate() {
@@ -238,12 +352,11 @@ impl ReducedSystem {
             }
         }
         if let Some(ws) = ws {
-            ws.validity.min_det = f64::INFINITY;
-            ws.validity.take_lanes(&low);
-            ws.elastic_grad.fill(0.0);
+            ws.min_det = lowest(&low);
+            ws.gradient.fill(0.0);
             for (rows, force) in vertices.basis.chunks_exact(3 * n).zip(ws.vertex_force.chunks_exact(3)) {
                 for (row, &fi) in rows.chunks_exact(n).zip(force) {
-                    for (g, w) in ws.elastic_grad.iter_mut().zip(row) {
+                    for (g, w) in ws.gradient.iter_mut().zip(row) {
                         *g = M::madd(fi, *w, *g);
                     }
                 }
@@ -256,7 +369,7 @@ impl ReducedSystem {
     /// eigenvalues of every point's SNH Hessian clamped to zero) into
     /// `projected`, and what the clamping removed (PSD) into `clamped` when
     /// given, both n x n full symmetric. Returns whether anything was clamped.
-    pub fn elastic_hessian(&self, q: &[f64], ws: &mut Workspace, projected: &mut [f64], mut clamped: Option<&mut [f64]>) -> bool {
+    pub fn hessian(&self, q: &[f64], ws: &mut ElasticWorkspace, projected: &mut [f64], mut clamped: Option<&mut [f64]>) -> bool {
         let n = self.n;
         let split = clamped.is_some();
         projected.fill(0.0);
@@ -267,7 +380,7 @@ impl ReducedSystem {
         let groups = self.cubature.groups();
         for first in (0..groups).step_by(ws.chunk) {
             let range = first..groups.min(first + ws.chunk);
-            let (positive, negative) = dispatch(ElasticRowsKernel { sys: self, q, split, range, ws: &mut *ws });
+            let (positive, negative) = dispatch(ElasticRowsKernel { term: self, q, split, range, ws: &mut *ws });
             syrk_columns(projected, n, &ws.rows, ws.row_stride, positive, Accum::Add);
             if let Some(c) = clamped.as_deref_mut() {
                 syrk_columns(c, n, &ws.clamped_rows, ws.row_stride, negative, Accum::Add);
@@ -285,7 +398,7 @@ impl ReducedSystem {
     /// (one per lane) per group and eigenmode, skipping modes that no lane of the
     /// group needs; returns the numbers of positive and clamped rows written.
     #[inline(always)]
-    fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, range: std::ops::Range<usize>, ws: &mut Workspace) -> (usize, usize) {
+    fn elastic_rows_impl<M: Madd>(&self, q: &[f64], split: bool, range: std::ops::Range<usize>, ws: &mut ElasticWorkspace) -> (usize, usize) {
         let cub = &self.cubature;
         let stride = ws.row_stride;
         let group_len = cub.group_len();
@@ -357,32 +470,39 @@ impl ReducedSystem {
     }
 }
 
+/// The smallest `det F` of [`lowest_dets`]' lanes (+inf where none was lowered).
+fn lowest(low: &F8) -> f64 {
+    let mut v = Validity::default();
+    v.take_lanes(low);
+    v.min_det
+}
+
 struct ElasticRowsKernel<'a> {
-    sys: &'a ReducedSystem,
+    term: &'a ElasticTerm,
     q: &'a [f64],
     split: bool,
     range: std::ops::Range<usize>,
-    ws: &'a mut Workspace,
+    ws: &'a mut ElasticWorkspace,
 }
 
 impl WithMadd for ElasticRowsKernel<'_> {
     type Output = (usize, usize);
     #[inline(always)]
     fn run<M: Madd>(self) -> (usize, usize) {
-        self.sys.elastic_rows_impl::<M>(self.q, self.split, self.range, self.ws)
+        self.term.elastic_rows_impl::<M>(self.q, self.split, self.range, self.ws)
     }
 }
 
 struct ElasticKernel<'a> {
-    sys: &'a ReducedSystem,
+    term: &'a ElasticTerm,
     q: &'a [f64],
-    ws: Option<&'a mut Workspace>,
+    ws: Option<&'a mut ElasticWorkspace>,
 }
 
 impl WithMadd for ElasticKernel<'_> {
     type Output = f64;
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
-        self.sys.elastic_impl::<M>(self.q, self.ws)
+        self.term.evaluate_impl::<M>(self.q, self.ws)
     }
 }

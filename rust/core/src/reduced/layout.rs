@@ -145,9 +145,6 @@ impl CubatureLayout {
 pub(super) struct ContactLayout {
     n: usize,
     n_planes: usize,
-    /// Indices of the contact points with a non-zero area (the others carry no
-    /// force), in packing order.
-    pub(super) points: Vec<usize>,
     /// Basis rows `W_j` of those points in groups of LANES, group g at
     /// `g n 3 LANES` as `[i][c][lane]`, and their rest positions `[g][c][lane]`.
     basis: Vec<f64>,
@@ -162,9 +159,9 @@ pub(super) struct ContactLayout {
 
 impl ContactLayout {
     /// Packs the C x 3 x n basis rows and C x 3 rest positions (row-major) of
-    /// the points with a non-zero area.
-    pub(super) fn new(basis: &[f64], rest: &[f64], areas: &[f64], planes: &[Plane], n: usize) -> Self {
-        let points: Vec<usize> = (0..areas.len()).filter(|&j| areas[j] > 0.0).collect();
+    /// the points `points` (those with a non-zero area, the others carry no
+    /// force), in that order.
+    pub(super) fn new(basis: &[f64], rest: &[f64], points: &[usize], planes: &[Plane], n: usize) -> Self {
         let n_planes = planes.len();
         let groups = points.len().div_ceil(LANES);
         let mut normal_rows = vec![0.0; groups * n_planes * n * LANES];
@@ -193,7 +190,7 @@ impl ContactLayout {
                 }
             }
         }
-        Self { n, n_planes, points, basis: packed, rest: rest_packed, normal_rows, normal_offsets }
+        Self { n, n_planes, basis: packed, rest: rest_packed, normal_rows, normal_offsets }
     }
 
     /// The packed basis rows of group `g`, `[i][c][lane]`.

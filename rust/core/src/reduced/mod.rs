@@ -33,17 +33,16 @@ mod workspace;
 mod tests;
 
 pub use contact::ContactHessian;
-pub use elastic::ElasticModel;
+pub use elastic::{ElasticInputs, ElasticModel, ElasticTerm, ElasticWorkspace};
 pub use workspace::Workspace;
 
-use crate::contact::{ContactModel, Plane};
+use crate::contact_points::{ContactInputs, ContactPoints};
 use crate::dense::{dot, offset_rows_dot};
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::integrator::Integrator;
-use crate::material::StableNeoHookean;
 use crate::simd::{dispatch, Madd, WithMadd};
+use layout::ContactLayout;
 pub use layout::VertexStrainInputs;
-use layout::{kept_points, ContactLayout, CubatureLayout, VertexLayout};
 
 /// Borrowed description of a reduced model; all arrays row-major (C order).
 #[derive(Debug, Clone, Copy)]
@@ -52,30 +51,10 @@ pub struct ReducedInputs<'a> {
     pub mass: &'a [f64],
     /// Reduced gravity force `W^T M g`, n, N.
     pub gravity_force: &'a [f64],
-    /// `G_k = dvec(F)/dq` at the K cubature points, K x 9 x n.
-    pub cubature_jacobians: &'a [f64],
-    /// Cubature weights w_k >= 0, K, m^3.
-    pub cubature_weights: &'a [f64],
-    /// The same Jacobians as the linear-tet gradient of vertex values, where
-    /// they are that (the `"mesh"` strain): energy and gradient then go
-    /// through the vertices when that is cheaper ([`VertexStrainInputs`]).
-    pub vertex_strain: Option<VertexStrainInputs<'a>>,
-    /// Material of the solid.
-    pub material: StableNeoHookean,
-    /// Basis rows W_j at the C contact points, C x 3 x n.
-    pub contact_basis: &'a [f64],
-    /// Rest positions X_j of the contact points, C x 3, m.
-    pub contact_rest: &'a [f64],
-    /// Boundary area a_j >= 0 carried by each contact point, C, m^2.
-    pub contact_areas: &'a [f64],
-    /// Contact planes.
-    pub planes: &'a [Plane],
-    /// k_n, N/m^3.
-    pub normal_stiffness: f64,
-    /// k_d, N s/m^3.
-    pub normal_damping: f64,
-    /// k_f, N s/m^3.
-    pub friction_stiffness: f64,
+    /// The elastic term.
+    pub elastic: ElasticInputs<'a>,
+    /// The contact points (rest positions X_j in the world) and planes.
+    pub contact: ContactInputs<'a>,
     /// Time step h, s.
     pub dt: f64,
     /// The time integrator ([`crate::integrator`]).
@@ -88,24 +67,17 @@ pub struct ReducedSystem {
     n: usize,
     mass: Vec<f64>,
     gravity: Vec<f64>,
-    /// Number of cubature points given (zero weights included).
-    n_cubature: usize,
-    /// The cubature points of positive weight, packed by lanes.
-    cubature: CubatureLayout,
-    /// Their vertex form, where given and cheaper than the Jacobians for the
-    /// energy and gradient (the Hessian always uses the Jacobians).
-    vertices: Option<VertexLayout>,
-    material: StableNeoHookean,
+    elastic: ElasticTerm,
     /// Contact points as given: basis rows (C x 3 x n), rest positions (C x 3)
     /// and areas (C).
     contact_basis: Vec<f64>,
     contact_rest: Vec<f64>,
     areas: Vec<f64>,
+    /// Which points carry area, the planes and the contact model (with the
+    /// integrator's effective step h').
+    points: ContactPoints,
     /// The contact points of non-zero area, packed by lanes.
     contacts: ContactLayout,
-    planes: Vec<Plane>,
-    /// The contact model, with the integrator's effective step h'.
-    contact: ContactModel,
     integrator: Integrator,
     /// The time step h, s.
     time_step: f64,
@@ -145,14 +117,6 @@ pub enum Hessian {
     Split,
 }
 
-fn check_len(name: &str, data: &[f64], expected: usize, shape: impl FnOnce() -> String) -> Result<()> {
-    if data.len() == expected {
-        Ok(())
-    } else {
-        Err(LicromError::shape(name, shape(), format!("{} values", data.len())))
-    }
-}
-
 impl ReducedSystem {
     /// Validates and copies the inputs: consistent sizes, finite values,
     /// non-negative weights and areas, symmetric positive definite mass.
@@ -161,53 +125,25 @@ impl ReducedSystem {
         if n == 0 {
             return Err(LicromError::shape("gravity_force", "(n,) with n >= 1", "0 values"));
         }
-        let k = inp.cubature_weights.len();
-        let c = inp.contact_areas.len();
-        check_len("mass", inp.mass, n * n, || format!("({n}, {n})"))?;
-        check_len("cubature_jacobians", inp.cubature_jacobians, k * 9 * n, || format!("({k}, 9, {n})"))?;
-        check_len("contact_basis", inp.contact_basis, c * 3 * n, || format!("({c}, 3, {n})"))?;
-        check_len("contact_rest", inp.contact_rest, c * 3, || format!("({c}, 3)"))?;
-        for (name, data) in [
-            ("mass", inp.mass),
-            ("gravity_force", inp.gravity_force),
-            ("cubature_jacobians", inp.cubature_jacobians),
-            ("cubature_weights", inp.cubature_weights),
-            ("contact_basis", inp.contact_basis),
-            ("contact_rest", inp.contact_rest),
-            ("contact_areas", inp.contact_areas),
-        ] {
-            check_finite(name, data)?;
+        if inp.mass.len() != n * n {
+            return Err(LicromError::shape("mass", format!("({n}, {n})"), format!("{} values", inp.mass.len())));
         }
-        if let Some(w) = inp.cubature_weights.iter().find(|w| **w < 0.0) {
-            return Err(LicromError::invalid("cubature_weights", format!("must be >= 0, found {w}")));
-        }
-        if let Some(a) = inp.contact_areas.iter().find(|a| **a < 0.0) {
-            return Err(LicromError::invalid("contact_areas", format!("must be >= 0, found {a}")));
-        }
+        check_finite("mass", inp.mass)?;
+        check_finite("gravity_force", inp.gravity_force)?;
         check_positive("dt", inp.dt)?;
-        let contact = ContactModel::new(inp.normal_stiffness, inp.normal_damping, inp.friction_stiffness, inp.integrator.effective_step(inp.dt))?;
-        let mass = symmetrized_spd(inp.mass, n)?;
-        let kept = kept_points(inp.cubature_weights);
-        let vertices = match &inp.vertex_strain {
-            Some(vs) => Some(VertexLayout::new(vs, inp.cubature_jacobians, &kept, k, n)?),
-            None => None,
-        };
-        // Per point the Jacobians cost 9 n multiply-adds each way, the vertex form 3 n per used vertex.
-        let vertices = vertices.filter(|v| 3 * v.n_vertices(n) < 9 * kept.len());
+        let elastic = ElasticTerm::new(&inp.elastic, n)?;
+        let points = ContactPoints::new(&inp.contact, n, inp.integrator.effective_step(inp.dt))?;
+        let c = &inp.contact;
         Ok(Self {
             n,
-            mass,
+            mass: symmetrized_spd(inp.mass, n)?,
             gravity: inp.gravity_force.to_vec(),
-            n_cubature: k,
-            cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, &kept, n),
-            vertices,
-            material: inp.material,
-            contact_basis: inp.contact_basis.to_vec(),
-            contact_rest: inp.contact_rest.to_vec(),
-            areas: inp.contact_areas.to_vec(),
-            contacts: ContactLayout::new(inp.contact_basis, inp.contact_rest, inp.contact_areas, inp.planes, n),
-            planes: inp.planes.to_vec(),
-            contact,
+            elastic,
+            contact_basis: c.basis.to_vec(),
+            contact_rest: c.rest.to_vec(),
+            areas: c.areas.to_vec(),
+            contacts: ContactLayout::new(c.basis, c.rest, points.kept(), c.planes, n),
+            points,
             integrator: inp.integrator,
             time_step: inp.dt,
         })
@@ -220,18 +156,23 @@ impl ReducedSystem {
 
     /// Number of cubature points K.
     pub fn n_cubature(&self) -> usize {
-        self.n_cubature
+        self.elastic.n_cubature()
+    }
+
+    /// The elastic term.
+    pub fn elastic_term(&self) -> &ElasticTerm {
+        &self.elastic
     }
 
     /// Number of contact points C.
     pub fn n_contacts(&self) -> usize {
-        self.areas.len()
+        self.points.len()
     }
 
     /// The effective step h' of the step's minimisation, s: the time step h
     /// for backward Euler, 2h/3 for BDF2 ([`crate::integrator`]).
     pub fn dt(&self) -> f64 {
-        self.contact.dt
+        self.points.model().dt
     }
 
     /// The time step h, s.
@@ -257,7 +198,7 @@ impl ReducedSystem {
     /// Whether the model has contact points with area and planes (friction and
     /// contact terms can be non-zero).
     pub fn has_contact(&self) -> bool {
-        !self.contacts.points.is_empty() && !self.planes.is_empty()
+        self.points.any()
     }
 
     /// Zeroed start-of-step buffers for this system.
@@ -267,7 +208,7 @@ impl ReducedSystem {
             q: vec![0.0; self.n],
             qtilde: vec![0.0; self.n],
             x_prev: vec![0.0; 3 * c],
-            normal_force: vec![0.0; c * self.planes.len()],
+            normal_force: vec![0.0; c * self.points.planes().len()],
             offset: 0.0,
         }
     }
@@ -351,6 +292,37 @@ impl ReducedSystem {
         (e + self.contact_energy_impl::<M>(start, q, ws), elastic_energy)
     }
 
+    /// The elastic energy `sum_k w_k Psi(F_k(q))` alone (J) and, with
+    /// `with_gradient`, its gradient into `ws.grad`.
+    pub fn elastic(&self, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
+        if !with_gradient {
+            return self.elastic.evaluate(q, None);
+        }
+        let e = self.elastic.evaluate(q, Some(&mut ws.elastic));
+        ws.grad.copy_from_slice(ws.elastic.gradient());
+        e
+    }
+
+    /// Elastic energy and, with `ws`, its gradient added to `ws.grad` (and
+    /// kept in `ws`) and the smallest `det F` into `ws.validity`.
+    #[inline(always)]
+    fn elastic_impl<M: Madd>(&self, q: &[f64], ws: Option<&mut Workspace>) -> f64 {
+        let Some(ws) = ws else {
+            return self.elastic.evaluate_impl::<M>(q, None);
+        };
+        let e = self.elastic.evaluate_impl::<M>(q, Some(&mut ws.elastic));
+        ws.validity.min_det = ws.elastic.min_det();
+        for (g, e) in ws.grad.iter_mut().zip(ws.elastic.gradient()) {
+            *g += e;
+        }
+        e
+    }
+
+    /// Elastic part of the Hessian at `q` ([`ElasticTerm::hessian`]).
+    pub fn elastic_hessian(&self, q: &[f64], ws: &mut Workspace, projected: &mut [f64], clamped: Option<&mut [f64]>) -> bool {
+        self.elastic.hessian(q, &mut ws.elastic, projected, clamped)
+    }
+
     /// Gradient (into `ws.grad`) and the requested Hessian parts (into `ws.hess`,
     /// `ws.hess_clamped`, full symmetric) of E at `q`.
     pub fn assemble(&self, start: &StepStart, q: &[f64], hessian: Hessian, ws: &mut Workspace) {
@@ -409,9 +381,9 @@ impl WithMadd for BeginKernel<'_> {
     }
 }
 
-/// The symmetrised mass matrix, after checking symmetry (to a relative 1e-8, the
+/// The symmetrised mass matrix (n >= 1), after checking symmetry (to a relative 1e-8, the
 /// round-off of `W^T M W` computed in any order) and positive definiteness.
-fn symmetrized_spd(mass: &[f64], n: usize) -> Result<Vec<f64>> {
+pub(crate) fn symmetrized_spd(mass: &[f64], n: usize) -> Result<Vec<f64>> {
     let scale = mass.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
     let mut sym = vec![0.0; n * n];
     for r in 0..n {

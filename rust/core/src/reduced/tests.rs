@@ -132,7 +132,7 @@ fn projected_assembly_matches_naive_sum() {
     for j in 0..sys.n_contacts() {
         let x = sys.contact_position::<Separate>(j, &q);
         let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
-        let hc = sys.contact.evaluate(&sys.planes[0], sys.areas[j], start.normal_force[j], &x, &xp).hessian.matrix();
+        let hc = sys.points.model().evaluate(&sys.points.planes()[0], sys.areas[j], start.normal_force[j], &x, &xp).hessian.matrix();
         let wj = &model.contact_basis[3 * n * j..3 * n * (j + 1)];
         for r in 0..n {
             for c in 0..n {
@@ -284,13 +284,13 @@ fn invalid_inputs_are_rejected() {
     let mut weights = model.cubature_weights.clone();
     weights[0] = -1.0;
     let mut inp = model.inputs();
-    inp.cubature_weights = &weights;
+    inp.elastic.cubature_weights = &weights;
     assert!(matches!(ReducedSystem::new(&inp), Err(LicromError::InvalidParameter { .. })));
 
     let mut nan = model.contact_rest.clone();
     nan[2] = f64::NAN;
     let mut inp = model.inputs();
-    inp.contact_rest = &nan;
+    inp.contact.rest = &nan;
     assert!(matches!(ReducedSystem::new(&inp), Err(LicromError::NonFinite { .. })));
 
     let mut inp = model.inputs();
@@ -357,10 +357,14 @@ fn vertex_form_of_the_cubature_matches_its_jacobians_and_finite_differences() {
     // One point of zero weight, dropped by both forms.
     let weights: Vec<f64> = (0..k).map(|p| if p == 2 { 0.0 } else { 1e-3 * (1.0 + 0.1 * p as f64) }).collect();
     let vertex_strain = VertexStrainInputs { vertex_basis: &vertex_basis, tet_vertices: &tet_vertices, shape_gradients: &shape_gradients };
-    let base = ReducedInputs { cubature_jacobians: &jacobians, cubature_weights: &weights, ..model.inputs() };
+    let base = ReducedInputs {
+        elastic: ElasticInputs { cubature_jacobians: &jacobians, cubature_weights: &weights, ..model.inputs().elastic },
+        ..model.inputs()
+    };
     let by_points = ReducedSystem::new(&base).unwrap();
-    let by_vertices = ReducedSystem::new(&ReducedInputs { vertex_strain: Some(vertex_strain), ..base }).unwrap();
-    assert!(by_points.vertices.is_none() && by_vertices.vertices.is_some(), "8 vertices for 5 points: the vertex form is cheaper");
+    let by_vertices =
+        ReducedSystem::new(&ReducedInputs { elastic: ElasticInputs { vertex_strain: Some(vertex_strain), ..base.elastic }, ..base }).unwrap();
+    assert!(by_points.elastic.vertices.is_none() && by_vertices.elastic.vertices.is_some(), "8 vertices for 5 points: the vertex form is cheaper");
     let q = rng.vec(n, 0.3);
     let (mut ws_p, mut ws_v) = (by_points.workspace(), by_vertices.workspace());
     let e_p = by_points.elastic(&q, true, &mut ws_p);
@@ -392,7 +396,8 @@ fn vertex_form_that_does_not_reproduce_the_jacobians_is_rejected() {
     let weights = vec![1e-3; 6];
     let inputs = |vertex_basis: &'_ [f64], tet_vertices: &'_ [usize]| {
         let vs = VertexStrainInputs { vertex_basis, tet_vertices, shape_gradients: &shape_gradients };
-        ReducedSystem::new(&ReducedInputs { cubature_jacobians: &jacobians, cubature_weights: &weights, vertex_strain: Some(vs), ..model.inputs() })
+        let elastic = ElasticInputs { cubature_jacobians: &jacobians, cubature_weights: &weights, vertex_strain: Some(vs), ..model.inputs().elastic };
+        ReducedSystem::new(&ReducedInputs { elastic, ..model.inputs() })
     };
     let err = inputs(&vertex_basis, &tet_vertices).unwrap_err().to_string();
     assert!(err.contains("cubature_vertex_basis") && err.contains("reproduce"), "{err}");
