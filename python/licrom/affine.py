@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ShapeError
+from .mesh import check_points
 
 __all__ = [
     "AFFINE_JACOBIAN",
@@ -25,13 +26,6 @@ __all__ = [
 ]
 
 N_AFFINE = 12
-
-
-def _points(points: np.ndarray) -> np.ndarray:
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
-    return p
 
 
 def _affine_jacobian_constant() -> np.ndarray:
@@ -52,7 +46,7 @@ def affine_values(points: Any) -> Any:
     if hasattr(points, "new_zeros"):  # a torch tensor: stay on its device and dtype
         out = points.new_zeros((points.shape[0], 3, N_AFFINE))
     else:
-        points = _points(points)
+        points = check_points(points)
         out = np.zeros((len(points), 3, N_AFFINE))
     for i in range(3):
         out[:, i, 3 * i : 3 * i + 3] = points
@@ -62,7 +56,7 @@ def affine_values(points: Any) -> Any:
 
 def affine_jacobians(points: np.ndarray) -> np.ndarray:
     """(p, 3, 3, 12) spatial derivatives of :func:`affine_values` (constant)."""
-    return np.broadcast_to(AFFINE_JACOBIAN, (len(_points(points)), 3, 3, N_AFFINE)).copy()
+    return np.broadcast_to(AFFINE_JACOBIAN, (len(check_points(points)), 3, 3, N_AFFINE)).copy()
 
 
 def remove_affine_part(points: Any, field: Any, masses: Any) -> tuple[Any, Any]:

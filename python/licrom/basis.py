@@ -21,7 +21,7 @@ import numpy as np
 
 from .affine import AFFINE_JACOBIAN, N_AFFINE, affine_jacobians, affine_values
 from .errors import ConfigError, ShapeError
-from .mesh import Mesh
+from .mesh import Mesh, check_points
 
 __all__ = [
     "AFFINE_JACOBIAN",
@@ -52,13 +52,6 @@ class Basis(Protocol):
     def values(self, points: np.ndarray) -> np.ndarray: ...
 
     def jacobians(self, points: np.ndarray) -> np.ndarray: ...
-
-
-def _points(points: np.ndarray) -> np.ndarray:
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
-    return p
 
 
 def check_basis(basis: object, what: str = "basis") -> Basis:
@@ -278,14 +271,14 @@ class MeshBasis:
         return cls(mesh, modes), sigma
 
     def values(self, points: np.ndarray) -> np.ndarray:
-        p = _points(points)
+        p = check_points(points)
         if p.shape == self.mesh.vertices.shape and np.array_equal(p, self.mesh.vertices):
             return self.modes.copy()
         tets, bary = self.mesh.locate(p)
         return np.einsum("pa,paic->pic", bary, self.modes[self.mesh.tets[tets]])
 
     def jacobians(self, points: np.ndarray) -> np.ndarray:
-        tets, _ = self.mesh.locate(_points(points))
+        tets, _ = self.mesh.locate(check_points(points))
         grads = self.mesh.shape_gradients[tets]  # (p, 4, 3)
         return np.einsum("paic,paj->pijc", self.modes[self.mesh.tets[tets]], grads)
 

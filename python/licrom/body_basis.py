@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from .basis import Basis, check_basis, check_basis_output
-from .errors import ConfigError, ShapeError
-from .mesh import Mesh
+from .errors import ConfigError
+from .mesh import Mesh, check_points
 from .rigid import center_of_mass
 
 __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "rigid_momenta"]
@@ -96,27 +96,20 @@ class BodyFrameBasis:
 
     def values(self, points: np.ndarray) -> np.ndarray:
         """(p, 3) rest points -> (p, 3, n) orthogonalised mode values."""
-        p = self._points(points)
+        p = check_points(points)
         xbar = p - self.center
         rigid = self._t.T[None] + np.cross(self._w[None], xbar[:, None], axis=2).transpose(0, 2, 1)
         return self._raw_values(p) - rigid
 
     def jacobians(self, points: np.ndarray) -> np.ndarray:
         """(p, 3) rest points -> (p, 3, 3, n) ``dW_ic/dX_j`` of the orthogonalised modes."""
-        p = self._points(points)
+        p = check_points(points)
         sym = np.broadcast_to(_symmetric_matrices().transpose(1, 2, 0), (len(p), 3, 3, N_SYMMETRIC))
         jac = sym
         if self.learned is not None:
             shape = (len(p), 3, 3, self.learned.n_modes)
             jac = np.concatenate([sym, check_basis_output("jacobians", self.learned.jacobians(p), shape)], axis=3)
         return jac - _skew(self._w).transpose(1, 2, 0)[None]
-
-    @staticmethod
-    def _points(points: np.ndarray) -> np.ndarray:
-        p = np.asarray(points, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ShapeError(f"basis points must have shape (p, 3), got {p.shape}")
-        return p
 
     def on(self, mesh: Mesh) -> BodyFrameBasis:
         """The same modes orthogonalised on another mesh of the object."""

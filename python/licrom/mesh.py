@@ -9,12 +9,13 @@ import warnings
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .errors import ConfigError, FileFormatError, MeshError, MissingDependencyError, ShapeError
 
-__all__ = ["Mesh", "MeshQuality"]
+__all__ = ["Mesh", "MeshQuality", "check_points"]
 
 # Outward-facing triangles of a positively oriented tet (a, b, c, d): det[b-a, c-a, d-a] > 0.
 _TET_FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
@@ -35,6 +36,20 @@ _FORMAT_PACKAGES = {".xdmf": "h5py", ".xmf": "h5py", ".med": "h5py", ".h5m": "h5
 _LOOPING_READERS = {"tecplot": "r", "mdpa": "rb"}
 # A reader that has read past the end of the file this many times is looping.
 _MAX_READS_AT_END = 100
+
+
+def check_points(points: Any, name: str = "points") -> np.ndarray:
+    """``points`` as a (p, 3) float64 array of finite positions, m: where a basis or a model is evaluated.
+
+    Raises:
+        ShapeError: another shape, or NaN/inf.
+    """
+    x = np.asarray(points, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ShapeError(f"{name} must have shape (p, 3), got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ShapeError(f"{name} holds NaN or inf")
+    return x
 
 
 class _EndGuard:

@@ -16,7 +16,7 @@ import torch
 from .._io import load_npz, save_npz
 from ..affine import AFFINE_JACOBIAN, N_AFFINE, affine_values, apply_affine, fit_affine
 from ..errors import ConfigError, FileFormatError, LicromError, ShapeError
-from ..mesh import Mesh
+from ..mesh import Mesh, check_points
 from ..scene import Scene
 from .config import _CHUNK, ModelConfig
 from .finalize import _Finalization
@@ -41,15 +41,6 @@ def _real_array(name: str, a: Any) -> np.ndarray:
         return raw.astype(np.float64)
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} must be an array of real numbers, got {type(a).__name__} ({exc})") from None
-
-
-def _as_points(points: Any, name: str = "points") -> np.ndarray:
-    x = np.asarray(points, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ShapeError(f"{name} must have shape (p, 3), got {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise ShapeError(f"{name} holds NaN or inf")
-    return x
 
 
 def _check_weights(path: Any, config: ModelConfig, arrays: dict[str, np.ndarray]) -> None:
@@ -280,7 +271,7 @@ class Model:
 
         For a body-frame model these are the r learned body-frame displacement fields.
         """
-        x = _as_points(points)
+        x = check_points(points)
         out = np.empty((len(x), 3, self.n_modes))
         if self.n_affine:
             out[:, :, :N_AFFINE] = affine_values(x)
@@ -299,7 +290,7 @@ class Model:
 
     def values_and_jacobians(self, points: Any) -> tuple[np.ndarray, np.ndarray]:
         """Both :meth:`values` and :meth:`jacobians` in one pass."""
-        x = _as_points(points)
+        x = check_points(points)
         vals = np.empty((len(x), 3, self.n_modes))
         jacs = np.empty((len(x), 3, 3, self.n_modes))
         if self.n_affine:
@@ -420,8 +411,8 @@ class Model:
 
     def encode_q(self, points: Any, displacements: Any, weights: Any = None) -> np.ndarray:
         """Reduced coordinates (n_modes,): ``[a; z]`` (world frame: the affine fit, then :meth:`encode`) or ``z`` (body frame)."""
-        x = _as_points(points)
-        u = _as_points(displacements, "displacements")
+        x = check_points(points)
+        u = check_points(displacements, "displacements")
         if u.shape != x.shape:
             raise ShapeError(f"points and displacements must have the same shape, got {x.shape} and {u.shape}")
         if len(x) == 0:
