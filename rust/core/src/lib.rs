@@ -22,8 +22,8 @@
 //! the same elastic term, contact and friction pulled back through the rotation,
 //! the same line search. The full-space simulation of the same physics (per tet
 //! and per vertex, on the GPU with warp) is `python/licrom/full_sim/`: `elastic.py`,
-//! `contact.py` (friction and the stick switch) and `line_search.py` (this line
-//! search's rule and constants) follow the same formulas.
+//! `contact.py` (friction and the stick switch) follow the same formulas, and
+//! its Newton iteration calls this line search (`licrom._core.line_search`).
 
 // Indexed loops over fixed lane counts and small matrices are the form the
 // vectoriser handles best in the hot kernels; iterator chains would hide it.
