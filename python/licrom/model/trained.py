@@ -15,6 +15,7 @@ import torch
 
 from .._io import load_npz, save_npz
 from ..affine import AFFINE_JACOBIAN, N_AFFINE, affine_values, apply_affine, fit_affine
+from ..basis import SubspaceProjector
 from ..errors import ConfigError, FileFormatError, LicromError, ShapeError
 from ..mesh import Mesh, check_points
 from ..scene import Scene
@@ -305,24 +306,15 @@ class Model:
         return vals, jacs
 
     # --- projection onto the subspace ---------------------------------------------------
-    def _vertex_system(self, mesh: Mesh | None) -> tuple[Mesh, np.ndarray, np.ndarray, Any]:
-        """Basis at the vertices of ``mesh`` (default: the model mesh), its masses and M_r's factor."""
-        import scipy.linalg
-
+    def _vertex_system(self, mesh: Mesh | None) -> tuple[Mesh, np.ndarray, SubspaceProjector]:
+        """Basis at the vertices of ``mesh`` (default: the model mesh) and its mass-weighted projector."""
         m = self.mesh if mesh is None else mesh
         key = "model" if mesh is None else str(id(mesh))
         hit = self._vertex_cache.get(key)
         if hit is not None and hit[0] is m:
             return hit
-        masses = m.vertex_masses(1.0)  # relative weights; a homogeneous density cancels
         basis = self.values(m.vertices)  # (n, 3, k)
-        flat = basis.reshape(-1, self.n_modes)
-        mr = flat.T @ (np.repeat(masses, 3)[:, None] * flat)
-        try:
-            factor = scipy.linalg.cho_factor(mr)
-        except np.linalg.LinAlgError as exc:
-            raise ShapeError(f"the reduced mass matrix of this basis is singular on this mesh ({exc})") from exc
-        entry = (m, basis, masses, factor)
+        entry = (m, basis, SubspaceProjector(basis, m.vertex_masses(1.0)))  # relative weights: a homogeneous density cancels
         if mesh is None or len(self._vertex_cache) < 4:
             self._vertex_cache[key] = entry
         return entry
@@ -339,9 +331,7 @@ class Model:
         Returns:
             (n_modes,) or (f, n_modes) reduced coordinates.
         """
-        import scipy.linalg
-
-        m, basis, masses, factor = self._vertex_system(mesh)
+        m, _basis, projector = self._vertex_system(mesh)
         u = _real_array("displacements", displacements)
         single = u.ndim == 2
         if single:
@@ -350,13 +340,12 @@ class Model:
             raise ShapeError(f"displacements must have shape (n, 3) or (f, n, 3) with n = {m.n_vertices}, got {np.shape(displacements)}")
         if not np.isfinite(u).all():
             raise ShapeError("displacements hold NaN or inf; project needs finite values")
-        rhs = np.einsum("nic,n,fni->cf", basis, masses, u)
-        q = scipy.linalg.cho_solve(factor, rhs).T
+        q = projector.project(u)
         return q[0] if single else q
 
     def reconstruct(self, q: Any, mesh: Mesh | None = None) -> np.ndarray:
         """Vertex displacements ``B q`` (n, 3) or (f, n, 3) of the model mesh (or ``mesh``)."""
-        _m, basis, _, _ = self._vertex_system(mesh)
+        _m, basis, _ = self._vertex_system(mesh)
         qa = _real_array("q", q)
         if qa.ndim not in (1, 2) or qa.shape[-1] != self.n_modes:
             raise ShapeError(f"q must have shape ({self.n_modes},) or (f, {self.n_modes}), got {qa.shape}")
