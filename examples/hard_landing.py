@@ -27,7 +27,7 @@ from licrom.affine import apply_affine, fit_affine
 from licrom.basis import SubspaceProjector
 from licrom.compare import compare
 from licrom.cubature import Cubature
-from licrom.training_data import relative_error
+from licrom.rigid import relative_error
 
 
 def readme_scene() -> tuple[licrom.Mesh, licrom.Scene]:

@@ -16,7 +16,8 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom.model import ModelConfig
-from licrom.training_data import TrainingData, relative_error
+from licrom.rigid import relative_error
+from licrom.training_data import TrainingData
 
 
 def main() -> None:

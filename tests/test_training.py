@@ -8,11 +8,11 @@ import torch
 from licrom import ConfigError, FileFormatError, Trajectory, meshes
 from licrom.basis import affine_values
 from licrom.model import Model, ModelConfig
+from licrom.rigid import relative_error
 from licrom.training import TrainConfig, evaluate, output_paths, train
 from licrom.training_data import (
     TrainingData,
     make_synthetic_trajectories,
-    relative_error,
     split_by_trajectory,
 )
 

@@ -24,9 +24,8 @@ from ._repr import concise_repr
 from .error_estimate import ERROR_THRESHOLD
 from .errors import ConfigError, ShapeError
 from .mesh import Mesh
-from .rigid import body_frame_displacements, rigid_fit, rotation_angle
+from .rigid import body_frame_displacements, relative_error, rigid_fit, rotation_angle
 from .scene import Scene
-from .training_data import relative_error
 from .trajectory import Trajectory
 from .validity import CONTACT_TOLERANCE, first_touch
 
@@ -152,8 +151,6 @@ def nonrigid_error(
         ShapeError: different meshes or frame times.
         ConfigError: ``start`` not a frame index.
     """
-    # training_data pulls in the model (torch): imported on use so `import licrom` stays light.
-
     _check_same_run(reference, other, "nonrigid_error")
     if start is None:
         start = first_contact_frame(reference, contact_tolerance) or 0

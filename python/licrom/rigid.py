@@ -23,6 +23,7 @@ __all__ = [
     "center_of_mass",
     "check_frame",
     "nonrigid_displacements",
+    "relative_error",
     "rigid_fit",
     "rotation_angle",
 ]
@@ -119,3 +120,17 @@ def rotation_angle(rotation: np.ndarray) -> np.ndarray:
     r = np.asarray(rotation, dtype=np.float64)
     cos = 0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1.0)
     return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def relative_error(reference: np.ndarray, approximation: np.ndarray, masses: np.ndarray) -> float:
+    """Mass-weighted relative L2 error ``||u - u~||_M / ||u||_M`` over all frames together.
+
+    ``reference`` and ``approximation`` are (n, 3) or (f, n, 3); returns 0 when both are zero.
+    """
+    d = np.asarray(reference, dtype=np.float64) - np.asarray(approximation, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    num = float(np.einsum("...ni,...ni,n->...", d, d, masses).sum())
+    den = float(np.einsum("...ni,...ni,n->...", ref, ref, masses).sum())
+    if den == 0.0:
+        return 0.0 if num == 0.0 else float("inf")
+    return float(np.sqrt(num / den))

@@ -39,7 +39,6 @@ __all__ = [
     "TrajectorySource",
     "load_trajectories",
     "make_synthetic_trajectories",
-    "relative_error",
     "split_by_trajectory",
 ]
 
@@ -302,20 +301,6 @@ class TrainingData:
             "affine_removed": self.affine,
             "frame": self.frame,
         }
-
-
-def relative_error(reference: np.ndarray, approximation: np.ndarray, masses: np.ndarray) -> float:
-    """Mass-weighted relative L2 error ``||u - u~||_M / ||u||_M`` over all frames together.
-
-    ``reference`` and ``approximation`` are (n, 3) or (f, n, 3); returns 0 when both are zero.
-    """
-    d = np.asarray(reference, dtype=np.float64) - np.asarray(approximation, dtype=np.float64)
-    ref = np.asarray(reference, dtype=np.float64)
-    num = float(np.einsum("...ni,...ni,n->...", d, d, masses).sum())
-    den = float(np.einsum("...ni,...ni,n->...", ref, ref, masses).sum())
-    if den == 0.0:
-        return 0.0 if num == 0.0 else float("inf")
-    return float(np.sqrt(num / den))
 
 
 # ----------------------------------------------------------------------------------------
