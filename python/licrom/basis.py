@@ -303,13 +303,9 @@ def run_balanced_weights(runs: np.ndarray, norm2: np.ndarray, floor: float = 1e-
     blown up into modes of noise: it counts in proportion to its energy, at most
     ``floor^-power`` times more than plain POD would count it.
 
-    Why 3/4 by default, measured on the body-frame experiments (docs/results.md section 10,
-    body-frame projection error of the held-out runs against plain POD of the same frames,
-    r = 20/40/60): balanced in full, the soft cheese's slide, stick and new-azimuth runs
-    fell to 0.59-0.84x while the run that tumbles end over end rose to 1.15-1.24x, beyond
-    the 1.2x we allow a subspace against plain POD; at 3/4 they are at 0.66-0.87x and
-    1.09-1.11x (at 1/2: 0.75-0.90x and 1.05-1.07x). The boxes and the ball move by at
-    most 4 % either way.
+    The default 3/4 is measured in docs/results.md section 10 ("Balanced POD"): balanced in
+    full, a run that tumbles end over end lost more against plain POD than the 1.2x a
+    subspace is allowed.
 
     Args:
         runs: (f,) integer run index of each frame.
