@@ -74,7 +74,7 @@ ERROR_SCALE = 4.0
 """Factor from the Jacobi displacement ratio to the non-rigid error (dimensionless).
 
 One Jacobi sweep sees a smooth missing deformation only at the element scale, so the raw
-ratio is low: measured by ``examples/error_estimate_validation.py`` (body-frame POD(r),
+ratio is low: measured by ``experiments/error_estimate_validation.py`` (body-frame POD(r),
 r = 2..60, on the held-out cheese, box and sphere runs of ``body_frame_experiments.py``,
 a softer cheese and a finer cheese mesh; 45 runs), the true non-rigid error was 4.1 times
 the raw ratio (median; middle half 3.0-5.8 times)."""

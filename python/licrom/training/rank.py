@@ -27,7 +27,7 @@ __all__ = ["DEFAULT_CANDIDATES", "DEFAULT_MAX_RANK", "DEFAULT_TOLERANCE", "RankC
 DEFAULT_TOLERANCE = 0.05
 """Default tolerance of the held-out runs' RMS relative projection error.
 
-Measured on the body-frame experiments' training runs (examples/body_frame_experiments.py), it
+Measured on the body-frame experiments' training runs (experiments/body_frame_experiments.py), it
 chooses r = 120 (the cap; 5.5 %), 40 and 70 for the cheese, box and ball, where the held-out runs'
 body POD(r) errors are at most 4.2 %, 2.5 % and 2.9 %: room for the dynamics and cubature error a
 reduced run adds under the 10 % non-rigid target (the tumbling cheese at r = 120 reached 10.5 %)."""

@@ -1,6 +1,6 @@
 """Body-frame experiments: scenes a new user would try, with their noise floors, subspace bounds and reduced runs.
 
-    python examples/body_frame_experiments.py [--work out/body_frame] [--docs docs] [--r 20 40] [--small]
+    python experiments/body_frame_experiments.py [--work out/body_frame] [--docs docs] [--r 20 40] [--small]
 
 Families (one mesh and material each; training runs and held-out runs):
 
@@ -701,7 +701,7 @@ def main() -> None:
     print(f"wrote {work / 'results.json'} ({wall:.0f} s)")
     if args.small or args.train_only is not None:
         return
-    write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/body_frame_experiments.py` on "
+    write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python experiments/body_frame_experiments.py` on "
                   f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s "
                   "(full runs and models cached; the models trained on an H100 with `--train-only`, see below).\n\n" + INTRO + "\n\n"
                   + training_table(train_rows) + "\n\n" + BOUNDS_INTRO + "\n\n" + held_out_table(test_rows, pod_sizes) + "\n\n"

@@ -1,8 +1,8 @@
 """What a user gets by default: `licrom train` defaults, then `ReducedSim(model)` on held-out scenes.
 
-    python examples/defaults_experiments.py --models out/defaults/models [--work out/body_frame] [--docs docs] [--small]
+    python experiments/defaults_experiments.py --models out/defaults/models [--work out/body_frame] [--docs docs] [--small]
 
-The families and held-out scenes are those of ``examples/body_frame_experiments.py`` (the cheese at
+The families and held-out scenes are those of ``experiments/body_frame_experiments.py`` (the cheese at
 1638 tets, ``--cheese-resolution``). ``--models`` holds one model per family, ``FAMILY.lcm``, trained by
 ``licrom train TRAINING_RUNS -o FAMILY.lcm`` with no other option than the device (r chosen from the data,
 cubature fitted and stored by the training; the training runs are the family's, as ``--train-only`` of that
@@ -222,7 +222,7 @@ def main() -> None:
         tmp.write_text(json.dumps({"rows": rows, "speed": timing, "wall_s": wall}, indent=1, default=float))
     if args.small:
         return
-    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python examples/defaults_experiments.py` on "
+    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python experiments/defaults_experiments.py` on "
                       f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s (full runs cached).\n\n"
                       + text + "\n", SECTION_TITLE)
 

@@ -1,8 +1,8 @@
 """How tight the cubature that training fits must be: held-out non-rigid error, size, fit and step time per tolerance.
 
-    python examples/cubature_tolerance.py [--work out/body_frame] [--r 20 60] [--small]
+    python experiments/cubature_tolerance.py [--work out/body_frame] [--r 20 60] [--small]
 
-For each family of ``examples/body_frame_experiments.py`` (its cached full runs) and each r, the
+For each family of ``experiments/body_frame_experiments.py`` (its cached full runs) and each r, the
 body-frame subspace is the 6 symmetric affine modes + POD(r) of the training runs (balanced as
 training balances them: the learned modes come within 1.01x of it), standing in for a trained
 model so that no training is needed. Its cubature is fitted as :func:`licrom.train` fits it

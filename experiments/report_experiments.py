@@ -1,6 +1,6 @@
 """The report's friction experiments at full scale, measured; writes ``docs/results.md``.
 
-    python examples/report_experiments.py [--work licrom-out/experiments] [--docs docs] [--small]
+    python experiments/report_experiments.py [--work licrom-out/experiments] [--docs docs] [--small]
 
 Every expensive product is cached in the work folder (datasets, models, full-space
 reference runs), so the script resumes where it stopped and models trained elsewhere
@@ -321,7 +321,7 @@ def main() -> None:
                         f"| speedup | {fm / rm:.0f}x |\n")
         print(f"speed: {big.n_tets} tets, full {fm:.1f} ms, reduced {rm:.3f} ms, {fm / rm:.0f}x", flush=True)
 
-    header = (f"# Results\n\nMeasured by `examples/report_experiments.py` on {platform.processor() or platform.machine()}, "
+    header = (f"# Results\n\nMeasured by `experiments/report_experiments.py` on {platform.processor() or platform.machine()}, "
               f"{time.strftime('%Y-%m-%d')}; wall time {time.perf_counter() - t_start:.0f} s. Errors are mass-weighted relative "
               "displacement errors averaged over the frames; the projection error is that of the full run projected onto the "
               "model's subspace (the best a run in it can do); COM errors are fractions of the object's bounding-box diagonal; "

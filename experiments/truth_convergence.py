@@ -1,6 +1,6 @@
 """Is the truth converged? The full simulation's mesh and time-step convergence (issue 24, part 1).
 
-Two held-out scenes of ``examples/body_frame_experiments.py``, built with the same placement code
+Two held-out scenes of ``experiments/body_frame_experiments.py``, built with the same placement code
 on other meshes of the same object:
 
 * the soft cheese (E = 20 kPa) "soft, slides: 22 deg az 0, mu 0.3", 1.5 s (h = 10 ms: 150 steps);
@@ -194,7 +194,7 @@ def choose(rows: list[dict], key: str) -> dict | None:
 
 def section(results: dict) -> str:
     out = [SECTION_TITLE, "",
-           "`examples/truth_convergence.py` (issue 24, part 1). The held-out scenes of section 10 built with the same "
+           "`experiments/truth_convergence.py` (issue 24, part 1). The held-out scenes of section 10 built with the same "
            "placement code on finer meshes of the same object: the soft cheese that slides (22 deg az 0, mu 0.3, "
            "E = 20 kPa, 1.5 s) and the soft ball that bounces and rolls (25 deg, mu 0.3, 1 s). Backward Euler, full "
            "simulation (warp) on the GPU. Each study is measured against its finest member at matching frame times: "

@@ -1,8 +1,8 @@
 """Does the online error estimate rank reduced runs by their true non-rigid error, and flag the bad ones?
 
-    python examples/error_estimate_validation.py [--work out/body_frame] [--r 2 4 8 20 60] [--small]
+    python experiments/error_estimate_validation.py [--work out/body_frame] [--r 2 4 8 20 60] [--small]
 
-For every held-out run of the families of ``examples/body_frame_experiments.py`` (cheese:
+For every held-out run of the families of ``experiments/body_frame_experiments.py`` (cheese:
 new slopes, friction and azimuth; box: tipping and tumbling; sphere: rolling), plus the
 first held-out cheese scene with a softer material (E = 10 kPa) and on a finer mesh of the
 cheese (resolution 10, the res-8 POD modes interpolated onto it), the script runs the

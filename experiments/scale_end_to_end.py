@@ -1,10 +1,10 @@
 """The pipeline end to end on a >= 100k-tet mesh, every stage timed (issue 24, part 2).
 
-    python examples/scale_end_to_end.py --device cuda --resolution 42 --runs 20 --work out/scale
-    python examples/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
-    python examples/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
+    python experiments/scale_end_to_end.py --device cuda --resolution 42 --runs 20 --work out/scale
+    python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
+    python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
 
-The cheese family of ``examples/body_frame_experiments.py`` (the same scenes and placement code)
+The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes and placement code)
 on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
 
 1. **generate**: the family's training runs (``--runs`` of its 20: the first ones, azimuth by
@@ -250,7 +250,7 @@ def section(res: dict) -> str:
     med_full = float(np.median([g["median_step_ms"] for g in ho])) if ho else float("nan")
     med_red = float(np.median([r["median_step_ms"] for r in rows])) if rows else float("nan")
     out = [SECTION_TITLE, "",
-           f"`python examples/scale_end_to_end.py --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}` "
+           f"`python experiments/scale_end_to_end.py --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}` "
            f"(issue 24, part 2) on {res.get('gpu', 'no GPU')}, {res.get('cpus')} CPU cores, {res['date']}. The cheese family of "
            f"section 10 (soft cheese, E = 20 kPa, 6 cm drop; scenes from `body_frame_experiments.cheese_family`, same placement code) "
            f"on `meshes.cheese(resolution={res['resolution']})`: {mesh['tets']} tets, {mesh['vertices']} vertices; {len(tr)} of the "

@@ -1,9 +1,9 @@
 """Discretisation independence, fairly (issue 24, part 4): one model on other meshes, beside the truth's own gap.
 
-    python examples/cross_mesh.py [--model out/defaults/final/cheese.lcm] [--resolutions 8 12 16] [--work out/cross_mesh]
+    python experiments/cross_mesh.py [--model out/defaults/final/cheese.lcm] [--resolutions 8 12 16] [--work out/cross_mesh]
                                   [--cache 10:out/body_frame_c10 --cache 8:out/body_frame] [--docs docs] [--small]
 
-The soft cheese of ``examples/body_frame_experiments.py``: a model trained on one mesh of it (``--model``, by
+The soft cheese of ``experiments/body_frame_experiments.py``: a model trained on one mesh of it (``--model``, by
 default the ``licrom train`` defaults model of section 11, trained on the 1638-tet cheese, resolution
 ``--training-resolution`` 10) and the family's 4 held-out scenes, built with the same placement code on other
 meshes of the same object (``meshes.cheese(resolution=R)`` for each ``--resolutions`` R). For each scene and
@@ -287,7 +287,7 @@ def main() -> None:
         tmp.write_text(json.dumps(result, indent=1, default=float))
     if args.small:
         return
-    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\n`python examples/cross_mesh.py` (issue 24, part 4) on "
+    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\n`python experiments/cross_mesh.py` (issue 24, part 4) on "
                       f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {result['wall_s']:.0f} s "
                       "(full runs read from the cache where present).\n\n" + text + "\n", SECTION_TITLE)
 
