@@ -1,7 +1,8 @@
 //! Time stepping of the body-frame model: minimisation of the step's energy
 //! over `(c, R, q)` by Newton iterations on `(dc, omega, dq)`, with the
 //! world-frame solver's machinery ([`crate::solver`]) wherever the algorithm
-//! is the same: its contact model and stick correction (one driver,
+//! is the same: its outer iteration (one loop, `solver/newton.rs`), its
+//! contact model and stick correction (one driver,
 //! [`crate::solver::contact_model`]), its lagged elastic Hessian (one drift
 //! test and BFGS update), its incremental contact Hessian (one bookkeeping of
 //! the rows put in and taken out) and its line search.
@@ -90,9 +91,10 @@ use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::integrator::Integrator;
 use crate::reduced::ElasticModel;
-use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, ContactModelSteps, ModelOutcome, ModelSchedule};
+use crate::solver::contact_model::{inner_tolerance, minimise_contact_model, ContactModelSteps, ModelOutcome};
 use crate::solver::direction::{elastic_drift, factor_definite, metric_norm, secant_update};
 use crate::solver::line_search::{line_search, LineStep};
+use crate::solver::newton::{newton_step, NewtonSteps};
 use crate::solver::{Objective, SolverStats};
 
 /// Tolerance of the orthonormality of a given rotation.
@@ -451,42 +453,13 @@ impl BodyFrameSolver {
                 *x = 2.0 * q - p;
             }
         }
-        let mut energy = self.evaluate_trial(Objective::Energy);
+        let energy = self.evaluate_trial(Objective::Energy);
         std::mem::swap(&mut self.iterate, &mut self.trial);
         if !energy.is_finite() {
             return Err(LicromError::Diverged { iteration: 0, what: "energy at the initial guess" });
         }
-        let mut residual = f64::INFINITY;
-        let mut schedule = ModelSchedule::default();
-        for iteration in 1..=self.settings.max_iterations {
-            self.stats.iterations += 1;
-            if !self.iterate.grad.iter().all(|g| g.is_finite()) {
-                return Err(LicromError::Diverged { iteration, what: "gradient" });
-            }
-            if let Some(residual) = self.converged_on_last_factor(self.settings.tolerance) {
-                self.take_direction();
-                self.finish_step();
-                return Ok(BodyStepReport { iterations: iteration, residual });
-            }
-            self.update_elastic(iteration);
-            residual = self.direction(iteration)?;
-            if residual < self.settings.tolerance {
-                self.take_direction();
-                self.finish_step();
-                return Ok(BodyStepReport { iterations: iteration, residual });
-            }
-            if self.system.has_contact() && schedule.wanted() {
-                schedule.solved(self.solve_contact_model(energy, residual));
-            }
-            match self.search_line(energy, Objective::Energy) {
-                Some(step) => {
-                    energy = step.energy;
-                    schedule.searched(step.alpha);
-                }
-                None => return Err(self.fail(iteration, residual)),
-            }
-        }
-        Err(self.fail(self.settings.max_iterations, residual))
+        let report = newton_step(self, energy, self.settings.tolerance, self.settings.max_iterations)?;
+        Ok(BodyStepReport { iterations: report.iterations, residual: report.residual })
     }
 
     fn fail(&mut self, iterations: usize, residual: f64) -> LicromError {
@@ -744,5 +717,47 @@ impl ContactModelSteps for BodyFrameSolver {
 
     fn model_line_search(&mut self, e0: f64) -> Option<LineStep> {
         self.search_line(e0, Objective::ContactModel)
+    }
+}
+
+impl NewtonSteps for BodyFrameSolver {
+    fn iterate_gradient(&self) -> &[f64] {
+        &self.iterate.grad
+    }
+
+    /// The step ends on the last factored matrix ([`LAST_FACTOR_SHARE`]).
+    fn converged_early(&mut self, tolerance: f64) -> Option<f64> {
+        self.converged_on_last_factor(tolerance)
+    }
+
+    fn newton_direction(&mut self, iteration: usize, _full_step: bool) -> Result<f64> {
+        self.update_elastic(iteration);
+        self.direction(iteration)
+    }
+
+    fn has_contact(&self) -> bool {
+        self.system.has_contact()
+    }
+
+    fn solve_contact_model(&mut self, energy: f64, residual: f64) -> ModelOutcome {
+        BodyFrameSolver::solve_contact_model(self, energy, residual)
+    }
+
+    fn energy_line_search(&mut self, energy: f64) -> Option<LineStep> {
+        self.search_line(energy, Objective::Energy)
+    }
+
+    fn recover(&mut self) -> bool {
+        false
+    }
+
+    fn iterated(&mut self, _iteration: usize) {}
+
+    fn finish_step(&mut self) {
+        BodyFrameSolver::finish_step(self);
+    }
+
+    fn fail(&mut self, iterations: usize, residual: f64) -> LicromError {
+        BodyFrameSolver::fail(self, iterations, residual)
     }
 }

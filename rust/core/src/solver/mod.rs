@@ -6,8 +6,9 @@
 //! when the contact terms change (finishing a slow step with Newton, see
 //! [`PREFACTORED_BUDGET`]).
 //!
-//! Where the parts live: the outer iteration, the initial guess and the state
-//! here; the Newton matrix (lagged elastic Hessian with its BFGS correction,
+//! Where the parts live: the initial guess and the state here; the outer
+//! iteration, written for any solver and shared with the body-frame one, in
+//! `newton.rs`; the Newton matrix (lagged elastic Hessian with its BFGS correction,
 //! incremental contact Hessian) and the search direction in `direction.rs`;
 //! the contact model and friction's stick correction in `contact_model.rs`;
 //! the line search, usable by any solver, in [`line_search`]; the parameters
@@ -41,6 +42,7 @@
 pub(crate) mod contact_model;
 pub(crate) mod direction;
 pub mod line_search;
+pub(crate) mod newton;
 mod settings;
 
 #[cfg(test)]
@@ -55,9 +57,10 @@ use crate::cholesky::Cholesky;
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reduced::{ContactHessian, ElasticModel, Hessian, ReducedSystem, StepStart, Workspace};
 use crate::validity::Validity;
-use contact_model::{ContactModelState, ModelSchedule};
+use contact_model::{ContactModelState, ModelOutcome};
 use direction::ElasticPart;
 use line_search::{line_search, LineStep};
+use newton::{newton_step, NewtonSteps};
 
 /// Directions a prefactored step may take before it continues with Newton's.
 /// Its matrix keeps the elastic stiffness at rest, so it converges only
@@ -370,7 +373,7 @@ impl ReducedSolver {
             let accel = if self.guess_from_previous { h * (self.qdot[i] - self.qdot_prev[i]) } else { self.free_fall[i] };
             self.iterate.q[i] = self.q[i] + h * self.qdot[i] + accel;
         }
-        let mut energy = self.system.evaluate(&self.current, &self.iterate.q, true, &mut self.ws);
+        let energy = self.system.evaluate(&self.current, &self.iterate.q, true, &mut self.ws);
         self.iterate.grad.copy_from_slice(&self.ws.grad);
         self.ws.elastic_gradient(&mut self.iterate.grad_elastic);
         self.iterate.energy_elastic = self.ws.elastic_energy;
@@ -385,46 +388,7 @@ impl ReducedSolver {
             self.factor_valid = false;
             self.mode = SolverKind::Prefactored;
         }
-        let mut residual = f64::INFINITY;
-        let mut full_step = false;
-        let mut schedule = ModelSchedule::default();
-        for iteration in 1..=self.settings.max_iterations {
-            self.stats.iterations += 1;
-            if !self.iterate.grad.iter().all(|g| g.is_finite()) {
-                return Err(LicromError::Diverged { iteration, what: "gradient" });
-            }
-            if self.mode == SolverKind::Newton {
-                self.update_elastic(iteration);
-            }
-            residual = self.direction(iteration, full_step)?;
-            if residual < self.settings.tolerance {
-                for (x, d) in self.iterate.q.iter_mut().zip(&self.dir) {
-                    *x += d;
-                }
-                self.finish_step();
-                return Ok(StepReport { iterations: iteration, residual });
-            }
-            if self.system.has_contact() && schedule.wanted() {
-                schedule.solved(self.solve_contact_model(energy, residual));
-            }
-            match self.search_line(energy, Objective::Energy) {
-                Some(step) => {
-                    energy = step.energy;
-                    full_step = step.alpha == 1.0;
-                    schedule.searched(step.alpha);
-                }
-                None if self.mode == SolverKind::Prefactored => {
-                    self.fall_back();
-                    full_step = false;
-                    continue;
-                }
-                None => return Err(self.fail(iteration, residual)),
-            }
-            if self.mode == SolverKind::Prefactored && iteration >= PREFACTORED_BUDGET {
-                self.fall_back();
-            }
-        }
-        Err(self.fail(self.settings.max_iterations, residual))
+        newton_step(self, energy, self.settings.tolerance, self.settings.max_iterations)
     }
 
     /// Continues the prefactored step with Newton directions from the current
@@ -579,5 +543,58 @@ impl ReducedSolver {
         self.ws.exact_hessian(&mut self.probe_hessian);
         check_output("the Hessian", "q", &self.probe_hessian)?;
         Ok(&self.probe_hessian)
+    }
+}
+
+impl NewtonSteps for ReducedSolver {
+    fn iterate_gradient(&self) -> &[f64] {
+        &self.iterate.grad
+    }
+
+    fn converged_early(&mut self, _tolerance: f64) -> Option<f64> {
+        None
+    }
+
+    fn newton_direction(&mut self, iteration: usize, full_step: bool) -> Result<f64> {
+        if self.mode == SolverKind::Newton {
+            self.update_elastic(iteration);
+        }
+        self.direction(iteration, full_step)
+    }
+
+    fn has_contact(&self) -> bool {
+        self.system.has_contact()
+    }
+
+    fn solve_contact_model(&mut self, energy: f64, residual: f64) -> ModelOutcome {
+        ReducedSolver::solve_contact_model(self, energy, residual)
+    }
+
+    fn energy_line_search(&mut self, energy: f64) -> Option<LineStep> {
+        self.search_line(energy, Objective::Energy)
+    }
+
+    /// A prefactored step falls back to Newton's directions.
+    fn recover(&mut self) -> bool {
+        if self.mode != SolverKind::Prefactored {
+            return false;
+        }
+        self.fall_back();
+        true
+    }
+
+    /// A prefactored step falls back to Newton's directions after [`PREFACTORED_BUDGET`] iterations.
+    fn iterated(&mut self, iteration: usize) {
+        if self.mode == SolverKind::Prefactored && iteration >= PREFACTORED_BUDGET {
+            self.fall_back();
+        }
+    }
+
+    fn finish_step(&mut self) {
+        ReducedSolver::finish_step(self);
+    }
+
+    fn fail(&mut self, iterations: usize, residual: f64) -> LicromError {
+        ReducedSolver::fail(self, iterations, residual)
     }
 }
