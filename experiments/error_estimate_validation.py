@@ -59,10 +59,11 @@ def cost_ratio(sim: BodyFrameSim, steps: int) -> tuple[float, float]:
     """Wall time of the steps and of the estimate's work (``ErrorMonitor.after_step``) over one run, s.
 
     The estimate evaluates the residual every ``stride``-th step and keeps the sample positions
-    of the two steps before, so its cost per step is its total over the run divided by the steps.
+    of the steps before that its integrator reads, so its cost per step is its total over the run divided by the steps.
     """
     mon = sim._monitor
-    mon.start(sim._previous_positions()[mon.vertices], sim.positions[mon.vertices])
+    history = [sim._previous_positions(k) for k in range(mon.history_length - 1, 0, -1)] + [sim.positions]
+    mon.start([x[mon.vertices] for x in history])
     step_s, est_s = 0.0, 0.0
     for _ in range(steps):
         t0 = time.perf_counter()
