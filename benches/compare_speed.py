@@ -20,7 +20,7 @@ from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBa
 from licrom.compare import time_steps
 from licrom.cubature import ContactPoints, Cubature
 from licrom.placement import drop_state, initial_state_on_plane
-from licrom.scene_file import report_dataset_spec
+from licrom.presets import report_dataset_spec
 
 
 def polynomial_basis(mesh: licrom.Mesh, r: int) -> StackedBasis:

@@ -33,7 +33,7 @@ from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.cubature import ContactPoints, Cubature
 from licrom.model import Model
 from licrom.placement import drop_state, initial_state_on_plane
-from licrom.scene_file import report_dataset_spec
+from licrom.presets import report_dataset_spec
 
 
 def build(args: argparse.Namespace) -> list:

@@ -27,7 +27,7 @@ import numpy as np
 from licrom import meshes
 from licrom.dataset import generate_dataset, load_manifest
 from licrom.placement import drop_state
-from licrom.scene_file import report_dataset_spec
+from licrom.presets import report_dataset_spec
 
 
 def contents(out: Path) -> dict[str, dict[str, bytes]]:

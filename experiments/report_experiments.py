@@ -39,8 +39,8 @@ from licrom.compare import Comparison, compare, time_steps
 from licrom.cubature import ContactPoints, Cubature
 from licrom.model import ModelConfig
 from licrom.placement import initial_state_between_planes, initial_state_on_plane
+from licrom.presets import report_dataset_spec
 from licrom.render import filmstrip, pick_renderer, plot_errors
-from licrom.scene_file import report_dataset_spec
 from licrom.training import TrainConfig
 
 CHEESE_HELD_OUT = [  # (slope deg, mu, where it lies w.r.t. the training set)

@@ -14,7 +14,7 @@ from licrom.dataset import (
     load_manifest,
 )
 from licrom.placement import drop_state
-from licrom.scene_file import report_dataset_spec
+from licrom.presets import report_dataset_spec
 
 STIFF = Material(youngs_modulus=1e6, poisson_ratio=0.3)
 CONTACT = ContactParams(normal_stiffness=1e7, friction_stiffness=1e7)

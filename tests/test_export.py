@@ -9,8 +9,8 @@ from licrom import ContactParams, FullSim, Plane, meshes
 from licrom.errors import ConfigError, MissingDependencyError, ShapeError
 from licrom.export import contact_forces, nonrigid_deformation, plane_patch, write_usd, write_vtu_series
 from licrom.placement import drop_state, initial_state_on_plane
+from licrom.presets import report_dataset_spec
 from licrom.rigid import nonrigid_displacements
-from licrom.scene_file import report_dataset_spec
 from licrom.training_data import make_synthetic_trajectories
 
 SLOPE = 20.0  # tan = 0.364: mu 0.1 slides, mu 0.9 sticks

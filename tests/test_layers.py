@@ -23,7 +23,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("full simulation", ("full_sim",)),
     ("subspace", ("affine", "basis", "body_basis", "cubature", "training_data")),
     ("reduced simulation", ("error_estimate", "reduced_base", "body_frame", "reduced_sim")),
-    ("comparison and data", ("compare", "dataset", "scene_file")),
+    ("comparison and data", ("compare", "dataset", "scene_file", "presets")),
     ("learning", ("model", "training")),
     ("pictures", ("render", "report")),
     ("application", ("cli", "demo")),

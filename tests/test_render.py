@@ -6,8 +6,8 @@ from licrom import FullSim, Plane, meshes
 from licrom.compare import compare
 from licrom.errors import ConfigError, MissingDependencyError, ShapeError
 from licrom.placement import drop_state, initial_state_on_plane
+from licrom.presets import report_dataset_spec
 from licrom.render import COLORBAR_PX, HEADER_PX, PANEL_GAP, RenderStyle, animation, filmstrip, pictures, plot_errors, pyvista_unavailable
-from licrom.scene_file import report_dataset_spec
 from licrom.training_data import make_synthetic_trajectories
 
 RENDERERS = ["pyvista", "matplotlib"]

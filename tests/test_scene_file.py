@@ -138,7 +138,7 @@ def test_world_frame_initial_states(tmp_path):
 
 def test_demo_scene_file_is_the_old_demo_config():
     """The demo's old settings: cheese at 8, slopes (10, 30) x mu (0.1, 0.4, 0.7), drop 1 cm, 150 steps, held out (20, 0.25), (20, 0.55)."""
-    from licrom.scene_file import report_dataset_spec
+    from licrom.presets import report_dataset_spec
 
     s = load_scene("demo")
     mesh = meshes.cheese(resolution=8)

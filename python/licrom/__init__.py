@@ -44,7 +44,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "export": (".export", None),
     "FullSim": (".full_sim", "FullSim"),
     "generate_dataset": (".dataset", "generate_dataset"),
-    "report_dataset_spec": (".scene_file", "report_dataset_spec"),
+    "report_dataset_spec": (".presets", "report_dataset_spec"),
     "load_scene": (".scene_file", "load_scene"),
     "SceneFile": (".scene_file", "SceneFile"),
     "Surface": (".surface", "Surface"),
@@ -113,7 +113,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from .dataset import generate_dataset
     from .full_sim import FullSim
     from .model import Model, ModelConfig
+    from .presets import report_dataset_spec
     from .reduced_sim import ReducedSim
-    from .scene_file import SceneFile, load_scene, report_dataset_spec
+    from .scene_file import SceneFile, load_scene
     from .surface import Surface, TetrahedralizeParams, tetrahedralize
     from .training import TrainConfig, train
