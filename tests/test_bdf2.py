@@ -12,7 +12,7 @@ from licrom.cubature import Cubature
 from licrom.full_sim import FullSim
 from licrom.reduced_sim import ReducedSim
 from licrom.scene_file import load_scene
-from test_full_sim import G, _box_on_incline, _com
+from test_full_sim import _box_on_incline
 
 SOFT = Material(youngs_modulus=2e4, poisson_ratio=0.3, density=1000.0)
 
@@ -151,49 +151,3 @@ def test_bdf2_converges_at_second_order_and_backward_euler_at_first():
     assert 0.8 < orders["backward_euler"][-1] < 1.2
     assert 1.8 < orders["bdf2"][-1] < 2.2
     assert errors["bdf2"][-1] < 0.05 * errors["backward_euler"][-1]
-
-
-# --- friction, as for backward Euler --------------------------------------------------------
-
-
-@pytest.mark.parametrize("theta, mu", [(10.0, 0.3), (30.0, 0.7)])
-def test_bdf2_box_sticks_on_incline_below_friction_angle(theta, mu):
-    assert math.tan(math.radians(theta)) < mu
-    mesh, scene, downhill = _box_on_incline(theta, mu)
-    sim = FullSim(mesh, scene.replace(integrator="bdf2"))
-    c0, _ = _com(sim)
-    sim.run(100)
-    c, v = _com(sim)
-    slide = (c - c0) @ downhill
-    print(f"BDF2 stick theta={theta} mu={mu}: moved {1e6 * slide:.2f} um down the slope in 1 s, speed {1e6 * abs(v @ downhill):.2f} um/s")
-    assert abs(slide) < 1e-4
-
-
-@pytest.mark.parametrize("theta, mu", [(30.0, 0.3), (40.0, 0.8)])
-def test_bdf2_box_slides_on_incline_with_coulomb_acceleration(theta, mu):
-    t = math.radians(theta)
-    assert math.tan(t) > mu
-    mesh, scene, downhill = _box_on_incline(theta, mu)
-    sim = FullSim(mesh, scene.replace(integrator="bdf2"))
-    traj = sim.run(100)
-    w = sim.masses / sim.masses.sum()
-    v = np.einsum("fnk,n,k->f", traj.velocities, w, downhill)
-    window = traj.times >= 0.3
-    a = np.polyfit(traj.times[window], v[window], 1)[0]
-    expected = G * (math.sin(t) - mu * math.cos(t))
-    print(f"BDF2 slide theta={theta} mu={mu}: a = {a:.5f} m/s^2, analytic {expected:.5f} m/s^2 (error {100 * (a / expected - 1):+.3f}%)")
-    assert a == pytest.approx(expected, rel=0.02)
-
-
-def test_bdf2_box_pushed_on_flat_ground_stops_at_analytic_distance():
-    mu, v0 = 0.3, 2.0
-    mesh, scene, direction = _box_on_incline(0.0, mu, speed=v0, dt=0.005)
-    sim = FullSim(mesh, scene.replace(integrator="bdf2"))
-    c0, _ = _com(sim)
-    sim.run(200)
-    c, v = _com(sim)
-    distance = (c - c0) @ direction
-    expected = v0**2 / (2 * mu * G)
-    print(f"BDF2 push v0={v0} mu={mu}: stopped after {distance:.5f} m, analytic {expected:.5f} m (error {100 * (distance / expected - 1):+.3f}%)")
-    assert np.linalg.norm(v) < 1e-3
-    assert distance == pytest.approx(expected, rel=0.03)

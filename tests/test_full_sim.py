@@ -206,45 +206,51 @@ def test_free_fall_centre_of_mass_of_a_spinning_body():
     assert np.abs(c - c0).max() < 1e-10 and np.abs(v - v0).max() < 1e-8
 
 
+INTEGRATORS = ["backward_euler", "bdf2"]
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
 @pytest.mark.parametrize("theta, mu", [(10.0, 0.3), (20.0, 0.5), (30.0, 0.7)])
-def test_box_sticks_on_incline_below_friction_angle(theta, mu):
+def test_box_sticks_on_incline_below_friction_angle(theta, mu, integrator):
     assert math.tan(math.radians(theta)) < mu
     mesh, scene, downhill = _box_on_incline(theta, mu)
-    sim = FullSim(mesh, scene)
+    sim = FullSim(mesh, scene.replace(integrator=integrator))
     c0, _ = _com(sim)
     sim.run(100)
     c, v = _com(sim)
     slide = (c - c0) @ downhill
-    print(f"stick theta={theta} mu={mu}: moved {1e6 * slide:.2f} um down the slope in 1 s, speed {1e6 * abs(v @ downhill):.2f} um/s")
+    print(f"stick ({integrator}) theta={theta} mu={mu}: moved {1e6 * slide:.2f} um down the slope in 1 s, speed {1e6 * abs(v @ downhill):.2f} um/s")
     assert abs(slide) < 1e-4  # 0.1 mm (creep of the friction regularisation k_f: ~ rho L g sin(theta) / k_f)
 
 
+@pytest.mark.parametrize("integrator", INTEGRATORS)
 @pytest.mark.parametrize("theta, mu", [(30.0, 0.3), (25.0, 0.2), (35.0, 0.5), (40.0, 0.8)])
-def test_box_slides_on_incline_with_coulomb_acceleration(theta, mu):
+def test_box_slides_on_incline_with_coulomb_acceleration(theta, mu, integrator):
     t = math.radians(theta)
     assert math.tan(t) > mu
     mesh, scene, downhill = _box_on_incline(theta, mu)
-    sim = FullSim(mesh, scene)
+    sim = FullSim(mesh, scene.replace(integrator=integrator))
     traj = sim.run(100)
     w = sim.masses / sim.masses.sum()
     v = np.einsum("fnk,n,k->f", traj.velocities, w, downhill)
     window = traj.times >= 0.3  # after the landing transient
     a = np.polyfit(traj.times[window], v[window], 1)[0]
     expected = G * (math.sin(t) - mu * math.cos(t))
-    print(f"slide theta={theta} mu={mu}: a = {a:.5f} m/s^2, analytic {expected:.5f} m/s^2 (error {100 * (a / expected - 1):+.3f}%)")
+    print(f"slide ({integrator}) theta={theta} mu={mu}: a = {a:.5f} m/s^2, analytic {expected:.5f} m/s^2 (error {100 * (a / expected - 1):+.3f}%)")
     assert a == pytest.approx(expected, rel=0.02)
 
 
-def test_box_pushed_on_flat_ground_stops_at_analytic_distance():
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_box_pushed_on_flat_ground_stops_at_analytic_distance(integrator):
     mu, v0 = 0.3, 2.0
     mesh, scene, direction = _box_on_incline(0.0, mu, speed=v0, dt=0.005)
-    sim = FullSim(mesh, scene)
+    sim = FullSim(mesh, scene.replace(integrator=integrator))
     c0, _ = _com(sim)
     sim.run(200)  # 1 s; it stops after v0 / (mu g) = 0.68 s
     c, v = _com(sim)
     distance = (c - c0) @ direction
     expected = v0**2 / (2 * mu * G)
-    print(f"push v0={v0} mu={mu}: stopped after {distance:.5f} m, analytic {expected:.5f} m (error {100 * (distance / expected - 1):+.3f}%)")
+    print(f"push ({integrator}) v0={v0} mu={mu}: stopped after {distance:.5f} m, analytic {expected:.5f} m (error {100 * (distance / expected - 1):+.3f}%)")
     assert np.linalg.norm(v) < 1e-3
     assert distance == pytest.approx(expected, rel=0.03)
 
