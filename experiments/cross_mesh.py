@@ -34,6 +34,7 @@ training mesh's and the 864-tet truths of the earlier sections), else under ``--
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import sys
@@ -49,6 +50,7 @@ from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
 from licrom.body_frame import BodyFrameBasis
 from licrom.compare import first_contact_frame
+from licrom.scene import SolverParams
 from licrom.training import TrainConfig
 from truth_convergence import sampled_nonrigid, sampled_positions
 
@@ -249,6 +251,9 @@ def main() -> None:
                     help="full runs of resolution R cached under DIR (default: 10:out/body_frame_c10 and 8:out/body_frame)")
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--small", action="store_true", help="tiny meshes, 20 steps, one scene, a 1-epoch model: writes nothing under --docs")
+    ap.add_argument("--record-unconverged", action="store_true",
+                    help="full runs record unconverged steps instead of stopping (SolverParams(on_failure='record'), as at 100k tets)")
+    ap.add_argument("--truths-only", action="store_true", help="run and cache the full runs of every mesh, then stop (no model needed)")
     args = ap.parse_args()
     t_start = time.perf_counter()
     work = args.work / "small" if args.small else args.work
@@ -259,9 +264,21 @@ def main() -> None:
     def cache(resolution: int) -> Path:
         return caches.get(resolution, work / f"r{resolution}")
 
-    train_fam = cheese(train_res)
+    def family(resolution: int) -> bfe.Family:
+        fam = cheese(resolution)
+        if not args.record_unconverged:
+            return fam
+        record = SolverParams(on_failure="record")
+        return dataclasses.replace(fam, cases=[dataclasses.replace(c, scene=c.scene.replace(solver=record)) for c in fam.cases])
+
+    train_fam = family(train_res)
     steps = SMALL_STEPS if args.small else train_fam.steps
     cases = list(train_fam.held_out[:1] if args.small else train_fam.held_out)
+    if args.truths_only:
+        for res in [train_res, *resolutions]:
+            fam = family(res)
+            truths(cache(res), fam, [c for c in fam.held_out if c.name in {c.name for c in cases}], steps)
+        return
     model_path = work / "model.lcm" if args.small else args.model
     model = small_model(model_path, train_fam, cache(train_res)) if args.small else Model.load(model_path)
     if model.mesh.n_tets != train_fam.mesh.n_tets:
@@ -274,7 +291,7 @@ def main() -> None:
     names = {c.name for c in cases}
     full_runs = {train_fam.mesh.n_tets: {k: v[0] for k, v in train.items()}}
     for res in resolutions:
-        fam = cheese(res)
+        fam = family(res)
         own_cases = [c for c in fam.held_out if c.name in names]
         own = truths(cache(res), fam, own_cases, steps)
         full_runs[fam.mesh.n_tets] = {k: v[0] for k, v in own.items()}
