@@ -165,12 +165,15 @@ def _existing_mode(target: Path) -> int | None:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
+def atomic_path(path: str | os.PathLike, suffix: str = "", sync: bool = True) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only on success.
 
     A crash or exception while writing leaves ``path`` untouched (or absent) and
     removes the temporary file, so readers never see a half-written file. The first
     write into a folder also removes stale temporary files of killed writers there.
+    ``sync``: flush the file to the disk before the move (``os.fsync``, a few ms each);
+    False for many small files that are cheap to write again (a VTU series' frames), where
+    only a power loss, not a crash of the writer, could leave one of them empty.
 
     The result keeps the permission bits of the file it replaces (a new file gets those
     of a plain ``open()``). A symlink at ``path`` is replaced, not followed.
@@ -203,8 +206,9 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     tmp = Path(tmp_name)
     try:
         yield tmp
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        if sync:
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
         # mkstemp creates 0600 files: give the result the mode of the file it replaces, or
         # for a new file the permissions a plain open() would.
         if mode is None:

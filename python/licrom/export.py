@@ -195,7 +195,7 @@ def write_vtu_series(traj: Trajectory, folder: str | os.PathLike, name: str = "f
                 "contact_force": forces.normal[f] + forces.friction[f],
             },
         )
-        with atomic_path(out / fname) as tmp:
+        with atomic_path(out / fname, sync=False) as tmp:  # one fsync a frame took longer than the writing
             meshio.write(tmp, mesh, file_format="vtu")
         entries.append(f'    <DataSet timestep="{traj.times[f]:.9g}" part="0" file={quoteattr(fname)}/>')
         entries += [f'    <DataSet timestep="{traj.times[f]:.9g}" part="{1 + p}" file={quoteattr(q)}/>' for p, q in enumerate(planes)]
