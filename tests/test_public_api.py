@@ -26,10 +26,14 @@ PACKAGE_DIR = Path(licrom.__file__).parent
 
 
 def _source(module: str) -> Path:
-    """File of a licrom module (``""`` is the package itself), found without importing it."""
+    """File of a licrom module (``""`` is the package itself), found without importing it; the
+    stubs of the native module (``_core.pyi``) stand for it."""
     rel = Path(*module.split(".")) if module else Path()
     package = PACKAGE_DIR / rel / "__init__.py"
-    return package if package.is_file() else (PACKAGE_DIR / rel).with_suffix(".py")
+    if package.is_file():
+        return package
+    source, stub = (PACKAGE_DIR / rel).with_suffix(".py"), (PACKAGE_DIR / rel).with_suffix(".pyi")
+    return stub if stub.is_file() and not source.is_file() else source
 
 
 def _relative(module: str, level: int, target: str | None) -> str:

@@ -24,7 +24,29 @@ import numpy as np
 import numpy.typing as npt
 from typing_extensions import Self
 
-__all__ = ["LINE_SEARCH", "BodyFrameCore", "Reconstruction", "ReducedCore", "line_search", "snh_energy", "snh_hessian", "snh_pk1", "step_many"]
+__all__ = [
+    "LINE_SEARCH",
+    "AccuracyWarning",
+    "BodyFrameCore",
+    "ConcurrencyError",
+    "ConfigError",
+    "FileFormatError",
+    "LicromError",
+    "LicromWarning",
+    "MeshError",
+    "MissingDependencyError",
+    "OutputError",
+    "PhysicsWarning",
+    "Reconstruction",
+    "ReducedCore",
+    "ShapeError",
+    "SolverError",
+    "line_search",
+    "snh_energy",
+    "snh_hessian",
+    "snh_pk1",
+    "step_many",
+]
 
 _Float64Array: TypeAlias = npt.NDArray[np.float64]
 _Int64Array: TypeAlias = npt.NDArray[np.int64]
@@ -391,3 +413,70 @@ def line_search(e0: float, d0: float, phi: Callable[[float], tuple[float, float]
     Raises:
         ConfigError: ``e0`` not finite, or ``d0`` not a finite negative slope.
     """
+
+# The exception and warning family, re-exported by licrom.errors (their public home, which
+# their __module__ names).
+
+class LicromError(Exception):
+    """Base class of every error licrom raises."""
+
+class MeshError(LicromError, ValueError):
+    """A mesh is unusable: degenerate or inverted tets, bad indices, NaN coordinates."""
+
+class ShapeError(LicromError, ValueError):
+    """An array has the wrong shape, dtype or non-finite values."""
+
+class ConfigError(LicromError, ValueError):
+    """A parameter is outside its accepted range (material, plane, solver, scene)."""
+
+class SolverError(LicromError, RuntimeError):
+    """A solve did not converge or produced non-finite values.
+
+    Attributes:
+        iterations: iterations taken before giving up (None when not known).
+        residual: the last convergence measure in m/s (None when not known).
+        step_index: the time step that failed (None when not known).
+    """
+
+    iterations: int | None
+    residual: float | None
+    step_index: int | None
+    def __init__(self, /, message: str, *, iterations: int | None = None, residual: float | None = None, step_index: int | None = None) -> None: ...
+
+class FileFormatError(LicromError, OSError):
+    """A file is missing, truncated, corrupt, foreign, or of an unknown format version."""
+
+class OutputError(LicromError, OSError):
+    """An output cannot be written: the disk is full, the folder is read-only, or the path is a directory.
+
+    Nothing half-written is left behind: the destination keeps its previous contents (or stays absent).
+
+    Attributes:
+        errno: the operating system's error number (``errno.ENOSPC``, ``errno.EACCES``, ...; None when not known).
+    """
+
+    errno: int | None
+    def __init__(self, /, message: str, *, errno: int | None = None) -> None: ...
+
+class ConcurrencyError(LicromError, RuntimeError):
+    """One simulation was used from two threads at once (a step or evaluation was running in another thread).
+
+    A simulation serves one thread at a time; give each thread its own simulation (they run in
+    parallel), or guard a shared one with a ``threading.Lock``.
+    """
+
+class MissingDependencyError(LicromError, ImportError):
+    """An optional package that the asked-for output needs is not installed (the message names the pip extra)."""
+
+class LicromWarning(UserWarning):
+    """Base class of every warning licrom issues."""
+
+class PhysicsWarning(LicromWarning):
+    """A simulation left the range where its physics holds: inverted elements, contact
+    penetration deeper than ``licrom.validity.PENETRATION_LIMIT`` of the object's size,
+    or a start inside a plane (see :mod:`licrom.validity`)."""
+
+class AccuracyWarning(LicromWarning):
+    """A reduced run's online error estimate (``Trajectory.error_estimate``) passed
+    ``licrom.error_estimate.ERROR_THRESHOLD``: its subspace likely misses the motion
+    (see :mod:`licrom.error_estimate`)."""

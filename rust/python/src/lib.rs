@@ -15,6 +15,7 @@ use pyo3::prelude::*;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    errors::add_classes(m)?;
     m.add_function(wrap_pyfunction!(material::snh_energy, m)?)?;
     m.add_function(wrap_pyfunction!(material::snh_pk1, m)?)?;
     m.add_function(wrap_pyfunction!(material::snh_hessian, m)?)?;
