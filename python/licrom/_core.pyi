@@ -52,7 +52,7 @@ _Float64Array: TypeAlias = npt.NDArray[np.float64]
 _Int64Array: TypeAlias = npt.NDArray[np.int64]
 
 def snh_energy(F: _Float64Array, mu: float, lam: float) -> _Float64Array:
-    """Energy densities Psi(F), shape (p,), in J/m^3, of deformation gradients ``F`` (p, 3, 3)."""
+    """Energy densities Psi(F), shape (p,), in J/m^3, of deformation gradients ``F`` (p, 3, 3); zero at rest and for every rotation."""
 
 def snh_pk1(F: _Float64Array, mu: float, lam: float) -> _Float64Array:
     """First Piola-Kirchhoff stresses dPsi/dF, shape (p, 3, 3), in Pa."""
@@ -70,8 +70,8 @@ class ReducedCore:
     """Reduced model, state ``(q, qdot)`` and time stepper of one simulation.
 
     Each step minimises the incremental potential (backward Euler)
-    ``E(q) = 1/(2h^2) (q - qt)^T M (q - qt) - f.q + sum_k w_k Psi(I + G_k q)
-    + sum_j,p [penalty + damping + friction](X_j + W_j q)``, ``qt = q + h qdot``,
+    ``E(q) = 1/(2h^2) (q - qt)^T M (q - qt) - f.q + sum_k w_k Psi(I + G_k q) +
+    sum_j,p [penalty + damping + friction](X_j + W_j q)``, ``qt = q + h qdot``,
     with penalty contact against each plane, normal damping while approaching
     and implicit Coulomb friction with the normal force lagged from the start
     of the step. The first iterate extrapolates the previous step's acceleration
@@ -122,6 +122,9 @@ class ReducedCore:
             where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
 
     K, C and P may be zero.
+
+    One thread at a time: a call while another thread's call runs (a step releases the
+    GIL) raises :class:`ConcurrencyError` instead of waiting.
     """
 
     def __new__(
@@ -253,6 +256,9 @@ class BodyFrameCore:
             where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
 
     n, K, C and P may be zero (n = 0: a rigid body).
+
+    One thread at a time: a call while another thread's call runs (a step releases the
+    GIL) raises :class:`ConcurrencyError` instead of waiting.
     """
 
     def __new__(
@@ -293,8 +299,10 @@ class BodyFrameCore:
         angular_velocity: _Float64Array,
         qdot: _Float64Array,
     ) -> None:
-        """Replace the state; the pose k steps back becomes ``(c - k h v, exp(-k h [w]x) R, q - k h qdot)``
-        (k = 1, 2, 3; BDF2: ``c - k h v + (k h)^2 g / 2``, the history of a free fall, its start).
+        """Replace the state: pose, velocity of the centre of mass (m/s), angular velocity in the world frame
+        (rad/s) and modal velocities (per second). The pose k steps back becomes
+        ``(c - k h v, exp(-k h [w]x) R, q - k h qdot)`` (k = 1, 2, 3; BDF2: ``c - k h v + (k h)^2 g / 2``,
+        the history of a free fall, its start).
 
         Raises:
             ShapeError: wrong shapes, NaN/inf, or ``rotation`` not orthonormal with
@@ -338,7 +346,8 @@ class BodyFrameCore:
     def q(self) -> _Float64Array:
         """(n,) modal coordinates."""
     def previous_pose(self, steps_back: int) -> tuple[_Float64Array, _Float64Array, _Float64Array]:
-        """``(c, R, q)`` of the pose ``steps_back`` (1, 2 or 3) steps before the current one.
+        """``(c, R, q)`` (shapes (3,), (3, 3), (n,)) of the pose ``steps_back`` (1, 2 or 3) steps before
+        the current one: the history the integrator reads.
 
         Raises:
             ConfigError: ``steps_back`` is not 1, 2 or 3.

@@ -52,12 +52,19 @@ fn held<'a>(py: Python<'_>, i: usize, sim: &'a Bound<'_, PyAny>) -> PyResult<Hel
     Err(error(py, Kind::Config, format!("sims[{i}] must be a ReducedCore or a BodyFrameCore, got {type_name}")))
 }
 
-/// Steps each simulation of `sims` `steps` times, spread over `threads`
-/// threads (default: every core), the GIL released. A simulation whose
-/// `record_failures` entry is true records a failed step and goes on from its
-/// last iterate; otherwise it stops there. Returns, per simulation,
-/// `(iterations, residuals, converged, error)`: one entry per step taken, and
-/// the licrom exception that stopped it (or None).
+/// Step each simulation ``steps`` times, spread over ``threads`` threads (None: every core), the GIL released.
+///
+/// The simulations are independent (each owns its model and buffers); each takes its
+/// steps exactly as a loop of ``step`` calls would, so the states do not depend on
+/// ``threads``. A simulation whose ``record_failures`` flag is set takes the last iterate
+/// of a step that fails (``accept_last_iterate``) and goes on; otherwise it stops at the
+/// start of that step. Returns, per simulation, ``(iterations, residuals, converged,
+/// error)``: one entry per step taken (a failed step: its iterations, its residual or NaN,
+/// False) and the licrom exception that stopped it, or None.
+///
+/// Raises ConfigError for a simulation given twice, an object of another type,
+/// ``steps < 0`` or ``threads < 1``; ConcurrencyError for a simulation busy in another
+/// thread; ShapeError for ``record_failures`` of another length than ``sims``.
 #[pyfunction]
 #[pyo3(signature = (sims, steps, threads, record_failures))]
 #[allow(clippy::type_complexity)]

@@ -16,10 +16,52 @@ use crate::errors::{error, exclusive, CoreResultExt, Kind};
 use crate::inputs::{ContactArrays, ElasticArrays, VertexArgs};
 use crate::reduced::stats_dict;
 
-/// Body-frame model, pose history and solver of one simulation.
+/// Body-frame reduced model, pose history and time stepper of one simulation.
+///
+/// Positions ``x_v = c + R (Xbar_v + W_v q)``, every column of W mass-orthogonal to
+/// the rigid modes. Each step minimises the backward-Euler energy over
+/// ``(c, R, q)``: inertia exact from the mass moments, elastic energy
+/// ``sum_k w_k Psi(I + G_k q)``, contact and friction at the contact points as in
+/// :class:`ReducedCore`, with the lagged normal force and the slip measured from
+/// the positions at the start of the step. Newton on ``(dc, omega, dq)`` with
+/// ``R <- exp([omega]x) R``; convergence measure ``r`` (m/s) as in ReducedCore.
+///
+/// Args:
+///     total_mass: M in kg, > 0.
+///     inertia_moments: (3, 3) ``J = sum m Xbar Xbar^T`` in kg m^2, symmetric positive definite.
+///     mode_moments: (n, 3, 3) ``P_k = sum m W^k Xbar^T``.
+///     mode_products: (n, n, 3, 3) ``Q_kl = sum m W^k W^l^T`` (``Q_kl = Q_lk^T``).
+///     gravity: (3,) gravity acceleration in m/s^2.
+///     cubature_jacobians: (K, 9, n) ``G_k = d vec(F) / dq`` at the cubature points.
+///     cubature_weights: (K,) weights w_k >= 0 in m^3.
+///     mu: SNH shear parameter in Pa, > 0.
+///     lam: SNH volume parameter in Pa, > 0.
+///     contact_basis: (C, 3, n) basis rows W_j at the contact points.
+///     contact_rest: (C, 3) ``Xbar_j`` of the contact points in m.
+///     contact_areas: (C,) boundary area a_j >= 0 carried by each contact point in m^2.
+///     planes: (P, 5) rows ``[nx, ny, nz, d, friction]``.
+///     normal_stiffness: k_n in N/m^3, >= 0.
+///     normal_damping: k_d in N s/m^3, >= 0.
+///     friction_stiffness: k_f in N s/m^3, >= 0.
+///     dt: time step h in s, > 0.
+///     tolerance: convergence threshold on r in m/s, > 0.
+///     max_iterations: Newton directions allowed per step, >= 1.
+///     integrator: ``"backward_euler"`` (default) or ``"bdf2"`` (second order: the same
+///         minimisation with the anchor ``(4 x_n - x_{n-1})/3``, anchor velocity
+///         ``(4 v_n - v_{n-1})/3`` and effective step ``2h/3``; a new state gets the
+///         history of a free fall). See ``rust/core/src/integrator.rs``.
+///     cubature_vertex_basis: (V, 3, n) basis rows ``W_v`` at the mesh vertices, with
+///         ``cubature_tet_vertices`` (K, 4) int64, the vertices of each cubature point's
+///         tet, and ``cubature_shape_gradients`` (K, 4, 3), its shape functions' gradients
+///         in 1/m: the Jacobians in vertex form, ``G_k = sum_a W_{v_a} (x) grad N_a``
+///         (the ``"mesh"`` strain). All three or none; they must reproduce
+///         ``cubature_jacobians``. The energy and gradient then go through the vertices
+///         where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
+///
+/// n, K, C and P may be zero (n = 0: a rigid body).
 ///
 /// One thread at a time: a call while another thread's call runs (a step releases the
-/// GIL) raises `ConcurrencyError` instead of waiting.
+/// GIL) raises :class:`ConcurrencyError` instead of waiting.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct BodyFrameCore {
     pub(crate) inner: Mutex<BodyFrameSolver>,
@@ -123,8 +165,14 @@ impl BodyFrameCore {
         self.n
     }
 
-    /// Replaces the state: pose, velocity of the centre of mass (m/s), angular
-    /// velocity in the world frame (rad/s) and modal velocities (per second).
+    /// Replace the state: pose, velocity of the centre of mass (m/s), angular velocity in the world frame
+    /// (rad/s) and modal velocities (per second). The pose k steps back becomes
+    /// ``(c - k h v, exp(-k h [w]x) R, q - k h qdot)`` (k = 1, 2, 3; BDF2: ``c - k h v + (k h)^2 g / 2``,
+    /// the history of a free fall, its start).
+    ///
+    /// Raises:
+    ///     ShapeError: wrong shapes, NaN/inf, or ``rotation`` not orthonormal with
+    ///         determinant +1 (to 1e-8).
     #[allow(clippy::too_many_arguments)]
     fn set_state(
         &self,
@@ -144,8 +192,12 @@ impl BodyFrameCore {
         solver.set_state(&pose, &v.data, &w.data, &qdot.data).py_err(py)
     }
 
-    /// Replaces the poses one, two and three steps back (centres (3, 3),
-    /// rotations (3, 3, 3), q (3, n); nearest first), after `set_state`.
+    /// Replace the poses one, two and three steps back (nearest first; centres (3, 3), rotations
+    /// (3, 3, 3), q (3, n)) after :meth:`set_state`: the history BDF2 reads; velocities then read from it.
+    ///
+    /// Raises:
+    ///     ShapeError: wrong shapes, NaN/inf, or a rotation that is not orthonormal with
+    ///         determinant +1 (to 1e-8).
     fn set_history(&self, py: Python<'_>, centers: &Bound<'_, PyAny>, rotations: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<()> {
         let mut solver = exclusive(py, &self.inner)?;
         let c = read(centers, "centers", &[Dim::Is(3), Dim::Is(3)])?;
@@ -157,7 +209,12 @@ impl BodyFrameCore {
         solver.set_history(earlier).py_err(py)
     }
 
-    /// Advances one step; returns (iterations, residual in m/s).
+    /// Advance one time step; return (iterations, residual in m/s).
+    ///
+    /// Raises:
+    ///     SolverError: no convergence within ``max_iterations`` (attributes
+    ///         ``iterations`` and ``residual``) or non-finite values; the state is
+    ///         left unchanged.
     fn step(&self, py: Python<'_>) -> PyResult<(usize, f64)> {
         let mut guard = exclusive(py, &self.inner)?;
         let solver = &mut *guard;
@@ -165,54 +222,58 @@ impl BodyFrameCore {
         Ok((report.iterations, report.residual))
     }
 
-    /// Work counters since construction (or the last `reset_stats`), as
-    /// `ReducedCore.stats`.
+    /// Work counters since construction or :meth:`reset_stats`, as
+    /// :meth:`ReducedCore.stats` (the same solver machinery: contact model, stick
+    /// correction, lagged elastic Hessian).
     fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
         Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
     }
 
-    /// `(min det F, depth)` of the last step: the smallest `det F` at the
-    /// cubature points (inf without any) and the deepest penetration of a
-    /// contact point into a plane (m, >= 0), at its accepted iterate.
+    /// ``(min det F, depth)`` of the last step at its accepted iterate: the smallest
+    /// ``det F`` at the cubature points (inf without any) and the deepest penetration of a
+    /// contact point into a plane in m (>= 0); ``(inf, 0)`` before any step.
     fn validity(&self, py: Python<'_>) -> PyResult<(f64, f64)> {
         let v = exclusive(py, &self.inner)?.validity();
         Ok((v.min_det, v.depth))
     }
 
-    /// Zeroes the work counters.
+    /// Zero the work counters.
     fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
         exclusive(py, &self.inner)?.reset_stats();
         Ok(())
     }
 
-    /// Takes the last iterate of a step that just failed to converge as the state.
+    /// After a step that did not converge, take its last iterate as the new pose.
     fn accept_last_iterate(&self, py: Python<'_>) -> PyResult<()> {
         exclusive(py, &self.inner)?.accept_last_iterate().py_err(py)
     }
 
-    /// Centre of mass (3,), m.
+    /// (3,) centre of mass in m.
     #[getter]
     fn center<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let center = exclusive(py, &self.inner)?.pose().center.as_slice().to_vec();
         write(py, center, &[3])
     }
 
-    /// Rotation (3, 3) from the body frame to the world.
+    /// (3, 3) rotation from the body frame to the world.
     #[getter]
     fn rotation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let rotation = row_major(&exclusive(py, &self.inner)?.pose().rotation);
         write(py, rotation, &[3, 3])
     }
 
-    /// Modal coordinates (n,).
+    /// (n,) modal coordinates.
     #[getter]
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let q = exclusive(py, &self.inner)?.pose().q.clone();
         write(py, q, &[self.n])
     }
 
-    /// The pose `steps_back` steps before the current one (1, 2 or 3): the
-    /// history the integrator reads ((3,) centre, (3, 3) rotation, (n,) q).
+    /// ``(c, R, q)`` (shapes (3,), (3, 3), (n,)) of the pose ``steps_back`` (1, 2 or 3) steps before
+    /// the current one: the history the integrator reads.
+    ///
+    /// Raises:
+    ///     ConfigError: ``steps_back`` is not 1, 2 or 3.
     fn previous_pose<'py>(&self, py: Python<'py>, steps_back: usize) -> PyResult<PoseArrays<'py>> {
         let solver = exclusive(py, &self.inner)?;
         let pose = solver.previous_pose(steps_back).py_err(py)?;
@@ -221,21 +282,22 @@ impl BodyFrameCore {
         Ok((write(py, center, &[3])?, write(py, rotation, &[3, 3])?, write(py, q, &[self.n])?))
     }
 
-    /// Velocity of the centre of mass (3,), m/s.
+    /// (3,) ``(c - c_prev) / h`` in m/s (BDF2: ``(3 c - 4 c_prev + c_prev2) / (2h)``).
     #[getter]
     fn velocity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let velocity = exclusive(py, &self.inner)?.velocity().as_slice().to_vec();
         write(py, velocity, &[3])
     }
 
-    /// Angular velocity in the world frame (3,), rad/s.
+    /// (3,) ``log(R R_prev^T) / h`` in rad/s (world frame; BDF2: ``(3 w_1 - w_2) / (2h)``
+    /// with ``w_k`` the turns ``log(R R_prev^T)`` of the last two steps).
     #[getter]
     fn angular_velocity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let angular_velocity = exclusive(py, &self.inner)?.angular_velocity().as_slice().to_vec();
         write(py, angular_velocity, &[3])
     }
 
-    /// Modal velocities (n,), per second.
+    /// (n,) ``(q - q_prev) / h`` per second (BDF2: ``(3 q - 4 q_prev + q_prev2) / (2h)``).
     #[getter]
     fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let mut out = vec![0.0; self.n];
@@ -243,7 +305,7 @@ impl BodyFrameCore {
         write(py, out, &[self.n])
     }
 
-    /// Contact forces (C, 3) in N at the current state over the last step.
+    /// (C, 3) contact + friction force on each contact point over the last step in N; zeros before any step.
     fn contact_forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let solver = exclusive(py, &self.inner)?;
         let c = solver.system().n_contacts();
@@ -252,8 +314,7 @@ impl BodyFrameCore {
         write(py, out, &[c, 3])
     }
 
-    /// Energy (J) at the pose of a step from the current state, up to the
-    /// step's constant.
+    /// Energy in J at the pose of a step from the current state, up to a constant of the step.
     fn energy(&self, py: Python<'_>, center: &Bound<'_, PyAny>, rotation: &Bound<'_, PyAny>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
         let mut guard = exclusive(py, &self.inner)?;
         let pose = self.pose(py, &guard, center, rotation, q)?;
@@ -261,7 +322,7 @@ impl BodyFrameCore {
         py.detach(|| solver.energy(&pose)).py_err(py)
     }
 
-    /// Gradient (6 + n,) in (c, omega, q) at the pose, omega the left rotation increment.
+    /// (6 + n,) gradient in ``(c, omega, q)`` at the pose (omega: left rotation increment).
     fn gradient<'py>(
         &self,
         py: Python<'py>,
@@ -276,7 +337,7 @@ impl BodyFrameCore {
         write(py, grad, &[6 + self.n])
     }
 
-    /// Hessian (6 + n, 6 + n) at the pose: exact, or the solver's positive definite one.
+    /// (6 + n, 6 + n) Hessian at the pose: exact, or the solver's positive definite one.
     #[pyo3(signature = (center, rotation, q, exact = true))]
     fn hessian<'py>(
         &self,

@@ -7,10 +7,14 @@ use pyo3::types::PyDict;
 
 use crate::errors::{error, Kind};
 
-/// Line search from `phi(0) = e0` with slope `d0 < 0`; `phi(alpha)` returns
-/// `(energy, slope)`. Returns `(alpha, energy)`, or None when no step
-/// decreases the energy beyond round-off; an exception of `phi` propagates.
-/// `e0` must be finite and `d0` finite and negative (a descent direction).
+/// The reduced solvers' line search from ``phi(0) = e0`` with slope ``d0 < 0``.
+///
+/// ``phi(alpha)`` returns ``(energy, slope)``; the result is ``(alpha, energy)`` of the
+/// step taken (the last call of ``phi`` was there), or None when no step decreases the
+/// energy beyond round-off. An exception raised by ``phi`` propagates.
+///
+/// Raises:
+///     ConfigError: ``e0`` not finite, or ``d0`` not a finite negative slope.
 #[pyfunction]
 pub fn line_search(e0: f64, d0: f64, phi: &Bound<'_, PyAny>) -> PyResult<Option<(f64, f64)>> {
     let py = phi.py();

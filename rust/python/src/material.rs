@@ -16,7 +16,7 @@ fn inputs(py: Python<'_>, f: &Bound<'_, PyAny>, mu: f64, lam: f64) -> PyResult<(
     Ok((material, f.data, f.shape[0]))
 }
 
-/// Energy densities Psi(F) (J/m^3) of `F` (p, 3, 3); zero at rest and for rotations.
+/// Energy densities Psi(F), shape (p,), in J/m^3, of deformation gradients ``F`` (p, 3, 3); zero at rest and for every rotation.
 #[pyfunction]
 #[pyo3(signature = (F, mu, lam))]
 #[allow(non_snake_case)]
@@ -27,7 +27,7 @@ pub fn snh_energy<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64
     write(py, out, &[p])
 }
 
-/// First Piola-Kirchhoff stresses (Pa) of `F` (p, 3, 3).
+/// First Piola-Kirchhoff stresses dPsi/dF, shape (p, 3, 3), in Pa.
 #[pyfunction]
 #[pyo3(signature = (F, mu, lam))]
 #[allow(non_snake_case)]
@@ -38,8 +38,11 @@ pub fn snh_pk1<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -
     write(py, out, &[p, 3, 3])
 }
 
-/// Hessians d^2 Psi / d vec(F)^2 (Pa, row-major vec) of `F` (p, 3, 3), PSD-projected
-/// when `project`.
+/// Hessians d^2 Psi / d vec(F)^2, shape (p, 9, 9), in Pa (row-major vec).
+///
+/// With ``project`` the negative eigenvalues of the analytic eigensystem
+/// (Smith, de Goes, Kim 2019) are clamped to zero, so each Hessian is PSD;
+/// otherwise the exact, possibly indefinite, Hessian is returned.
 #[pyfunction]
 #[pyo3(signature = (F, mu, lam, project = true))]
 #[allow(non_snake_case)]

@@ -7,8 +7,11 @@ use pyo3::prelude::*;
 use crate::arrays::{read, write, Dim};
 use crate::errors::CoreResultExt;
 
-/// `x = X + W q` for N points with basis rows `W` (N, 3, n) and rest positions
-/// `X` (N, 3).
+/// Positions ``x = X + W q`` of N points.
+///
+/// Args:
+///     basis: (N, 3, n) basis rows W at the points.
+///     rest: (N, 3) rest positions X in m.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct Reconstruction {
     inner: CoreReconstruction,
@@ -42,7 +45,7 @@ impl Reconstruction {
         self.inner.n_points()
     }
 
-    /// Positions (N, 3) in m for reduced coordinates `q` (n,).
+    /// (N, 3) positions in m for reduced coordinates ``q`` (n,).
     fn positions<'py>(&self, py: Python<'py>, q: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let q = read(q, "q", &[Dim::Is(self.inner.n_dofs())])?;
         let points = self.inner.n_points();

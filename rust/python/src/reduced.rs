@@ -13,10 +13,64 @@ use crate::arrays::{count, read, write, Dim};
 use crate::errors::{error, exclusive, CoreResultExt, Kind};
 use crate::inputs::{ContactArrays, ElasticArrays, VertexArgs};
 
-/// Reduced model, state `(q, qdot)` and solver of one simulation.
+/// Reduced model, state ``(q, qdot)`` and time stepper of one simulation.
+///
+/// Each step minimises the incremental potential (backward Euler)
+/// ``E(q) = 1/(2h^2) (q - qt)^T M (q - qt) - f.q + sum_k w_k Psi(I + G_k q) +
+/// sum_j,p [penalty + damping + friction](X_j + W_j q)``, ``qt = q + h qdot``,
+/// with penalty contact against each plane, normal damping while approaching
+/// and implicit Coulomb friction with the normal force lagged from the start
+/// of the step. The first iterate extrapolates the previous step's acceleration
+/// (free fall after construction or ``set_state``). Convergence measure:
+/// ``r = sqrt(D^T M D / total_mass) / h`` in m/s for the Newton direction D; a
+/// step converges when r < tolerance.
+///
+/// Args:
+///     mass: (n, n) reduced mass matrix ``W^T M W`` in kg, symmetric positive definite.
+///     gravity_force: (n,) reduced gravity force ``W^T M g`` in N.
+///     cubature_jacobians: (K, 9, n) ``G_k = d vec(F) / dq`` at the cubature points.
+///     cubature_weights: (K,) weights w_k >= 0 in m^3.
+///     mu: SNH shear parameter in Pa, > 0.
+///     lam: SNH volume parameter in Pa, > 0.
+///     contact_basis: (C, 3, n) basis rows W_j at the contact points.
+///     contact_rest: (C, 3) rest positions X_j of the contact points in m.
+///     contact_areas: (C,) boundary area a_j >= 0 carried by each contact point in m^2.
+///     planes: (P, 5) rows ``[nx, ny, nz, d, friction]`` of half-spaces
+///         ``n.x + d >= 0`` (the normal is normalised and d scaled with it).
+///     normal_stiffness: k_n in N/m^3, >= 0.
+///     normal_damping: k_d in N s/m^3, >= 0.
+///     friction_stiffness: k_f in N s/m^3, >= 0.
+///     dt: time step h in s, > 0.
+///     total_mass: mass of the solid in kg, > 0 (normalises the convergence measure).
+///     tolerance: convergence threshold on r in m/s, > 0.
+///     max_iterations: search directions allowed per step, >= 1.
+///     solver: ``"newton"`` (Newton-type iteration on ``M/h^2 + K_elastic + K_contact``,
+///         faer Cholesky, the contact model solved inside each iteration, stick
+///         correction, Armijo + secant line search) or ``"prefactored"``
+///         (the elastic stiffness kept at rest: ``M/h^2 + K(rest) + K_contact``, factored
+///         once and again only when the contact terms change; same contact model, line
+///         search and stopping rule; a step that needs more than 25 directions, or
+///         whose line search stalls, finishes with Newton directions).
+///     elastic_hessian: ``"lagged"`` (default: the elastic Hessian is kept across
+///         iterations and steps, corrected by BFGS along each step, and assembled
+///         again when it drifts or after ``set_state``; a quasi-Newton method with
+///         the same minimiser) or ``"every_iteration"`` (plain Newton). Newton only.
+///     integrator: ``"backward_euler"`` (default) or ``"bdf2"`` (second order: the same
+///         minimisation with the anchor ``(4 q_n - q_{n-1})/3``, anchor velocity
+///         ``(4 qdot_n - qdot_{n-1})/3`` and effective step ``2h/3``; a new state gets the
+///         history of a free fall). See ``rust/core/src/integrator.rs``.
+///     cubature_vertex_basis: (V, 3, n) basis rows ``W_v`` at the mesh vertices, with
+///         ``cubature_tet_vertices`` (K, 4) int64, the vertices of each cubature point's
+///         tet, and ``cubature_shape_gradients`` (K, 4, 3), its shape functions' gradients
+///         in 1/m: the Jacobians in vertex form, ``G_k = sum_a W_{v_a} (x) grad N_a``
+///         (the ``"mesh"`` strain). All three or none; they must reproduce
+///         ``cubature_jacobians``. The energy and gradient then go through the vertices
+///         where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
+///
+/// K, C and P may be zero.
 ///
 /// One thread at a time: a call while another thread's call runs (a step releases the
-/// GIL) raises `ConcurrencyError` instead of waiting.
+/// GIL) raises :class:`ConcurrencyError` instead of waiting.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct ReducedCore {
     pub(crate) inner: Mutex<ReducedSolver>,
@@ -86,28 +140,33 @@ impl ReducedCore {
         self.n
     }
 
-    /// Reduced coordinates (n,), a copy.
+    /// (n,) reduced coordinates (a copy).
     #[getter]
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let q = exclusive(py, &self.inner)?.q().to_vec();
         write(py, q, &[self.n])
     }
 
-    /// Reduced velocities (n,) per second, a copy.
+    /// (n,) reduced velocities per second (a copy).
     #[getter]
     fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let qdot = exclusive(py, &self.inner)?.qdot().to_vec();
         write(py, qdot, &[self.n])
     }
 
-    /// Replaces the state; contact forces read zero until the next step.
+    /// Replace the state with ``q`` (n,) and ``qdot`` (n,); contact forces read zero until the next step.
     fn set_state(&self, py: Python<'_>, q: &Bound<'_, PyAny>, qdot: &Bound<'_, PyAny>) -> PyResult<()> {
         let q = read(q, "q", &[Dim::Is(self.n)])?;
         let qdot = read(qdot, "qdot", &[Dim::Is(self.n)])?;
         exclusive(py, &self.inner)?.set_state(&q.data, &qdot.data).py_err(py)
     }
 
-    /// Advances one step; returns (iterations, residual in m/s).
+    /// Advance one time step; return (iterations, residual in m/s).
+    ///
+    /// Raises:
+    ///     SolverError: no convergence within ``max_iterations`` (attributes
+    ///         ``iterations`` and ``residual``) or non-finite values; the state is
+    ///         left unchanged.
     fn step(&self, py: Python<'_>) -> PyResult<(usize, f64)> {
         let mut guard = exclusive(py, &self.inner)?;
         let solver = &mut *guard;
@@ -115,33 +174,43 @@ impl ReducedCore {
         Ok((report.iterations, report.residual))
     }
 
-    /// Work counters since construction (or the last `reset_stats`): steps,
-    /// iterations, evaluations, model_iterations, model_evaluations,
-    /// elastic_hessians, factorizations, fallbacks, stick_solves, stick_steps.
+    /// Work counters since construction or :meth:`reset_stats`: ``steps``,
+    /// ``iterations`` (Newton directions, as ``step`` reports them),
+    /// ``evaluations`` (energy and gradient over all cubature points),
+    /// ``model_iterations`` and ``model_evaluations`` (on the contact model, no
+    /// pass over the cubature points), ``elastic_hessians`` (assemblies of the
+    /// elastic Hessian), ``factorizations`` (of the direction's matrix),
+    /// ``fallbacks`` (prefactored steps finished with Newton directions),
+    /// ``stick_solves`` and ``stick_steps`` (stick-corrected directions solved
+    /// and taken).
     fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
         Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
     }
 
-    /// `(min det F, depth)` of the last step: the smallest `det F` at the
-    /// cubature points (inf without any) and the deepest penetration of a
-    /// contact point into a plane (m, >= 0), at its accepted iterate.
+    /// ``(min det F, depth)`` of the last step at its accepted iterate: the smallest
+    /// ``det F`` at the cubature points (inf without any) and the deepest penetration of a
+    /// contact point into a plane in m (>= 0); ``(inf, 0)`` before any step.
     fn validity(&self, py: Python<'_>) -> PyResult<(f64, f64)> {
         let v = exclusive(py, &self.inner)?.validity();
         Ok((v.min_det, v.depth))
     }
 
-    /// Zeroes the work counters.
+    /// Zero the work counters.
     fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
         exclusive(py, &self.inner)?.reset_stats();
         Ok(())
     }
 
-    /// Takes the last iterate of a step that just failed to converge as the state.
+    /// After a step that did not converge, take its last iterate as the new
+    /// state (``qdot`` from the difference) as if it had converged.
+    ///
+    /// Raises:
+    ///     ConfigError: the previous call was not a step that failed to converge.
     fn accept_last_iterate(&self, py: Python<'_>) -> PyResult<()> {
         exclusive(py, &self.inner)?.accept_last_iterate().py_err(py)
     }
 
-    /// Incremental potential E(q) in J of a step from the current state.
+    /// Incremental potential E(q) in J of a step starting from the current state.
     fn energy(&self, py: Python<'_>, q: &Bound<'_, PyAny>) -> PyResult<f64> {
         let q = read(q, "q", &[Dim::Is(self.n)])?;
         let mut guard = exclusive(py, &self.inner)?;
@@ -149,7 +218,7 @@ impl ReducedCore {
         py.detach(|| solver.energy(&q.data)).py_err(py)
     }
 
-    /// Gradient (n,) of E at q for a step from the current state.
+    /// (n,) gradient of E at ``q`` for a step starting from the current state.
     fn gradient<'py>(&self, py: Python<'py>, q: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let n = self.n;
         let q = read(q, "q", &[Dim::Is(n)])?;
@@ -159,8 +228,11 @@ impl ReducedCore {
         write(py, grad, &[n])
     }
 
-    /// Hessian (n, n) of E at q for a step from the current state; elastic parts
-    /// PSD-projected when `project`.
+    /// (n, n) Hessian of E at ``q`` for a step starting from the current state.
+    ///
+    /// With ``project`` the elastic Hessians are PSD-projected (the matrix Newton
+    /// uses); otherwise it is the exact Hessian. Contact terms are always exact
+    /// (they are PSD).
     #[pyo3(signature = (q, project = true))]
     fn hessian<'py>(&self, py: Python<'py>, q: &Bound<'py, PyAny>, project: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let n = self.n;
@@ -171,7 +243,9 @@ impl ReducedCore {
         write(py, hess, &[n, n])
     }
 
-    /// Contact forces (C, 3) in N at the current state over the last step.
+    /// (C, 3) contact + friction force on each contact point in N (world frame),
+    /// minus the gradient of the contact potentials at the current state relative
+    /// to the start of the last step; zeros before any step.
     fn contact_forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let guard = exclusive(py, &self.inner)?;
         let solver = &*guard;
