@@ -475,13 +475,16 @@ def filmstrip(
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
         raise ConfigError(f"filmstrip frames must be an integer >= 1, got {frames!r}")
     _check_renderer(renderer, "filmstrip")
-    picks = np.linspace(0, runs[0].n_frames - 1, frames).round().astype(int)
     views = _Views(runs, labels, style or RenderStyle(), title, renderer)
     try:
-        image = views.compose([[views.panel(i, f) for f in picks] for i in range(len(runs))])
+        return _filmstrip(views, frames, path)
     finally:
         views.close()
-    return _save_image(image, path)
+
+
+def _filmstrip(views: _Views, frames: int, path: str | os.PathLike) -> Path:
+    picks = np.linspace(0, views.runs[0].n_frames - 1, frames).round().astype(int)
+    return _save_image(views.compose([[views.panel(i, f) for f in picks] for i in range(len(views.runs))]), path)
 
 
 def animation(
@@ -521,15 +524,19 @@ def animation(
     if isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer)) or max_frames < 1:
         raise ConfigError(f"animation max_frames must be an integer >= 1, got {max_frames!r}")
     _check_renderer(renderer, "animation")
-    from PIL import Image
-
-    n = runs[0].n_frames
-    picks = np.arange(n) if n <= max_frames else np.linspace(0, n - 1, max_frames).round().astype(int)
     views = _Views(runs, labels, style or RenderStyle(), title, renderer)
     try:
-        frames = [views.compose([[views.panel(i, f) for i in range(len(runs))]]) for f in picks]
+        return _animation(views, out, fps, max_frames)
     finally:
         views.close()
+
+
+def _animation(views: _Views, out: Path, fps: float, max_frames: int) -> Path:
+    from PIL import Image
+
+    n = views.runs[0].n_frames
+    picks = np.arange(n) if n <= max_frames else np.linspace(0, n - 1, max_frames).round().astype(int)
+    frames = [views.compose([[views.panel(i, f) for i in range(len(views.runs))]]) for f in picks]
     # One palette for every frame, made from a few of them: mapping each frame onto it is several times
     # cheaper than Pillow's own per-frame median cut, and the colours do not flicker between frames.
     sample = np.vstack([frames[k] for k in np.linspace(0, len(frames) - 1, min(len(frames), 6)).round().astype(int)])
@@ -571,10 +578,14 @@ def pictures(
     Returns:
         The paths written.
     """
+    runs = _check_runs(trajectories, labels, "pictures")
+    _check_renderer(renderer, "pictures")
     out = Path(folder)
-    return [filmstrip(trajectories, labels, out / f"filmstrip_{tag}.png", title=title, style=style, renderer=renderer),
-            animation(trajectories, labels, out / f"animation_{tag}.gif", fps=fps, max_frames=max_frames, title=title,
-                      style=style, renderer=renderer)]
+    views = _Views(runs, labels, style or RenderStyle(), title, renderer)  # one set of views (plotters) for both
+    try:
+        return [_filmstrip(views, 6, out / f"filmstrip_{tag}.png"), _animation(views, out / f"animation_{tag}.gif", fps, max_frames)]
+    finally:
+        views.close()
 
 
 def _check_renderer(renderer: Any, what: str) -> None:
@@ -587,7 +598,8 @@ def _save_image(image: np.ndarray, path: str | os.PathLike) -> Path:
 
     out = Path(path)
     with atomic_path(out) as tmp:
-        Image.fromarray(image).save(tmp, format="PNG", optimize=True)
+        # zlib's default level: optimize=True (level 9 and every filter) took 5x longer for a 3 % smaller file.
+        Image.fromarray(image).save(tmp, format="PNG", compress_level=6)
     return out
 
 
