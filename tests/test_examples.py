@@ -14,8 +14,6 @@ import sys
 from pathlib import Path
 
 import licrom
-import numpy as np
-import pytest
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 PERCENT = r"(\d+(?:\.\d+)?) %"
@@ -74,5 +72,5 @@ def test_own_mesh(tmp_path):
     assert [command for command, _ in times] == ["mesh", "scene", "generate", "train", "compare"]
     total = re.search(r"^\| total \| (\d+\.\d) s \|$", out, flags=re.MULTILINE)
     assert total is not None
-    assert float(total.group(1)) == pytest.approx(sum(float(t) for _, t in times), abs=0.06)
-    assert np.isfinite(float(total.group(1)))
+    # Each time is rounded to 0.1 s, the total too.
+    assert abs(float(total.group(1)) - sum(float(t) for _, t in times)) <= 0.05 * (len(times) + 1) + 1e-9

@@ -50,7 +50,9 @@ struct Spec {
 
 const LICROM: Base = Base::Family("LicromError");
 
-/// The family, bases first.
+/// The family, bases first. The warnings are not raised from Rust; they are here so that the
+/// whole family is defined in one place. The docstrings are the stubs' (`_core.pyi`;
+/// `tests/test_stubs.py` keeps the two equal).
 const FAMILY: [Spec; 12] = [
     Spec {
         name: "LicromError",
