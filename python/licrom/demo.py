@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -131,6 +132,11 @@ def _run_demo(config: DemoConfig, progress: bool) -> dict:
 
     scene_file = demo_scene(config)
     out = make_dir(config.out_dir)
+    # Whether PyVista renders here (a test picture in a subprocess, about 2 s) is asked beside the simulations:
+    # the answer is needed at [4/4]. The thread only waits for the subprocess.
+    renderer_check = ThreadPoolExecutor(1, thread_name_prefix="licrom-render-check")
+    picked = renderer_check.submit(pick_renderer)
+    renderer_check.shutdown(wait=False)
     t0, c0 = time.perf_counter(), time.process_time()
     cpu: dict[str, float] = {}  # CPU seconds of each stage (this process, every thread), beside the wall seconds
     say = click.echo
@@ -160,7 +166,7 @@ def _run_demo(config: DemoConfig, progress: bool) -> dict:
 
     cases = scene_file.cases(mesh)
     say(f"[4/4] held-out scenes, full vs reduced: {[label for label, _ in cases]}")
-    renderer, why_not = pick_renderer()
+    renderer, why_not = picked.result()
     if why_not:
         say(f"pictures: {why_not}; drawing them with matplotlib")
     t, c = time.perf_counter(), time.process_time()
