@@ -2,7 +2,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-from licrom import ConfigError, ShapeError, meshes
+from licrom import ConfigError, ReducedSim, Scene, ShapeError, cubature, meshes
+from licrom.basis import AffineBasis
 from licrom.cubature import FIT_TOLERANCE, ContactPoints, Cubature
 
 
@@ -29,6 +30,26 @@ def test_contact_subset_keeps_area():
     # well spread: each hemisphere carries about half the area
     up = m.vertices[sub.indices][:, 2] > 0
     assert 0.35 < sub.areas[up].sum() / m.surface_area < 0.65
+
+
+def test_default_contact_points_cap_large_surfaces(monkeypatch):
+    m = meshes.sphere(0.05, 10)
+    everyone = ContactPoints.all(m)
+    assert ContactPoints.default(m).indices.tolist() == everyone.indices.tolist()
+    monkeypatch.setattr(cubature, "DEFAULT_CONTACT_POINTS", 40)
+    capped = ContactPoints.default(m)
+    assert capped.count == 40
+    assert capped.indices.tolist() == ContactPoints.subset(m, 40).indices.tolist()
+    assert capped.areas.sum() == pytest.approx(m.surface_area)
+
+
+def test_reduced_sim_samples_contact_by_default(monkeypatch):
+    m = meshes.box(0.1, 4)
+    monkeypatch.setattr(cubature, "DEFAULT_CONTACT_POINTS", 12)
+    sim = ReducedSim(AffineBasis(), m, Scene(), cubature="full")
+    assert sim.contact_points.count == 12
+    given = ContactPoints.all(m)
+    assert ReducedSim(AffineBasis(), m, Scene(), cubature="full", contact_points=given).contact_points.count == given.count
 
 
 def test_bad_counts():

@@ -53,7 +53,8 @@ class BodyFrameSim(ReducedSimulation):
         scene: the scene (default: the learned model's default scene).
         cubature: cubature tets and weights, or a name (default: as ReducedSim, the learned
             model's fitted cubature).
-        contact_points: where contact acts (default: every boundary vertex).
+        contact_points: where contact acts (default: :meth:`ContactPoints.default`, every boundary vertex up to
+            :data:`~licrom.cubature.DEFAULT_CONTACT_POINTS`, a farthest-point subset of that many above).
         strain: ``"mesh"`` (default) or ``"field"``, as in ReducedSim
             (:func:`licrom.basis.strain_jacobians`).
 

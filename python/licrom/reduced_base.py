@@ -123,7 +123,7 @@ def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: Contac
     ``cubature`` is a :class:`Cubature`, a name of :data:`CUBATURES`, or None: the fitted
     cubature of the model behind ``basis`` when it has one (models trained since format 3),
     else the naive scheme with 1000 tets (a :class:`~licrom.errors.LicromWarning` says so for
-    a model without one). Contact points default to every boundary vertex.
+    a model without one). Contact points default to :meth:`ContactPoints.default`.
 
     Raises:
         ConfigError: an unknown name, ``"fitted"`` for a basis without a fitted cubature, or
@@ -143,7 +143,7 @@ def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: Contac
         cubature = fitted if fitted is not None else Cubature.full(mesh) if cubature == "full" else Cubature.naive(mesh, _DEFAULT_CUBATURE_POINTS)
     if not isinstance(cubature, Cubature):
         raise ConfigError(f"cubature must be a licrom.Cubature or one of {CUBATURES}, got {type(cubature).__name__}")
-    contact_points = contact_points if contact_points is not None else ContactPoints.all(mesh)
+    contact_points = contact_points if contact_points is not None else ContactPoints.default(mesh)
     if not isinstance(contact_points, ContactPoints):
         raise ConfigError(f"contact_points must be a licrom.cubature.ContactPoints or None, got {type(contact_points).__name__}")
     if cubature.count and (int(cubature.tets.max()) >= mesh.n_tets or int(cubature.tets.min()) < 0):

@@ -63,7 +63,8 @@ class ReducedSim(ReducedSimulation):
         cubature: cubature tets and weights, or a name of :data:`CUBATURES` (default: the
             model's fitted cubature, refitted on another mesh; the naive scheme with 1000 tets
             for a basis without one).
-        contact_points: where contact acts (default: every boundary vertex).
+        contact_points: where contact acts (default: :meth:`ContactPoints.default`, every boundary vertex up to
+            :data:`~licrom.cubature.DEFAULT_CONTACT_POINTS`, a farthest-point subset of that many above).
         solver: ``"newton"`` (dense Newton, Cholesky, line search) or ``"prefactored"``
             (the report's scheme: the elastic stiffness kept at rest, ``M_r/h^2 + K_r(rest)``
             factored once and again only when contact terms change; a step that needs more
