@@ -37,6 +37,7 @@ __all__ = ["N_SYMMETRIC", "BodyFrameBasis", "BodyFrameSim"]
 # Relative size of the linear and angular momentum a mode may carry on the mesh
 # (round-off of the orthogonalisation on large meshes stays far below).
 _ORTHOGONALITY = 1e-8
+_KEPT_SHAPES = 4  # body shapes kept by q: BDF2 velocities read three poses, plus the next frame's
 
 
 class BodyFrameSim(ReducedSimulation):
@@ -129,6 +130,7 @@ class BodyFrameSim(ReducedSimulation):
             **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
+        self._shapes: dict[bytes, np.ndarray] = {}
         self._modal_mass = np.einsum("klii->kl", products)
         self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene)
         self.time = 0.0
@@ -170,8 +172,23 @@ class BodyFrameSim(ReducedSimulation):
         return self._core.angular_velocity
 
     def _body_points(self, q: np.ndarray) -> np.ndarray:
-        """(n, 3) body-frame shape ``Xbar + W q``."""
-        return self._xbar if self._body is None else self._body.positions(q)
+        """(n, 3) body-frame shape ``Xbar + W q`` (read-only).
+
+        The last few shapes are kept by ``q``: a recorded frame reads the current pose and the
+        one or two before it (its velocities), which the frames before it already reconstructed,
+        and a reconstruction reads all n x 3 x r mode values (on 100k tets, more than the step).
+        """
+        if self._body is None:
+            return self._xbar
+        key = np.ascontiguousarray(q, dtype=np.float64).tobytes()
+        shape = self._shapes.pop(key, None)
+        if shape is None:
+            shape = self._body.positions(q)
+            shape.setflags(write=False)
+        self._shapes[key] = shape
+        while len(self._shapes) > _KEPT_SHAPES:
+            del self._shapes[next(iter(self._shapes))]
+        return shape
 
     @property
     def positions(self) -> np.ndarray:
