@@ -477,14 +477,14 @@ def filmstrip(
     _check_renderer(renderer, "filmstrip")
     views = _Views(runs, labels, style or RenderStyle(), title, renderer)
     try:
-        return _filmstrip(views, frames, path)
+        return _filmstrip(views, runs, frames, path)
     finally:
         views.close()
 
 
-def _filmstrip(views: _Views, frames: int, path: str | os.PathLike) -> Path:
-    picks = np.linspace(0, views.runs[0].n_frames - 1, frames).round().astype(int)
-    return _save_image(views.compose([[views.panel(i, f) for f in picks] for i in range(len(views.runs))]), path)
+def _filmstrip(views: _Views, runs: list[Trajectory], frames: int, path: str | os.PathLike) -> Path:
+    picks = np.linspace(0, runs[0].n_frames - 1, frames).round().astype(int)
+    return _save_image(views.compose([[views.panel(i, f) for f in picks] for i in range(len(runs))]), path)
 
 
 def animation(
@@ -526,17 +526,17 @@ def animation(
     _check_renderer(renderer, "animation")
     views = _Views(runs, labels, style or RenderStyle(), title, renderer)
     try:
-        return _animation(views, out, fps, max_frames)
+        return _animation(views, runs, out, fps, max_frames)
     finally:
         views.close()
 
 
-def _animation(views: _Views, out: Path, fps: float, max_frames: int) -> Path:
+def _animation(views: _Views, runs: list[Trajectory], out: Path, fps: float, max_frames: int) -> Path:
     from PIL import Image
 
-    n = views.runs[0].n_frames
+    n = runs[0].n_frames
     picks = np.arange(n) if n <= max_frames else np.linspace(0, n - 1, max_frames).round().astype(int)
-    frames = [views.compose([[views.panel(i, f) for i in range(len(views.runs))]]) for f in picks]
+    frames = [views.compose([[views.panel(i, f) for i in range(len(runs))]]) for f in picks]
     # One palette for every frame, made from a few of them: mapping each frame onto it is several times
     # cheaper than Pillow's own per-frame median cut, and the colours do not flicker between frames.
     sample = np.vstack([frames[k] for k in np.linspace(0, len(frames) - 1, min(len(frames), 6)).round().astype(int)])
@@ -583,7 +583,8 @@ def pictures(
     out = Path(folder)
     views = _Views(runs, labels, style or RenderStyle(), title, renderer)  # one set of views (plotters) for both
     try:
-        return [_filmstrip(views, 6, out / f"filmstrip_{tag}.png"), _animation(views, out / f"animation_{tag}.gif", fps, max_frames)]
+        return [_filmstrip(views, runs, 6, out / f"filmstrip_{tag}.png"),
+                _animation(views, runs, out / f"animation_{tag}.gif", fps, max_frames)]
     finally:
         views.close()
 
