@@ -21,8 +21,8 @@ from licrom import (
     StackedBasis,
     meshes,
 )
-from licrom.compare import compare
-from licrom.cubature import ContactPoints, Cubature
+from licrom.analysis.compare import compare
+from licrom.subspace.cubature import ContactPoints, Cubature
 
 G = 9.81
 STIFF = Material(youngs_modulus=1e7, poisson_ratio=0.3, density=1000.0)
@@ -286,7 +286,8 @@ def _world_frame_sim():
 
 
 def _body_frame_sim():
-    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+    from licrom.reduced.body import BodyFrameSim
+    from licrom.subspace.body_basis import BodyFrameBasis
 
     mesh = meshes.box(0.1, 4)
     scene = Scene(planes=(Plane((0, 0, 1), 0.05, 0.5),), solver=TIGHT, initial=InitialState(angular_velocity=(1.0, 2.0, 0.0)))
@@ -308,7 +309,8 @@ def test_one_simulation_in_two_threads_is_a_named_error_and_two_run_in_parallel(
 
 def _many_scenes():
     """World-frame (affine) and body-frame sims of an 84-tet cheese: drops and slides on several slopes."""
-    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+    from licrom.reduced.body import BodyFrameSim
+    from licrom.subspace.body_basis import BodyFrameBasis
 
     mesh = meshes.cheese(resolution=4)
     soft = Material(youngs_modulus=1e5, poisson_ratio=0.3)
@@ -329,7 +331,7 @@ def _state(sim):
 
 
 def test_step_many_equals_stepping_each_alone_bit_for_bit():
-    from licrom.body_frame import BodyFrameSim
+    from licrom.reduced.body import BodyFrameSim
 
     steps = 8
     alone = _many_scenes()

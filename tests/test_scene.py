@@ -122,14 +122,14 @@ def test_unknown_scene_version():
     with pytest.raises(FileFormatError, match="not a licrom scene"):
         Scene.from_json('{"planes": []}')
     with pytest.raises(FileFormatError, match="not valid JSON"):
-        Scene.from_json('{"format": "licrom.scene", ')
+        Scene.from_json('{"format": "licrom.scene.scene", ')
     assert math.isclose(Scene().dt, 0.01)
 
 
 def test_a_bool_is_not_a_count_and_deep_json_is_a_file_format_error():
     with pytest.raises(ConfigError, match=r"SolverParams\.max_iterations must be an integer >= 1, got True"):
         SolverParams(max_iterations=True)
-    deep = '{"format": "licrom.scene", "version": 1, "material": ' + "[" * 100_000 + "]" * 100_000 + "}"
+    deep = '{"format": "licrom.scene.scene", "version": 1, "material": ' + "[" * 100_000 + "]" * 100_000 + "}"
     with pytest.raises(FileFormatError, match="nested too deeply"):
         Scene.from_json(deep)
 
@@ -143,7 +143,7 @@ def test_a_huge_rotation_vector_is_refused_with_the_accepted_length():
 
 
 def test_scene_file_names_over_the_file_system_limit_are_named(tmp_path):
-    from licrom.scene_file import load_scene
+    from licrom.data.scene_file import load_scene
 
     with pytest.raises(FileFormatError, match="its name is 305 bytes long, over the file system's limit of 255 bytes"):
         load_scene(tmp_path / ("s" * 300 + ".toml"))
