@@ -270,7 +270,7 @@ def files(tmp_path_factory):
     net = LicromNet(ModelConfig(latent_dim=2, field_width=8, field_layers=2, fourier_features=2,
                                 encoder_point_widths=(4,), encoder_fc_widths=(), frame="world"))
     model = Model(net, mesh, [Scene()]).save(d / "m.lcm").read_bytes()
-    manifest = json.dumps({"format": "licrom.data.dataset", "version": 1, "trajectories": [{"file": "traj_000.npz"}]}).encode()
+    manifest = json.dumps({"format": "licrom.dataset", "version": 1, "trajectories": [{"file": "traj_000.npz"}]}).encode()
     ckpt = io.BytesIO()
     torch.save({"state_dict": {"w": torch.ones(3)}, "epoch": 1, "licrom_run": {"data": "ab", "r": 2}}, ckpt)
     scratch = tmp_path_factory.mktemp("scratch")
@@ -338,7 +338,7 @@ def test_garbage_in_npz_headers_raises_file_format_error_or_loads(files, kind, d
 @FAST
 @given(value=json_values, depth=st.integers(1, 5000))
 def test_garbage_and_deep_scene_json_raise_named_errors(value, depth):
-    for text in (json.dumps(value), "[" * depth + "]" * depth, '{"format": "licrom.scene.scene", "version": 1, "material": ' + "[" * depth):
+    for text in (json.dumps(value), "[" * depth + "]" * depth, '{"format": "licrom.scene", "version": 1, "material": ' + "[" * depth):
         with pytest.raises((FileFormatError, ConfigError)):
             Scene.from_json(text)
 

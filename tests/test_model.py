@@ -368,11 +368,12 @@ def test_old_world_frame_model_file_loads_as_world_frame():
     # and it still runs as a world-frame reduced model
     from licrom.errors import PhysicsWarning
     from licrom.reduced.base import ReducedSim
+    from licrom.reduced.world import WorldFrameSim
 
     # The file's default scene (from synthetic data) has the body half in the ground, which is said.
     with pytest.warns(PhysicsWarning, match="inside a plane"):
         sim = ReducedSim(model)
-    assert type(sim) is ReducedSim and sim.n_modes == 14
+    assert type(sim) is WorldFrameSim and isinstance(sim, ReducedSim) and sim.n_modes == 14
     traj = sim.run(5)
     assert traj.n_frames == 6 and np.isfinite(traj.displacements).all()
     assert traj.converged.all() and np.abs(traj.displacements[-1]).max() > 0.0

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from licrom import (
     AffineBasis,
+    BodyFrameBasis,
+    BodyFrameSim,
     ConfigError,
     ContactParams,
     FullSim,
@@ -441,3 +443,43 @@ def test_scene_dicts_huge_counts_and_non_real_states_are_named():
     full = FullSim(mesh, Scene(planes=()), device="cpu")
     with pytest.raises(ShapeError, match=r"positions must be a real \(\d+, 3\) array of finite numbers"):
         full.set_state(positions=x + 1j)
+
+
+def test_every_reduced_simulation_is_a_reduced_sim_and_the_factory_picks_its_frame():
+    from licrom.reduced.factory import reduced_sim
+    from licrom.reduced.world import WorldFrameSim
+
+    mesh = meshes.box((0.1, 0.1, 0.1), resolution=2)
+    scene = Scene(planes=(Plane(),), initial=InitialState(translation=(0.0, 0.0, 0.06)))
+    for sim in (ReducedSim(AffineBasis(), mesh, scene), reduced_sim(AffineBasis(), mesh, scene),
+                WorldFrameSim(AffineBasis(), mesh, scene), BodyFrameSim(BodyFrameBasis(mesh), mesh, scene)):
+        assert isinstance(sim, ReducedSim)
+    assert type(ReducedSim(AffineBasis(), mesh, scene)) is WorldFrameSim
+    assert type(ReducedSim(AffineBasis(), mesh, scene).transfer(mesh)) is WorldFrameSim
+    assert ReducedSim.step_many is WorldFrameSim.step_many is BodyFrameSim.step_many
+
+
+def test_a_body_frame_model_gives_a_body_frame_sim_through_the_factory():
+    from licrom.reduced.factory import reduced_sim
+
+    mesh = meshes.box((0.1, 0.1, 0.1), resolution=2)
+    scene = Scene(planes=(Plane(),), initial=InitialState(translation=(0.0, 0.0, 0.06)))
+
+    class BodyModel:  # what the factory reads of a body-frame model: no learned modes
+        frame = "body"
+        default_scene = scene
+        n_modes = 0
+
+        def __init__(self):
+            self.mesh = mesh
+
+        def values(self, points):
+            return np.zeros((len(points), 3, 0))
+
+        def jacobians(self, points):
+            return np.zeros((len(points), 3, 3, 0))
+
+    sim = ReducedSim(BodyModel())
+    assert type(sim) is BodyFrameSim and isinstance(sim, ReducedSim) and sim.mesh is mesh
+    with pytest.raises(ConfigError, match="newton"):
+        reduced_sim(BodyModel(), solver="prefactored")

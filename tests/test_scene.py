@@ -122,14 +122,14 @@ def test_unknown_scene_version():
     with pytest.raises(FileFormatError, match="not a licrom scene"):
         Scene.from_json('{"planes": []}')
     with pytest.raises(FileFormatError, match="not valid JSON"):
-        Scene.from_json('{"format": "licrom.scene.scene", ')
+        Scene.from_json('{"format": "licrom.scene", ')
     assert math.isclose(Scene().dt, 0.01)
 
 
 def test_a_bool_is_not_a_count_and_deep_json_is_a_file_format_error():
     with pytest.raises(ConfigError, match=r"SolverParams\.max_iterations must be an integer >= 1, got True"):
         SolverParams(max_iterations=True)
-    deep = '{"format": "licrom.scene.scene", "version": 1, "material": ' + "[" * 100_000 + "]" * 100_000 + "}"
+    deep = '{"format": "licrom.scene", "version": 1, "material": ' + "[" * 100_000 + "]" * 100_000 + "}"
     with pytest.raises(FileFormatError, match="nested too deeply"):
         Scene.from_json(deep)
 

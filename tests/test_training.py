@@ -401,6 +401,7 @@ def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
 # --- a body-frame model end to end -------------------------------------------------------
 def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_path, mesh):
     from licrom import BodyFrameSim, ReducedSim
+    from licrom.reduced.world import WorldFrameSim
 
     out = tmp_path / "body.lcm"
     model = train(data_dir, out, TrainConfig(**TINY, val_indices=(3,), seed=1), ModelConfig(latent_dim=3, field_width=32))
@@ -414,7 +415,7 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     assert back.frame == "body" and back.n_modes == 3
     np.testing.assert_array_equal(back.values(mesh.vertices), model.values(mesh.vertices))
     sim = ReducedSim(back)
-    assert isinstance(sim, BodyFrameSim) and sim.n_modes == 6 + 3
+    assert isinstance(sim, BodyFrameSim) and isinstance(sim, ReducedSim) and sim.n_modes == 6 + 3
     traj = sim.run(5)
     assert traj.n_frames == 6 and traj.converged.all() and np.isfinite(traj.displacements).all()
     assert np.abs(traj.displacements[-1]).max() > 0.0
@@ -425,11 +426,11 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     np.testing.assert_allclose(other.center, sim.center, atol=1e-12)
     np.testing.assert_allclose(other.rotation, sim.rotation, atol=1e-12)
     assert other.run(2).converged.all()
-    # the world-frame model of the same data stays a world-frame ReducedSim, on either mesh
+    # the world-frame model of the same data gives a world-frame simulation, on either mesh
     world = train(data_dir, None, TrainConfig(**TINY, val_indices=(3,), seed=1), ModelConfig(latent_dim=3, field_width=32), frame="world")
     wsim = ReducedSim(world)
-    assert type(wsim) is ReducedSim and wsim.n_modes == 15
-    assert type(wsim.transfer(fine)) is ReducedSim
+    assert type(wsim) is WorldFrameSim and isinstance(wsim, ReducedSim) and wsim.n_modes == 15
+    assert type(wsim.transfer(fine)) is WorldFrameSim
     with pytest.raises(ConfigError, match="newton"):
         ReducedSim(back, solver="prefactored")
 

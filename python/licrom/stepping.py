@@ -1,6 +1,6 @@
 """The run loop every simulator shares: step, time, record frames, show progress.
 
-:class:`~licrom.full.FullSim`, :class:`~licrom.reduced.world.ReducedSim` and
+:class:`~licrom.full.FullSim`, :class:`~licrom.reduced.world.WorldFrameSim` and
 :class:`~licrom.reduced.body.BodyFrameSim` differ in how they take a step and what a
 frame is; the argument checks, the recording cadence, the timing and the progress bar
 (closed also when a step raises) are one piece of code, and so is the rule that one

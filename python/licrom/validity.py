@@ -3,7 +3,7 @@
 The model (stable Neo-Hookean elements, penalty contact) keeps running outside its
 valid range: inverted elements have finite energy, and a penalty contact that is too
 soft for its load lets the body sink into the ground. Every simulator
-(:class:`~licrom.full.FullSim`, :class:`~licrom.reduced.world.ReducedSim`,
+(:class:`~licrom.full.FullSim`, :class:`~licrom.reduced.world.WorldFrameSim`,
 :class:`~licrom.reduced.body.BodyFrameSim`) reports these cases the same way:
 
 | case | signal | recorded in the trajectory |

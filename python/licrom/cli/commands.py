@@ -32,7 +32,7 @@ def cli() -> None:
 
 
 def _cubature_option(value: str, model, mesh):
-    """``--cubature``: a name of ``licrom.reduced.world.CUBATURES`` or a count of naive tets (a model without a
+    """``--cubature``: a name of ``licrom.reduced.base.CUBATURES`` or a count of naive tets (a model without a
     fitted cubature falls back to the naive default, with a warning, for ``fitted``)."""
     from ..reduced.base import CUBATURES
     from ..subspace.cubature import Cubature

@@ -120,7 +120,7 @@ def load_manifest(out_dir: str | Path) -> dict[str, Any]:
         raise FileFormatError(f"dataset manifest '{p}' is not readable JSON: {exc}") from exc
     except RecursionError:
         raise FileFormatError(f"dataset manifest '{p}' is nested too deeply to be a licrom manifest") from None
-    if not isinstance(d, dict) or d.get("format") != "licrom.data.dataset":
+    if not isinstance(d, dict) or d.get("format") != "licrom.dataset":
         raise FileFormatError(f"'{p}' is not a licrom dataset manifest")
     if isinstance(d.get("version"), bool) or d.get("version") != DATASET_FORMAT_VERSION:
         raise FileFormatError(f"dataset manifest '{p}' has format version {d.get('version')!r}; this licrom reads version {DATASET_FORMAT_VERSION} only")
@@ -407,7 +407,7 @@ def generate_dataset(
             mesh.save(mesh_path)
         frames = 1 + steps // record_every
         manifest: dict[str, Any] = {
-            "format": "licrom.data.dataset",
+            "format": "licrom.dataset",
             "version": DATASET_FORMAT_VERSION,
             "name": name,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),

@@ -41,18 +41,11 @@ def reduced_sim(
         mesh: the mesh to simulate (default: the model's mesh).
         scene: the scene (default: the model's default scene).
         cubature: cubature tets and weights, or a name of :data:`~licrom.reduced.base.CUBATURES`
-            (default: the model's fitted cubature, refitted on another mesh; the naive scheme
-            with 1000 tets for a basis without one).
+            (default: the model's fitted cubature), as in :class:`~licrom.reduced.world.WorldFrameSim`.
         contact_points: where contact acts (default: :meth:`~licrom.subspace.cubature.ContactPoints.default`).
-        solver: ``"newton"`` (dense Newton, Cholesky, line search) or ``"prefactored"``
-            (the report's scheme: the elastic stiffness kept at rest, ``M_r/h^2 + K_r(rest)``
-            factored once and again only when contact terms change; a step that needs more
-            than ``licrom_core``'s ``PREFACTORED_BUDGET`` (25) directions finishes with Newton,
-            counted as ``fallbacks`` in the solver stats).
-        strain: how the deformation gradient at the cubature tets follows q: ``"mesh"``
-            (the linear-tet gradient of the basis' vertex values, as in the FEM) or
-            ``"field"`` (the basis' own gradient, LiCROM as published); see
-            :func:`licrom.subspace.basis.strain_jacobians`.
+        solver: ``"newton"`` or ``"prefactored"`` (world frame only), as in
+            :class:`~licrom.reduced.world.WorldFrameSim`.
+        strain: ``"mesh"`` or ``"field"``, see :func:`licrom.subspace.basis.strain_jacobians`.
 
     Returns:
         A :class:`~licrom.reduced.base.ReducedSim`: world-frame or body-frame as above.

@@ -340,7 +340,7 @@ class Scene:
         """A JSON-ready dict with ``format`` and ``version`` keys."""
         d = asdict(self)
         d["planes"] = [asdict(p) for p in self.planes]
-        return {"format": "licrom.scene.scene", "version": SCENE_FORMAT_VERSION, **d}
+        return {"format": "licrom.scene", "version": SCENE_FORMAT_VERSION, **d}
 
     def to_json(self, indent: int | None = 2) -> str:
         """Serialise to JSON text."""
@@ -354,8 +354,8 @@ class Scene:
             FileFormatError: not a licrom scene, or an unknown format version.
             ConfigError: a value is out of range.
         """
-        if not isinstance(d, dict) or d.get("format") != "licrom.scene.scene":
-            raise FileFormatError("not a licrom scene: expected a JSON object with \"format\": \"licrom.scene.scene\"")
+        if not isinstance(d, dict) or d.get("format") != "licrom.scene":
+            raise FileFormatError("not a licrom scene: expected a JSON object with \"format\": \"licrom.scene\"")
         check_version(d.get("version"), SCENE_FORMAT_VERSION, "scene JSON")
         try:
             return cls(
