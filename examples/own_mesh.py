@@ -135,7 +135,7 @@ def main() -> None:
         print(f"\n$ {command}", flush=True)
         start = time.perf_counter()
         argv = shlex.split(command)
-        subprocess.run([sys.executable, "-m", "licrom.cli.commands", *argv[1:]], cwd=work, check=True)
+        subprocess.run([sys.executable, "-m", "licrom.cli", *argv[1:]], cwd=work, check=True)
         times.append(time.perf_counter() - start)
     print("\n| command | wall time |\n|---|---|")
     for command, seconds in zip(commands, times):

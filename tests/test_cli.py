@@ -26,7 +26,7 @@ def test_errors_are_one_line(tmp_path, capsys):
 
 
 def test_installed_entry_point_runs():
-    r = subprocess.run([sys.executable, "-m", "licrom.cli.commands", "--help"], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "licrom.cli", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "mesh" in r.stdout
 
 

@@ -48,7 +48,7 @@ def test_hard_landing(tmp_path):
 
 
 def test_train_subspace(tmp_path):
-    _run("-m", "licrom.cli.commands", "generate", tmp_path / "data", "-r", "4", "--steps", "10", "-q", cwd=tmp_path)
+    _run("-m", "licrom.cli", "generate", tmp_path / "data", "-r", "4", "--steps", "10", "-q", cwd=tmp_path)
     model_path = tmp_path / "subspace.lcm"
     out = _run(EXAMPLES / "train_subspace.py", tmp_path / "data", "--epochs", "2", "--modes", "4", "--device", "cpu", "--out", model_path, cwd=tmp_path)
     model = licrom.Model.load(model_path)
