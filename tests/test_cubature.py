@@ -2,7 +2,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-from licrom import ConfigError, ReducedSim, Scene, ShapeError, cubature, meshes
+from licrom import ConfigError, ReducedSim, Scene, ShapeError, meshes
+from licrom.subspace import cubature
 from licrom.subspace.basis import AffineBasis
 from licrom.subspace.cubature import FIT_TOLERANCE, ContactPoints, Cubature
 
