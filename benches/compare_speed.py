@@ -17,10 +17,10 @@ import time
 import licrom
 import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, meshes
-from licrom.compare import time_steps
-from licrom.cubature import ContactPoints, Cubature
-from licrom.placement import drop_state, initial_state_on_plane
-from licrom.presets import report_dataset_spec
+from licrom.analysis.compare import time_steps
+from licrom.data.presets import report_dataset_spec
+from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.subspace.cubature import ContactPoints, Cubature
 
 
 def polynomial_basis(mesh: licrom.Mesh, r: int) -> StackedBasis:

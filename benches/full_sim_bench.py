@@ -22,7 +22,7 @@ import time
 import licrom
 import numpy as np
 from licrom import ContactParams, InitialState, Material, Plane, Scene, meshes
-from licrom.full_sim import FullSim
+from licrom.full import FullSim
 
 
 def bench_scene(mesh: licrom.Mesh, slope_deg: float = 20.0, friction: float = 0.5) -> Scene:

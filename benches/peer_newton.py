@@ -61,7 +61,7 @@ from typing import Any
 
 import licrom
 import numpy as np
-from licrom.compare import penetration_depths
+from licrom.analysis.compare import penetration_depths
 
 __all__ = [
     "CASES",
@@ -415,7 +415,7 @@ def format_table(results: dict[str, dict[str, dict[str, Any]]], cases: tuple[Cas
 
 def plot_travel(results: dict[str, dict[str, dict[str, Any]]], cases: tuple[Case, ...], path: Path, duration: float) -> Path:
     """PNG of the centre-of-mass travel down the slope against time, one panel per case."""
-    from licrom._plot import pyplot, save_png
+    from licrom.viz._plot import pyplot, save_png
 
     plt = pyplot()
     styles = {"licrom": ("C0", "-"), "licrom_fine": ("C0", ":"), "newton": ("C1", "--")}

@@ -29,11 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from compare_speed import polynomial_basis
 from licrom import Plane, ReducedSim, meshes
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.cubature import ContactPoints, Cubature
-from licrom.model import Model
-from licrom.placement import drop_state, initial_state_on_plane
-from licrom.presets import report_dataset_spec
+from licrom.data.presets import report_dataset_spec
+from licrom.learn.model import Model
+from licrom.reduced.body import BodyFrameSim
+from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import ContactPoints, Cubature
 
 
 def build(args: argparse.Namespace) -> list:

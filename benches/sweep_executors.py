@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 from licrom import meshes
-from licrom.dataset import generate_dataset, load_manifest
-from licrom.placement import drop_state
-from licrom.presets import report_dataset_spec
+from licrom.data.dataset import generate_dataset, load_manifest
+from licrom.data.presets import report_dataset_spec
+from licrom.scene.placement import drop_state
 
 
 def contents(out: Path) -> dict[str, dict[str, bytes]]:

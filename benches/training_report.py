@@ -46,7 +46,7 @@ import numpy as np
 # ----------------------------------------------------------------------------------------
 def load_named(source: str, seed: int) -> list:
     from licrom import meshes
-    from licrom.training_data import load_trajectories, make_synthetic_trajectories
+    from licrom.learn.training_data import load_trajectories, make_synthetic_trajectories
 
     if source == "synthetic":
         mesh = meshes.cheese(resolution=10)
@@ -70,7 +70,7 @@ def split(count: int, val_fraction: float, test_fraction: float, seed: int) -> t
 
 def build_data(args: argparse.Namespace) -> dict[str, Any]:
     """Training data with the validation split, and (optionally) with the test split."""
-    from licrom.training_data import TrainingData
+    from licrom.learn.training_data import TrainingData
 
     named = load_named(args.data, args.seed)
     tr, va, te = split(len(named), args.val_fraction, args.test_fraction, args.seed)
@@ -128,8 +128,8 @@ def _worker_init(args: argparse.Namespace, threads: int | None, gpus: int = 0) -
 
 
 def run_one(job: dict[str, Any]) -> dict[str, Any]:
-    from licrom.model import ModelConfig
-    from licrom.training import TrainConfig, evaluate, train
+    from licrom.learn.model import ModelConfig
+    from licrom.learn.training import TrainConfig, evaluate, train
 
     assert _DATA is not None
     args = job["args"]

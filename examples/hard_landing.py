@@ -23,11 +23,11 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import AffineBasis, MeshBasis, Model, ReducedSim, StackedBasis, Trajectory
-from licrom.affine import apply_affine, fit_affine
-from licrom.basis import SubspaceProjector
-from licrom.compare import compare
-from licrom.cubature import Cubature
+from licrom.analysis.compare import compare
 from licrom.rigid import relative_error
+from licrom.subspace.affine import apply_affine, fit_affine
+from licrom.subspace.basis import SubspaceProjector
+from licrom.subspace.cubature import Cubature
 
 
 def readme_scene() -> tuple[licrom.Mesh, licrom.Scene]:

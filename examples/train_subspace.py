@@ -15,9 +15,9 @@ from pathlib import Path
 
 import licrom
 import numpy as np
-from licrom.model import ModelConfig
+from licrom.learn.model import ModelConfig
+from licrom.learn.training_data import TrainingData
 from licrom.rigid import relative_error
-from licrom.training_data import TrainingData
 
 
 def main() -> None:

@@ -46,15 +46,16 @@ import licrom
 import numpy as np
 from licrom import AffineBasis, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
-from licrom.affine import apply_affine, fit_affine
-from licrom.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.compare import compare, first_contact_frame, nonrigid_error
-from licrom.cubature import Cubature
-from licrom.placement import drop_state, initial_state_on_plane
-from licrom.render import filmstrip, pick_renderer
+from licrom.analysis.compare import compare, first_contact_frame, nonrigid_error
+from licrom.learn.training import TrainConfig
+from licrom.reduced.body import BodyFrameSim
 from licrom.rigid import body_frame_displacements, rigid_fit
-from licrom.training import TrainConfig
+from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.subspace.affine import apply_affine, fit_affine
+from licrom.subspace.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import Cubature
+from licrom.viz.render import filmstrip, pick_renderer
 
 SECTION_TITLE = "## 10. Body-frame reduced model"
 READING = "### Reading"  # the hand-written part of the section, kept when the script rewrites its tables
@@ -260,7 +261,7 @@ def run_metrics(full: Trajectory, other: Trajectory) -> dict:
 def residual_pod(mesh: licrom.Mesh, runs: list[np.ndarray], masses: np.ndarray, r: int, balance: float = RUN_BALANCE) -> MeshBasis:
     """POD(r) of what the mass-weighted affine fit leaves of each run's snapshots (f_k, n, 3), as training does.
 
-    The runs are balanced (:func:`licrom.basis.run_balanced_weights` with power ``balance``:
+    The runs are balanced (:func:`licrom.subspace.basis.run_balanced_weights` with power ``balance``:
     the training's default ``pod_weighting="run"``), so the POD spans what the models
     learn; ``balance=0`` is plain POD. The modes are mass-orthogonal to every affine mode,
     rigid ones included.

@@ -20,7 +20,7 @@ M's vertices with M's lumped masses: the training mesh's run is interpolated the
 the containing tet of its own mesh, :func:`truth_convergence.sampled_positions`; vertices of M just outside it are
 clamped to the nearest tet). Non-rigid error: each frame's best rigid fit removed, mass-weighted,
 ``sqrt(sum_t |d_t|^2 / sum_t |u_t|^2)`` from M's first contact with u the reference's body-frame displacement
-(:func:`truth_convergence.sampled_nonrigid`; at M's own vertices it is :func:`licrom.compare.nonrigid_error`);
+(:func:`truth_convergence.sampled_nonrigid`; at M's own vertices it is :func:`licrom.analysis.compare.nonrigid_error`);
 centre of mass: the final frame's mass-weighted centre at M's vertices, distance over M's size. Noise floor: M's
 full run against itself dropped 0.1 mm higher (``body_frame_experiments.nudged``).
 
@@ -48,10 +48,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
-from licrom.body_frame import BodyFrameBasis
-from licrom.compare import first_contact_frame
-from licrom.scene import SolverParams
-from licrom.training import TrainConfig
+from licrom.analysis.compare import first_contact_frame
+from licrom.learn.training import TrainConfig
+from licrom.scene.scene import SolverParams
+from licrom.subspace.body_basis import BodyFrameBasis
 from truth_convergence import sampled_nonrigid, sampled_positions
 
 SECTION_TITLE = "## 14. Discretisation independence, fairly"

@@ -6,10 +6,10 @@ For each family of ``experiments/body_frame_experiments.py`` (its cached full ru
 body-frame subspace is the 6 symmetric affine modes + POD(r) of the training runs (balanced as
 training balances them: the learned modes come within 1.01x of it), standing in for a trained
 model so that no training is needed. Its cubature is fitted as :func:`licrom.train` fits it
-(:func:`licrom.training.run.fit_cubature`: at most 256 training poses, evenly spaced) to each
+(:func:`licrom.learn.training.run.fit_cubature`: at most 256 training poses, evenly spaced) to each
 tolerance, and every held-out run is simulated with it, with every tet, and with the report's
 1000 naive tets. Printed per family and r: tets kept, fit seconds, the held-out runs' non-rigid
-error (``licrom.compare.nonrigid_error``) and the median reduced step in ms. Writes
+error (``licrom.analysis.compare.nonrigid_error``) and the median reduced step in ms. Writes
 ``--work/cubature_tolerance.json``.
 """
 
@@ -27,9 +27,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from body_frame_experiments import FAMILIES, Setting, full_run
 from licrom import BodyFrameSim, Cubature
 from licrom._io import atomic_path
-from licrom.basis import SubspaceProjector
-from licrom.compare import nonrigid_error
+from licrom.analysis.compare import nonrigid_error
 from licrom.rigid import body_frame_displacements
+from licrom.subspace.basis import SubspaceProjector
 
 TOLERANCES = (3e-2, 1e-2, 3e-3, 1e-3)
 SAMPLES = 256  # TrainConfig.cubature_samples

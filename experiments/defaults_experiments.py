@@ -34,9 +34,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 from licrom import Model, ReducedSim
 from licrom._io import atomic_path
-from licrom.basis import RUN_BALANCE
-from licrom.error_estimate import ERROR_THRESHOLD
-from licrom.training import TrainConfig
+from licrom.learn.training import TrainConfig
+from licrom.reduced.error_estimate import ERROR_THRESHOLD
+from licrom.subspace.basis import RUN_BALANCE
 
 SECTION_TITLE = "## 11. At defaults: what `licrom train` and `ReducedSim(model)` give"
 
@@ -111,7 +111,7 @@ def transfer_rows(model: Model, work: Path, small: bool) -> list[dict]:
 def speed(model: Model, case: bfe.Case, mesh, rounds: int = 7) -> dict:
     """Full against reduced step time on the same mesh and scene, interleaved rounds in one process (after both land)."""
     from licrom import FullSim
-    from licrom.compare import time_steps
+    from licrom.analysis.compare import time_steps
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -8,11 +8,11 @@ first held-out cheese scene with a softer material (E = 10 kPa) and on a finer m
 cheese (resolution 10, the res-8 POD modes interpolated onto it), the script runs the
 body-frame model with POD(r) modes of the family's training runs for each r, and compares
 
-* the true error, :func:`licrom.compare.nonrigid_error` against the full run, with
+* the true error, :func:`licrom.analysis.compare.nonrigid_error` against the full run, with
 * the run-level estimate, the last frame of ``Trajectory.error_estimate``.
 
 It prints the table, Spearman's rho over all runs and within each family, the flagging
-confusion at :data:`licrom.error_estimate.ERROR_THRESHOLD` against true errors above 15 %,
+confusion at :data:`licrom.reduced.error_estimate.ERROR_THRESHOLD` against true errors above 15 %,
 and the estimate's cost against the step's (median over the steps of one run of the cheese),
 and writes ``--work/error_estimate.json``. Full runs are cached under ``--work/full`` (shared
 with ``body_frame_experiments.py``). ``--small`` runs tiny meshes for a few steps (a smoke
@@ -32,9 +32,9 @@ import numpy as np
 from body_frame_experiments import FAMILIES, Case, Setting, _on_plane, full_run, incline
 from licrom import Material, MeshBasis, meshes
 from licrom._io import atomic_path
-from licrom.body_frame import BodyFrameSim
-from licrom.compare import nonrigid_error
-from licrom.error_estimate import ERROR_THRESHOLD
+from licrom.analysis.compare import nonrigid_error
+from licrom.reduced.body import BodyFrameSim
+from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from scipy.stats import spearmanr
 
 BAD = 0.15  # a run whose true non-rigid error exceeds this must be flagged

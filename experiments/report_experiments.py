@@ -34,14 +34,14 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import AffineBasis, FullSim, MeshBasis, Plane, ReducedSim, StackedBasis, Trajectory, meshes
-from licrom.affine import apply_affine, fit_affine
-from licrom.compare import Comparison, compare, time_steps
-from licrom.cubature import ContactPoints, Cubature
-from licrom.model import ModelConfig
-from licrom.placement import initial_state_between_planes, initial_state_on_plane
-from licrom.presets import report_dataset_spec
-from licrom.render import filmstrip, pick_renderer, plot_errors
-from licrom.training import TrainConfig
+from licrom.analysis.compare import Comparison, compare, time_steps
+from licrom.data.presets import report_dataset_spec
+from licrom.learn.model import ModelConfig
+from licrom.learn.training import TrainConfig
+from licrom.scene.placement import initial_state_between_planes, initial_state_on_plane
+from licrom.subspace.affine import apply_affine, fit_affine
+from licrom.subspace.cubature import ContactPoints, Cubature
+from licrom.viz.render import filmstrip, pick_renderer, plot_errors
 
 CHEESE_HELD_OUT = [  # (slope deg, mu, where it lies w.r.t. the training set)
     (15.0, 0.2, "inside"),

@@ -15,7 +15,7 @@ on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
    ``model.metadata``, the peak GPU memory (``torch.cuda.max_memory_allocated``);
 3. **reduce**: ``ReducedSim(model, scene=held_out_scene)`` for each held-out scene: setup time (with
    its largest parts by a profile), per-step time (median), non-rigid error and final centre of
-   mass against the full run of the same scene (``licrom.compare.compare``), the online error
+   mass against the full run of the same scene (``licrom.analysis.compare.compare``), the online error
    estimate, and the learned subspace's projection error of the run;
 4. **speed-up**: the reduced step against the full step on ``--device`` and, with ``--cpu-steps``,
    a short full run on the CPU.
@@ -41,11 +41,11 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import ReducedSim, Trajectory
-from licrom.body_frame import BodyFrameBasis
-from licrom.cubature import ContactPoints
-from licrom.error_estimate import ERROR_THRESHOLD
-from licrom.scene import SolverParams
-from licrom.training import TrainConfig
+from licrom.learn.training import TrainConfig
+from licrom.reduced.error_estimate import ERROR_THRESHOLD
+from licrom.scene.scene import SolverParams
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import ContactPoints
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
@@ -299,7 +299,7 @@ def section(res: dict) -> str:
         out.append(f"| 4. full sim on the CPU, {c['steps']} steps | setup {c['setup_s']:.1f} s, {c['run_s']:.1f} s | "
                    f"{c['median_step_ms']:.0f} ms a step ({c['device_first_steps_ms']:.1f} ms for the same steps on the GPU) |")
     out += ["", f"Held-out runs (`ReducedSim(model, scene=scene)`, its defaults: the stored fitted cubature) against the full GPU run of "
-            f"the same scene on the same mesh and h (`licrom.compare.compare`); learned projection: the non-rigid error of the full run "
+            f"the same scene on the same mesh and h (`licrom.analysis.compare.compare`); learned projection: the non-rigid error of the full run "
             f"projected onto the model's body-frame modes (each frame keeping its rigid fit), the subspace's own floor; estimate: "
             f"the run's online error estimate (last frame, flagged above {ERROR_THRESHOLD * 100:g} %). ms/step: medians over the run, "
             f"reduced on the machine's CPU, full on the GPU; run wall / step: the whole `run(steps)` over its steps (recording "

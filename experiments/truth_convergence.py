@@ -15,7 +15,7 @@ Studies, each against its finest member at matching frame times:
   each frame's best rigid fit removed (:func:`licrom.rigid.body_frame_displacements`), and
   ``sqrt(sum_t |d_t|_w^2 / sum_t |u_t|_w^2)`` taken over frames from the finest run's first contact;
 * **time step**: h = 10, 5, 2.5, 1 and 0.5 ms on one mesh for the same simulated time, frames
-  recorded every 10 ms; non-rigid difference by :func:`licrom.compare.nonrigid_error`.
+  recorded every 10 ms; non-rigid difference by :func:`licrom.analysis.compare.nonrigid_error`.
   ``--integrator bdf2`` runs the steps with BDF2 and ``--reference-integrator backward_euler`` measures
   them against backward Euler at the smallest step (the reference runs first; each row is saved as it
   is measured).
@@ -48,9 +48,9 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import Material, Scene, Trajectory, meshes
-from licrom.compare import first_contact_frame, nonrigid_error
+from licrom.analysis.compare import first_contact_frame, nonrigid_error
 from licrom.rigid import body_frame_displacements
-from licrom.scene import INTEGRATORS, SolverParams
+from licrom.scene.scene import INTEGRATORS, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from body_frame_experiments import _on_plane, incline, write_section
@@ -202,7 +202,7 @@ def section(results: dict) -> str:
            "rigid fit removed, from the finest run's first contact). Across meshes the displacements are compared at "
            "common material points, the coarsest mesh's vertices (weighted by its lumped masses), each run "
            "interpolated barycentrically in the containing tet of its own mesh; across time steps on one mesh by "
-           "`licrom.compare.nonrigid_error` on frames every 10 ms. Step time: wall time of the run over its steps "
+           "`licrom.analysis.compare.nonrigid_error` on frames every 10 ms. Step time: wall time of the run over its steps "
            "(median of the steps beside it), with the mean Newton iterations per step.",
            "", f"Machine: {results.get('machine', '?')}.", ""]
     choices = []

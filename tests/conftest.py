@@ -21,7 +21,7 @@ def tiny_demo(tmp_path_factory):
 
     Held-out scenes at 20 deg (tan = 0.36): mu 0.1 slides, mu 0.9 sticks.
     """
-    from licrom.demo import DemoConfig, run_demo
+    from licrom.cli.demo import DemoConfig, run_demo
 
     root = tmp_path_factory.mktemp("demo")
     out = root / "demo"

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
-from licrom.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights, strain_jacobians
+from licrom.subspace.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights, strain_jacobians
 
 
 def _fd_jacobian(basis, points, eps=1e-6):

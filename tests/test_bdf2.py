@@ -6,12 +6,13 @@ import math
 import numpy as np
 import pytest
 from licrom import ConfigError, InitialState, Material, Scene, SolverError, SolverParams, meshes
-from licrom.basis import AffineBasis
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.cubature import Cubature
-from licrom.full_sim import FullSim
-from licrom.reduced_sim import ReducedSim
-from licrom.scene_file import load_scene
+from licrom.data.scene_file import load_scene
+from licrom.full import FullSim
+from licrom.reduced.base import ReducedSim
+from licrom.reduced.body import BodyFrameSim
+from licrom.subspace.basis import AffineBasis
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import Cubature
 from test_full_sim import _box_on_incline
 
 SOFT = Material(youngs_modulus=2e4, poisson_ratio=0.3, density=1000.0)

@@ -16,11 +16,12 @@ from licrom import (
     _core,
     meshes,
 )
-from licrom.basis import AffineBasis
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.cubature import Cubature
 from licrom.errors import PhysicsWarning
+from licrom.reduced.body import BodyFrameSim
 from licrom.rigid import center_of_mass
+from licrom.subspace.basis import AffineBasis
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import Cubature
 from scipy.spatial.transform import Rotation
 
 TIGHT = SolverParams(tolerance=1e-11, max_iterations=100)

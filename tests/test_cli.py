@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from licrom.cli import main
+from licrom.cli.commands import main
 
 
 def test_mesh_command_generates_and_converts(tmp_path, capsys):
@@ -44,7 +44,7 @@ def test_compare_command_reports_and_writes_pictures(tiny_demo, tmp_path, capsys
     slides, sticks = summary["cases"]
     assert (slides["scene"], sticks["scene"]) == ("slope 25.0 deg, mu 0.1", "slope 25.0 deg, mu 0.9")
     assert slides["slid_full"] and not sticks["slid_full"]
-    # The demo's layout (licrom.report): same names, a summary.md and report.html.
+    # The demo's layout (licrom.viz.report): same names, a summary.md and report.html.
     assert {p.name for p in out.iterdir()} == {"summary.json", "summary.md", "report.html", "errors.png", "runs",
                                                "filmstrip_slope25_mu0.1.png", "filmstrip_slope25_mu0.9.png",
                                                "animation_slope25_mu0.1.gif", "animation_slope25_mu0.9.gif"}
@@ -67,7 +67,7 @@ def test_compare_command_refuses_bad_input(tiny_demo, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     from licrom import meshes
-    from licrom.training_data import make_synthetic_trajectories
+    from licrom.learn.training_data import make_synthetic_trajectories
 
     d = tmp_path_factory.mktemp("data")
     for k, t in enumerate(make_synthetic_trajectories(meshes.box((0.2, 0.1, 0.1), resolution=3), count=2, frames=4, seed=0)):
@@ -132,7 +132,7 @@ def test_generate_refuses_a_directory_in_use_and_a_ray_cluster_that_never_answer
     import socket
     import types
 
-    from licrom.dataset import LOCK_NAME
+    from licrom.data.dataset import LOCK_NAME
 
     small = ["--mesh", "box:1", "--friction", "0.5", "--slope", "10", "--steps", "2", "-q"]
     out = tmp_path / "d"
@@ -194,9 +194,9 @@ def test_help_shows_every_default_one_way_and_as_the_configs_have_them():
     import re
 
     from click.testing import CliRunner
-    from licrom.cli import cli
-    from licrom.model import ModelConfig
-    from licrom.training import TrainConfig
+    from licrom.cli.commands import cli
+    from licrom.learn.model import ModelConfig
+    from licrom.learn.training import TrainConfig
 
     runner = CliRunner()
     shown = {}

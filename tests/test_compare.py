@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from licrom import Plane, Scene, Trajectory, meshes
-from licrom.compare import (
+from licrom.analysis.compare import (
     compare,
     first_contact_frame,
     nonrigid_error,
@@ -73,7 +73,7 @@ def test_licrom_compare_is_the_function_after_the_module_is_imported():
 
     import licrom
 
-    module = importlib.import_module("licrom.compare")  # binds the package attribute on first import
+    module = importlib.import_module("licrom.analysis.compare")  # the module of the same name, in its layer folder
     assert licrom.compare is module.compare
     a = _sliding_box(0.5)
     assert licrom.compare(a, a).mean_error == 0.0

@@ -2,9 +2,10 @@ import dataclasses
 
 import numpy as np
 import pytest
-from licrom import ConfigError, ReducedSim, Scene, ShapeError, cubature, meshes
-from licrom.basis import AffineBasis
-from licrom.cubature import FIT_TOLERANCE, ContactPoints, Cubature
+from licrom import ConfigError, ReducedSim, Scene, ShapeError, meshes
+from licrom.subspace import cubature
+from licrom.subspace.basis import AffineBasis
+from licrom.subspace.cubature import FIT_TOLERANCE, ContactPoints, Cubature
 
 
 def test_full_and_naive_weights_sum_to_volume():
@@ -69,8 +70,8 @@ def test_repr_shows_shapes_not_values():
 
 def test_cubature_for_a_trained_model_fits_its_training_forces(tiny_demo):
     from licrom import Model, ReducedSim, Trajectory
-    from licrom.compare import nonrigid_error
-    from licrom.training_data import load_trajectories
+    from licrom.analysis.compare import nonrigid_error
+    from licrom.learn.training_data import load_trajectories
 
     out, summary = tiny_demo
     model = Model.load(out / "model.lcm")
@@ -97,7 +98,7 @@ def test_cubature_for_a_trained_model_fits_its_training_forces(tiny_demo):
 
 def test_the_model_file_carries_its_fitted_cubature_and_simulations_use_it(tiny_demo, tmp_path):
     from licrom import BodyFrameSim, Model, ReducedSim, meshes
-    from licrom.reduced_sim import CUBATURES
+    from licrom.reduced.base import CUBATURES
 
     out, _ = tiny_demo
     model = Model.load(out / "model.lcm")
@@ -215,7 +216,7 @@ def test_points_are_checked_and_sequences_kept_as_float_arrays():
 
 
 def test_sampling_refuses_foreign_indices():
-    from licrom.reduced_sim import sampling
+    from licrom.reduced.base import sampling
 
     m = meshes.box(0.1, 2)
     with pytest.raises(ConfigError, match=f"accepted 0 to {m.n_tets - 1}"):

@@ -7,14 +7,14 @@ import zipfile
 import numpy as np
 import pytest
 from licrom import ConfigError, ContactParams, Material, Mesh, Scene, Trajectory, meshes
-from licrom.dataset import (
+from licrom.data.dataset import (
     MANIFEST_NAME,
     MESH_NAME,
     generate_dataset,
     load_manifest,
 )
-from licrom.placement import drop_state
-from licrom.presets import report_dataset_spec
+from licrom.data.presets import report_dataset_spec
+from licrom.scene.placement import drop_state
 
 STIFF = Material(youngs_modulus=1e6, poisson_ratio=0.3)
 CONTACT = ContactParams(normal_stiffness=1e7, friction_stiffness=1e7)
@@ -100,7 +100,7 @@ def test_a_directory_in_use_is_refused_and_a_killed_writers_lock_blocks_nothing(
     import sys
 
     from licrom import ConcurrencyError
-    from licrom.dataset import LOCK_NAME
+    from licrom.data.dataset import LOCK_NAME
 
     out = tmp_path / "ds"
     out.mkdir()
@@ -156,7 +156,7 @@ def test_report_presets():
 
 
 def test_cli_generate(tmp_path):
-    from licrom.cli import main
+    from licrom.cli.commands import main
 
     out = tmp_path / "cli"
     assert main(["generate", str(out), "--scene", "cheese", "--resolution", "4", "--steps", "2", "-q", "--jobs", "2"]) == 0
@@ -172,7 +172,7 @@ def test_a_full_disk_stops_the_run_at_the_first_trajectory(tmp_path, monkeypatch
     import errno
     import os
 
-    from licrom.cli import main
+    from licrom.cli.commands import main
 
     calls = []
 
@@ -191,7 +191,7 @@ def test_a_full_disk_stops_the_run_at_the_first_trajectory(tmp_path, monkeypatch
 
 def _presets_as_they_were_built_in_code(preset: str, resolution: int):
     """The presets as report_dataset_spec built them before they became scene files."""
-    from licrom.dataset import DatasetSpec
+    from licrom.data.dataset import DatasetSpec
 
     contact = ContactParams(normal_stiffness=1.0e7, normal_damping=0.0, friction_stiffness=1.0e7)
     material = Material(youngs_modulus=1.0e5, poisson_ratio=0.3, density=1000.0)

@@ -2,7 +2,7 @@ import json
 
 import numpy as np
 import pytest
-from licrom.demo import DemoConfig
+from licrom.cli.demo import DemoConfig
 from licrom.errors import ConfigError
 
 
@@ -29,7 +29,7 @@ def test_demo_reduced_runs_follow_the_full_ones(tiny_demo):
 
 def test_demo_without_pyvista_draws_with_matplotlib_and_says_so(tmp_path, monkeypatch, capsys, tiny_demo_scene):
     from licrom import render
-    from licrom.demo import run_demo
+    from licrom.cli.demo import run_demo
 
     monkeypatch.setattr(render, "pyvista_unavailable", lambda: "PyVista is not installed (pip install 'licrom[render]')")
     scene = tmp_path / "one.toml"
@@ -53,7 +53,7 @@ def test_demo_saves_the_runs_it_pictures(tiny_demo):
 
 
 def test_demo_refuses_a_held_out_scene_from_the_training_set(tmp_path, tiny_demo_scene):
-    from licrom.demo import run_demo
+    from licrom.cli.demo import run_demo
 
     scene = tmp_path / "s.toml"
     scene.write_text(tiny_demo_scene.replace("friction = 0.9", "friction = 0.6").replace("slope = 20.0\nfriction = 0.6", "slope = 30.0\nfriction = 0.6"))

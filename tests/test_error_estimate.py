@@ -1,4 +1,4 @@
-"""The online error estimate of reduced runs (licrom.error_estimate)."""
+"""The online error estimate of reduced runs (licrom.reduced.error_estimate)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,12 @@ import licrom
 import numpy as np
 import pytest
 from licrom import AccuracyWarning, Material, MeshBasis, Plane, ReducedSim, Scene, SolverParams, Trajectory, _core, meshes
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.compare import compare, nonrigid_error
-from licrom.cubature import Cubature
-from licrom.error_estimate import ERROR_THRESHOLD, ErrorMonitor
-from licrom.placement import drop_state, initial_state_on_plane
+from licrom.analysis.compare import compare, nonrigid_error
+from licrom.reduced.body import BodyFrameSim
+from licrom.reduced.error_estimate import ERROR_THRESHOLD, ErrorMonitor
+from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import Cubature
 
 STEPS = 30
 

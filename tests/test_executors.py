@@ -7,9 +7,9 @@ import sys
 import numpy as np
 import pytest
 from licrom import ConfigError, ContactParams, Material, Scene, meshes
-from licrom.dataset import MANIFEST_NAME, generate_dataset, load_manifest, local_devices
+from licrom.data.dataset import MANIFEST_NAME, generate_dataset, load_manifest, local_devices
 from licrom.executors import check_executor, run_tasks, task_resources
-from licrom.placement import drop_state
+from licrom.scene.placement import drop_state
 
 MATERIAL = Material(youngs_modulus=1e5, poisson_ratio=0.3)
 CONTACT = ContactParams(normal_stiffness=1e7, friction_stiffness=1e7)
@@ -88,7 +88,7 @@ def test_ray_tasks_ask_for_a_gpu_where_the_cluster_has_gpus(ray_cluster):
 
 
 def test_local_processes_take_the_gpus_in_turn(monkeypatch):
-    from licrom.full_sim import device as device_module
+    from licrom.full import device as device_module
 
     warp = device_module.warp_ready()
     monkeypatch.setattr(warp, "get_cuda_device_count", lambda: 3)

@@ -6,12 +6,12 @@ import meshio
 import numpy as np
 import pytest
 from licrom import ContactParams, FullSim, Plane, meshes
+from licrom.data.presets import report_dataset_spec
 from licrom.errors import ConfigError, MissingDependencyError, ShapeError
-from licrom.export import contact_forces, nonrigid_deformation, plane_patch, write_usd, write_vtu_series
-from licrom.placement import drop_state, initial_state_on_plane
-from licrom.presets import report_dataset_spec
+from licrom.learn.training_data import make_synthetic_trajectories
+from licrom.records.export import contact_forces, nonrigid_deformation, plane_patch, write_usd, write_vtu_series
 from licrom.rigid import nonrigid_displacements
-from licrom.training_data import make_synthetic_trajectories
+from licrom.scene.placement import drop_state, initial_state_on_plane
 
 SLOPE = 20.0  # tan = 0.364: mu 0.1 slides, mu 0.9 sticks
 
@@ -168,8 +168,8 @@ FULL_DISK = """
 import resource, signal, sys
 import numpy as np
 from licrom import meshes, render
-from licrom.export import write_usd
-from licrom.training_data import make_synthetic_trajectories
+from licrom.records.export import write_usd
+from licrom.learn.training_data import make_synthetic_trajectories
 
 traj = make_synthetic_trajectories(meshes.box(0.1, 2), count=1, frames=5, seed=1)[0]
 

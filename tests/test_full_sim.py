@@ -16,7 +16,7 @@ from licrom import (
     SolverParams,
     meshes,
 )
-from licrom.full_sim import FullSim
+from licrom.full import FullSim
 
 G = 9.81
 L = 0.1  # box edge, m
@@ -339,14 +339,14 @@ def test_run_records_frames_and_metadata():
 def test_device_auto_picks_cuda_when_warp_sees_a_gpu_and_says_which(monkeypatch, caplog):
     import logging
 
-    from licrom.full_sim import device as device_module
-    from licrom.full_sim import resolve_device
+    from licrom.full import device as device_module
+    from licrom.full import resolve_device
 
     mesh, scene, _ = _box_on_incline(0.0, 0.5, res=1)
     gpus = device_module.warp_ready().get_cuda_device_count()
     expected = "cuda" if gpus else "cpu"
     assert resolve_device(None) == resolve_device("auto") == expected
-    with caplog.at_level(logging.INFO, logger="licrom.full_sim"):
+    with caplog.at_level(logging.INFO, logger="licrom.full"):
         sim = FullSim(mesh, scene)
     assert sim.device == expected
     assert f"on {expected}" in caplog.text and f"{mesh.n_tets} tets" in caplog.text
@@ -394,7 +394,7 @@ def test_cpu_run_prints_no_missing_driver_warning_but_other_native_output_passes
     import subprocess
     import sys
 
-    from licrom.full_sim.device import _NO_DRIVER_WARNING, _native_stderr_without
+    from licrom.full.device import _NO_DRIVER_WARNING, _native_stderr_without
 
     code = ("import licrom; licrom.FullSim(licrom.meshes.box(resolution=1), licrom.Scene()).run(1); "
             "import warp; print(warp.get_cuda_device_count())")
@@ -446,7 +446,7 @@ def test_one_simulation_in_two_threads_is_a_named_error_and_its_state_stays_a_se
 def test_a_first_run_says_that_warp_compiles_its_kernels(tmp_path, monkeypatch):
     """The line comes where the kernel cache lacks a module (a fresh install), and not once it holds them all."""
     import warp as wp
-    from licrom.full_sim import device
+    from licrom.full import device
 
     loaded = []
     device.warp_ready()  # its initialisation sets the cache folder
@@ -455,9 +455,9 @@ def test_a_first_run_says_that_warp_compiles_its_kernels(tmp_path, monkeypatch):
     said = []
     device.load_kernels("cpu", said.append)
     assert len(said) == 1 and "compiling" in said[0] and "first run only" in said[0]
-    assert sorted(name for name, _ in loaded) == sorted(f"licrom.full_sim.{n}" for n in device.KERNEL_MODULES)
+    assert sorted(name for name, _ in loaded) == sorted(f"licrom.full.{n}" for n in device.KERNEL_MODULES)
     for name in device.KERNEL_MODULES:
-        folder = tmp_path / wp.get_module(f"licrom.full_sim.{name}").get_module_identifier()
+        folder = tmp_path / wp.get_module(f"licrom.full.{name}").get_module_identifier()
         folder.mkdir()
         (folder / "module.o").write_bytes(b"")
     said.clear()

@@ -1,4 +1,4 @@
-"""The end-of-training check (licrom.training.held_out): the model run as a user runs it
+"""The end-of-training check (licrom.learn.training.held_out): the model run as a user runs it
 on the training's held-out runs, against those runs."""
 
 import dataclasses
@@ -6,9 +6,9 @@ import warnings
 
 import pytest
 from licrom import Model, ReducedSim, Trajectory
-from licrom.compare import compare
+from licrom.analysis.compare import compare
 from licrom.errors import AccuracyWarning
-from licrom.training import held_out
+from licrom.learn.training import held_out
 
 
 def test_the_training_report_holds_each_held_out_run_replayed_with_the_defaults(tiny_demo):

@@ -117,7 +117,7 @@ def test_atomic_path_passes_licrom_errors_through(tmp_path):
 
 def test_a_rewritten_file_keeps_its_mode(tmp_path):
     from click.testing import CliRunner
-    from licrom.cli import cli
+    from licrom.cli.commands import cli
 
     path = _trajectory().save(tmp_path / "t.npz")
     os.chmod(path, 0o600)
@@ -261,8 +261,8 @@ json_values = st.recursive(
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """Valid files of every format (bytes), and a scratch folder."""
-    from licrom.dataset import MANIFEST_NAME
-    from licrom.model import LicromNet, Model, ModelConfig
+    from licrom.data.dataset import MANIFEST_NAME
+    from licrom.learn.model import LicromNet, Model, ModelConfig
 
     d = tmp_path_factory.mktemp("valid")
     traj = _trajectory().save(d / "t.npz").read_bytes()
@@ -280,9 +280,9 @@ def files(tmp_path_factory):
 
 def _load(kind, files, data):
     """Write ``data`` as a ``kind`` file and load it with licrom's loader."""
-    from licrom.dataset import load_manifest
-    from licrom.model import Model
-    from licrom.training.checkpoints import read_checkpoint
+    from licrom.data.dataset import load_manifest
+    from licrom.learn.model import Model
+    from licrom.learn.training.checkpoints import read_checkpoint
 
     folder = files["scratch"]
     if kind == "scene":
@@ -350,7 +350,7 @@ def _save_valid(files, kind):
 
 
 def _load_path(kind, path):
-    from licrom.model import Model
+    from licrom.learn.model import Model
 
     return (Trajectory.load if kind == "trajectory" else Model.load)(path)
 

@@ -1,9 +1,10 @@
-"""The package's architecture as a table of layers, checked over its import graph.
+"""The package's architecture as a table of layers, one folder each, checked over its import graph.
 
-Every module of ``python/licrom`` sits in one layer; a module imports only from its own
-layer or below, and the imports form no loop. Imports under ``if TYPE_CHECKING:`` (type
-hints alone) are not imports at run time and are left out; the package's ``__init__`` is
-the facade over all layers and is left out too.
+Every module of ``python/licrom`` sits in a layer: the foundation modules at the top of the
+package, below everything, then one subpackage (folder) per layer. A module imports only from
+its own layer or below, and the layers' imports form no loop. Imports under ``if
+TYPE_CHECKING:`` (type hints alone) are not imports at run time and are left out; the
+package's ``__init__`` is the facade over all layers and is left out too.
 """
 
 from __future__ import annotations
@@ -15,22 +16,26 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "python" / "licrom"
 
-LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("foundation", ("errors", "_io", "_limits", "_repr", "_plot", "validity", "rigid", "executors", "stepping")),
-    ("geometry", ("mesh", "meshes", "surface")),
-    ("scene", ("scene", "placement")),
-    ("records", ("trajectory", "export")),
-    ("full simulation", ("full_sim",)),
-    ("subspace", ("affine", "basis", "body_basis", "cubature", "training_data")),
-    ("reduced simulation", ("error_estimate", "reduced_base", "body_frame", "reduced_sim")),
-    ("comparison and data", ("compare", "dataset", "scene_file", "presets")),
-    ("learning", ("model", "training")),
-    ("pictures", ("render", "report")),
-    ("application", ("cli", "demo")),
-)
-"""Layers, lowest first, and the top-level modules (or subpackages) in each."""
+FOUNDATION: tuple[str, ...] = ("errors", "_io", "_limits", "_repr", "_blas", "validity", "rigid", "executors", "stepping")
+"""The modules at the top of the package: errors, files, limits and checks every layer uses."""
 
-LAYER_OF = {module: i for i, (_, modules) in enumerate(LAYERS) for module in modules}
+LAYERS: tuple[tuple[str, str], ...] = (
+    ("geometry", "meshes, procedural meshes, surfaces to tets"),
+    ("scene", "scenes and placement"),
+    ("records", "trajectories and their exports"),
+    ("full", "the full simulation (warp)"),
+    ("data", "scene files, presets and data sets of full runs"),
+    ("subspace", "affine modes, bases, body-frame modes, cubature"),
+    ("reduced", "the reduced simulation, world and body frame, its factory and error estimate"),
+    ("analysis", "full against reduced"),
+    ("viz", "pictures and reports"),
+    ("learn", "training data, models and their training"),
+    ("cli", "the licrom command and its demo"),
+)
+"""The layer folders (subpackages of ``licrom``), lowest first, above the foundation."""
+
+LAYER_OF = {module: 0 for module in FOUNDATION} | {folder: i + 1 for i, (folder, _) in enumerate(LAYERS)}
+NAMES = ["foundation", *(folder for folder, _ in LAYERS)]
 
 
 def _modules() -> dict[str, Path]:
@@ -81,7 +86,7 @@ def _top(name: str) -> str:
 
 
 def _graph() -> dict[str, set[str]]:
-    """Top-level module -> the top-level modules it imports (the package facade left out)."""
+    """Layer folder or foundation module -> those it imports (the package facade left out)."""
     graph: dict[str, set[str]] = {}
     for name, path in _modules().items():
         if name == "":
@@ -90,15 +95,24 @@ def _graph() -> dict[str, set[str]]:
     return graph
 
 
+def test_every_module_lives_in_a_layer_folder_or_the_foundation():
+    misplaced = sorted(name for name in _modules() if name and not (
+        (name in FOUNDATION) or (name.split(".")[0] in dict(LAYERS) and (PACKAGE / name.split(".")[0]).is_dir())))
+    assert not misplaced, f"modules outside every layer folder and the foundation: {misplaced}"
+    for folder, _ in LAYERS:
+        assert (PACKAGE / folder / "__init__.py").is_file(), f"layer folder {folder}/ is missing (or has no __init__.py)"
+        assert ast.get_docstring(ast.parse((PACKAGE / folder / "__init__.py").read_text())), f"{folder}/__init__.py should say what the layer is"
+    gone = sorted(m for m in FOUNDATION if not (PACKAGE / f"{m}.py").is_file())
+    assert not gone, f"FOUNDATION names modules that do not exist: {gone}"
+
+
 def test_every_module_has_a_layer():
     missing = sorted(set(_graph()) - set(LAYER_OF))
-    assert not missing, f"modules without a layer in LAYERS: {missing}"
-    gone = sorted(set(LAYER_OF) - set(_graph()))
-    assert not gone, f"LAYERS names modules that do not exist: {gone}"
+    assert not missing, f"modules without a layer: {missing}"
 
 
 def test_no_module_imports_from_a_layer_above_its_own():
-    upward = [f"{m} ({LAYERS[LAYER_OF[m]][0]}) imports {t} ({LAYERS[LAYER_OF[t]][0]})"
+    upward = [f"{m} ({NAMES[LAYER_OF[m]]}) imports {t} ({NAMES[LAYER_OF[t]]})"
               for m, targets in sorted(_graph().items()) for t in sorted(targets)
               if m in LAYER_OF and t in LAYER_OF and LAYER_OF[t] > LAYER_OF[m]]
     assert not upward, "imports from a higher layer:\n" + "\n".join(upward)
@@ -124,14 +138,15 @@ def test_imports_form_no_loop():
     assert not loops, "import loops: " + "; ".join(" -> ".join(loop) for loop in loops)
 
 
-@pytest.mark.parametrize("source, expected", [
-    ("from .mesh import Mesh\n", {"mesh"}),
-    ("from . import _core, meshes\n", {"meshes"}),
-    ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .model import Model\n", set()),
-    ("def f():\n    from .render import pyplot\n", {"render"}),
-    ("import licrom.scene\n", {"scene"}),
+@pytest.mark.parametrize("name, source, expected", [
+    ("probe", "from .geometry.mesh import Mesh\n", {"geometry"}),
+    ("probe", "from . import _core, errors\n", {"errors"}),
+    ("probe", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .learn.model import Model\n", set()),
+    ("probe", "def f():\n    from .viz.render import pyplot\n", {"viz"}),
+    ("probe", "import licrom.scene.scene\n", {"scene"}),
+    ("reduced.probe", "from ..geometry.mesh import Mesh\nfrom .base import ReducedSim\n", {"geometry", "reduced"}),
 ])
-def test_the_graph_reads_every_kind_of_import(tmp_path, source, expected):
+def test_the_graph_reads_every_kind_of_import(tmp_path, name, source, expected):
     path = tmp_path / "probe.py"
     path.write_text(source)
-    assert {_top(t) for t in _imports("probe", path)} == expected
+    assert {_top(t) for t in _imports(name, path)} == expected

@@ -17,11 +17,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from licrom import ConfigError, meshes
 from licrom._limits import ENV_VAR, check_memory, format_bytes, memory_limit
-from licrom.cli import main
-from licrom.model import ModelConfig
-from licrom.model.networks import state_size
-from licrom.training import TrainConfig
-from licrom.training.config import check_training_memory
+from licrom.cli.commands import main
+from licrom.learn.model import ModelConfig
+from licrom.learn.model.networks import state_size
+from licrom.learn.training import TrainConfig
+from licrom.learn.training.config import check_training_memory
 
 PROPERTY = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
@@ -182,7 +182,7 @@ def test_train_command_size_options_give_a_one_line_error_or_configs_that_fit(tm
     def stub(data, output, train_config, model_config):
         raise _Reached(train_config, model_config)
 
-    with mock.patch.dict(os.environ, {ENV_VAR: "1G"}), mock.patch("licrom.training.train", stub):
+    with mock.patch.dict(os.environ, {ENV_VAR: "1G"}), mock.patch("licrom.learn.training.train", stub):
         try:
             rc = main(["train", str(tmp_path), "-o", str(tmp_path / "m.lcm"), flag, value])
         except _Reached as reached:

@@ -173,7 +173,7 @@ def test_save_refuses_formats_that_cannot_hold_tets(tmp_path, suffix):
 
 @pytest.mark.parametrize("suffix, package", [(".xdmf", "h5py"), (".med", "h5py"), (".exo", "netCDF4")])
 def test_formats_whose_package_is_missing_name_it(tmp_path, monkeypatch, capsys, suffix, package):
-    from licrom.cli import main
+    from licrom.cli.commands import main
     from licrom.errors import MissingDependencyError
 
     monkeypatch.setitem(sys.modules, package, None)  # not installed

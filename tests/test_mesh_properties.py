@@ -17,8 +17,8 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from licrom import ConfigError, FileFormatError, Mesh, MeshError, meshes
-from licrom.cli import main
-from licrom.surface import Surface, TetrahedralizeParams, tetrahedralize
+from licrom.cli.commands import main
+from licrom.geometry.surface import Surface, TetrahedralizeParams, tetrahedralize
 
 # Few examples: those that pass the checks run fTetWild (about a second each, coarse settings).
 FEW = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 from licrom import FileFormatError, Scene, ShapeError, meshes
-from licrom.affine import apply_affine, fit_affine
-from licrom.basis import N_AFFINE, affine_jacobians, affine_values
 from licrom.errors import ConfigError
-from licrom.model import MODEL_FORMAT_VERSION, LicromNet, Model, ModelConfig
-from licrom.model.finalize import finalize_basis
-from licrom.scene import Plane
+from licrom.learn.model import MODEL_FORMAT_VERSION, LicromNet, Model, ModelConfig
+from licrom.learn.model.finalize import finalize_basis
+from licrom.scene.scene import Plane
+from licrom.subspace.affine import apply_affine, fit_affine
+from licrom.subspace.basis import N_AFFINE, affine_jacobians, affine_values
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +124,7 @@ def test_jacobians_match_finite_differences(mesh, rng, fourier):
 
 
 def test_values_are_batched_across_chunks(mesh, rng):
-    from licrom.model import config as model_module
+    from licrom.learn.model import config as model_module
 
     model = _random_model(mesh, r=2)
     x = rng.uniform(-0.05, 0.05, size=(model_module._CHUNK + 7, 3))
@@ -367,12 +367,13 @@ def test_old_world_frame_model_file_loads_as_world_frame():
     np.testing.assert_allclose(g[:12, 12:], 0.0, atol=1e-6 * np.abs(g).max())
     # and it still runs as a world-frame reduced model
     from licrom.errors import PhysicsWarning
-    from licrom.reduced_sim import ReducedSim
+    from licrom.reduced.base import ReducedSim
+    from licrom.reduced.world import WorldFrameSim
 
     # The file's default scene (from synthetic data) has the body half in the ground, which is said.
     with pytest.warns(PhysicsWarning, match="inside a plane"):
         sim = ReducedSim(model)
-    assert type(sim) is ReducedSim and sim.n_modes == 14
+    assert type(sim) is WorldFrameSim and isinstance(sim, ReducedSim) and sim.n_modes == 14
     traj = sim.run(5)
     assert traj.n_frames == 6 and np.isfinite(traj.displacements).all()
     assert traj.converged.all() and np.abs(traj.displacements[-1]).max() > 0.0
@@ -400,8 +401,8 @@ def test_save_keeps_the_mode_of_the_file_it_replaces(mesh, tmp_path):
 def test_absurd_header_sizes_are_refused_before_the_network_is_built(mesh, tmp_path, monkeypatch):
     import json
 
-    import licrom.model.trained as trained
-    from licrom.model.networks import state_size
+    import licrom.learn.model.trained as trained
+    from licrom.learn.model.networks import state_size
 
     good = _random_model(mesh, r=2).save(tmp_path / "good.lcm")
     with np.load(good, allow_pickle=False) as d:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from licrom import _core, meshes
-from licrom.basis import MeshBasis, strain_jacobians, vertex_strain_form
 from licrom.errors import ConfigError, ShapeError, SolverError
+from licrom.subspace.basis import MeshBasis, strain_jacobians, vertex_strain_form
 
 MU, LAM = 5.0e4, 9.0e4
 SIZE, DENSITY, DT = 0.1, 1000.0, 0.01

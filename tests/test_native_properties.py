@@ -19,12 +19,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from licrom import _core, meshes
-from licrom.basis import AffineBasis
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
-from licrom.cubature import Cubature
 from licrom.errors import LicromError
-from licrom.reduced_sim import ReducedSim
-from licrom.scene import Plane, Scene
+from licrom.reduced.base import ReducedSim
+from licrom.reduced.body import BodyFrameSim
+from licrom.scene.scene import Plane, Scene
+from licrom.subspace.basis import AffineBasis
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import Cubature
 
 PROPERTY = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from licrom import Plane, meshes
-from licrom.placement import drop_state, initial_state_between_planes, initial_state_on_plane
+from licrom.scene.placement import drop_state, initial_state_between_planes, initial_state_on_plane
 
 
 def test_initial_state_is_carried_onto_the_plane():

@@ -1,10 +1,10 @@
-"""r chosen from the data (licrom.training.rank) and its use by train and the CLI."""
+"""r chosen from the data (licrom.learn.training.rank) and its use by train and the CLI."""
 
 import pytest
 from licrom import ConfigError, meshes
-from licrom.model import ModelConfig
-from licrom.training import RankChoice, TrainConfig, choose_rank, output_paths, train
-from licrom.training_data import TrainingData, make_synthetic_trajectories
+from licrom.learn.model import ModelConfig
+from licrom.learn.training import RankChoice, TrainConfig, choose_rank, output_paths, train
+from licrom.learn.training_data import TrainingData, make_synthetic_trajectories
 
 TINY = dict(epochs=2, batch_frames=4, points_per_frame=128, encoder_points=64, val_points=64, progress=False, device="cpu")
 SMALL_NET = dict(field_width=32, encoder_point_widths=(16, 32), encoder_fc_widths=(16,))
@@ -96,7 +96,7 @@ def test_train_chooses_r_records_it_and_extends_once(rank4, tmp_path):
 
 
 def test_cli_modes_auto_or_integer(rank4, tmp_path, capsys):
-    from licrom.cli import main
+    from licrom.cli.commands import main
 
     data = tmp_path / "data"
     data.mkdir()

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from licrom import (
     AffineBasis,
+    BodyFrameBasis,
+    BodyFrameSim,
     ConfigError,
     ContactParams,
     FullSim,
@@ -21,8 +23,8 @@ from licrom import (
     StackedBasis,
     meshes,
 )
-from licrom.compare import compare
-from licrom.cubature import ContactPoints, Cubature
+from licrom.analysis.compare import compare
+from licrom.subspace.cubature import ContactPoints, Cubature
 
 G = 9.81
 STIFF = Material(youngs_modulus=1e7, poisson_ratio=0.3, density=1000.0)
@@ -286,7 +288,8 @@ def _world_frame_sim():
 
 
 def _body_frame_sim():
-    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+    from licrom.reduced.body import BodyFrameSim
+    from licrom.subspace.body_basis import BodyFrameBasis
 
     mesh = meshes.box(0.1, 4)
     scene = Scene(planes=(Plane((0, 0, 1), 0.05, 0.5),), solver=TIGHT, initial=InitialState(angular_velocity=(1.0, 2.0, 0.0)))
@@ -308,7 +311,8 @@ def test_one_simulation_in_two_threads_is_a_named_error_and_two_run_in_parallel(
 
 def _many_scenes():
     """World-frame (affine) and body-frame sims of an 84-tet cheese: drops and slides on several slopes."""
-    from licrom.body_frame import BodyFrameBasis, BodyFrameSim
+    from licrom.reduced.body import BodyFrameSim
+    from licrom.subspace.body_basis import BodyFrameBasis
 
     mesh = meshes.cheese(resolution=4)
     soft = Material(youngs_modulus=1e5, poisson_ratio=0.3)
@@ -329,7 +333,7 @@ def _state(sim):
 
 
 def test_step_many_equals_stepping_each_alone_bit_for_bit():
-    from licrom.body_frame import BodyFrameSim
+    from licrom.reduced.body import BodyFrameSim
 
     steps = 8
     alone = _many_scenes()
@@ -439,3 +443,43 @@ def test_scene_dicts_huge_counts_and_non_real_states_are_named():
     full = FullSim(mesh, Scene(planes=()), device="cpu")
     with pytest.raises(ShapeError, match=r"positions must be a real \(\d+, 3\) array of finite numbers"):
         full.set_state(positions=x + 1j)
+
+
+def test_every_reduced_simulation_is_a_reduced_sim_and_the_factory_picks_its_frame():
+    from licrom.reduced.factory import reduced_sim
+    from licrom.reduced.world import WorldFrameSim
+
+    mesh = meshes.box((0.1, 0.1, 0.1), resolution=2)
+    scene = Scene(planes=(Plane(),), initial=InitialState(translation=(0.0, 0.0, 0.06)))
+    for sim in (ReducedSim(AffineBasis(), mesh, scene), reduced_sim(AffineBasis(), mesh, scene),
+                WorldFrameSim(AffineBasis(), mesh, scene), BodyFrameSim(BodyFrameBasis(mesh), mesh, scene)):
+        assert isinstance(sim, ReducedSim)
+    assert type(ReducedSim(AffineBasis(), mesh, scene)) is WorldFrameSim
+    assert type(ReducedSim(AffineBasis(), mesh, scene).transfer(mesh)) is WorldFrameSim
+    assert ReducedSim.step_many is WorldFrameSim.step_many is BodyFrameSim.step_many
+
+
+def test_a_body_frame_model_gives_a_body_frame_sim_through_the_factory():
+    from licrom.reduced.factory import reduced_sim
+
+    mesh = meshes.box((0.1, 0.1, 0.1), resolution=2)
+    scene = Scene(planes=(Plane(),), initial=InitialState(translation=(0.0, 0.0, 0.06)))
+
+    class BodyModel:  # what the factory reads of a body-frame model: no learned modes
+        frame = "body"
+        default_scene = scene
+        n_modes = 0
+
+        def __init__(self):
+            self.mesh = mesh
+
+        def values(self, points):
+            return np.zeros((len(points), 3, 0))
+
+        def jacobians(self, points):
+            return np.zeros((len(points), 3, 3, 0))
+
+    sim = ReducedSim(BodyModel())
+    assert type(sim) is BodyFrameSim and isinstance(sim, ReducedSim) and sim.mesh is mesh
+    with pytest.raises(ConfigError, match="newton"):
+        reduced_sim(BodyModel(), solver="prefactored")

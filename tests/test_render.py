@@ -3,12 +3,12 @@ import dataclasses
 import numpy as np
 import pytest
 from licrom import FullSim, Plane, meshes
-from licrom.compare import compare
+from licrom.analysis.compare import compare
+from licrom.data.presets import report_dataset_spec
 from licrom.errors import ConfigError, MissingDependencyError, ShapeError
-from licrom.placement import drop_state, initial_state_on_plane
-from licrom.presets import report_dataset_spec
-from licrom.render import COLORBAR_PX, HEADER_PX, PANEL_GAP, RenderStyle, animation, filmstrip, pictures, plot_errors, pyvista_unavailable
-from licrom.training_data import make_synthetic_trajectories
+from licrom.learn.training_data import make_synthetic_trajectories
+from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.viz.render import COLORBAR_PX, HEADER_PX, PANEL_GAP, RenderStyle, animation, filmstrip, pictures, plot_errors, pyvista_unavailable
 
 RENDERERS = ["pyvista", "matplotlib"]
 SLOPE = 20.0  # tan = 0.36: mu 0.1 slides (a = 2.4 m/s^2, 0.1 m in 0.3 s), mu 0.9 sticks

@@ -1,4 +1,4 @@
-"""The comparison report (licrom.report): one layout, a self-contained HTML page, verdicts from the metric table."""
+"""The comparison report (licrom.viz.report): one layout, a self-contained HTML page, verdicts from the metric table."""
 
 import base64
 import io
@@ -7,10 +7,10 @@ from html.parser import HTMLParser
 
 import pytest
 from licrom import meshes
-from licrom.compare import METRICS, compare, verdict
-from licrom.report import Case, case_tag, write_report
-from licrom.scene import Plane, Scene
-from licrom.training_data import make_synthetic_trajectories
+from licrom.analysis.compare import METRICS, compare, verdict
+from licrom.learn.training_data import make_synthetic_trajectories
+from licrom.scene.scene import Plane, Scene
+from licrom.viz.report import Case, case_tag, write_report
 
 
 class _Page(HTMLParser):

@@ -143,7 +143,7 @@ def test_a_huge_rotation_vector_is_refused_with_the_accepted_length():
 
 
 def test_scene_file_names_over_the_file_system_limit_are_named(tmp_path):
-    from licrom.scene_file import load_scene
+    from licrom.data.scene_file import load_scene
 
     with pytest.raises(FileFormatError, match="its name is 305 bytes long, over the file system's limit of 255 bytes"):
         load_scene(tmp_path / ("s" * 300 + ".toml"))

@@ -3,10 +3,10 @@ import math
 import numpy as np
 import pytest
 from licrom import ConfigError, FileFormatError, Plane, meshes
-from licrom.cli import main
-from licrom.placement import drop_state, initial_state_on_plane
-from licrom.scene import InitialState
-from licrom.scene_file import DropSpec, builtin_scenes, load_scene
+from licrom.cli.commands import main
+from licrom.data.scene_file import DropSpec, builtin_scenes, load_scene
+from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.scene.scene import InitialState
 
 MINIMAL = """
 version = 1
@@ -138,7 +138,7 @@ def test_world_frame_initial_states(tmp_path):
 
 def test_demo_scene_file_is_the_old_demo_config():
     """The demo's old settings: cheese at 8, slopes (10, 30) x mu (0.1, 0.4, 0.7), drop 1 cm, 150 steps, held out (20, 0.25), (20, 0.55)."""
-    from licrom.presets import report_dataset_spec
+    from licrom.data.presets import report_dataset_spec
 
     s = load_scene("demo")
     mesh = meshes.cheese(resolution=8)
@@ -173,7 +173,7 @@ def test_overrides_replace_and_check_values():
 def test_cli_generate_takes_a_scene_file_and_flags(tmp_path, capsys):
     import json
 
-    from licrom.dataset import MANIFEST_NAME
+    from licrom.data.dataset import MANIFEST_NAME
 
     scene = _write(tmp_path, MINIMAL + "[sweep]\nfrictions = [0.1, 0.9]\nslopes = [20.0]\n[time]\nsteps = 2\n")
     out = tmp_path / "data"
@@ -250,7 +250,7 @@ def test_scene_template_on_a_mesh_file(tmp_path, capsys, monkeypatch):
     """`licrom scene demo -o FILE --mesh MESH`: the copy names the mesh relative to itself and has no resolution;
     a mesh file that is not there leaves no copy behind."""
     from licrom import meshes
-    from licrom.scene_file import builtin_scene_text, with_mesh_file
+    from licrom.data.scene_file import builtin_scene_text, with_mesh_file
 
     (tmp_path / "meshes").mkdir()
     meshes.cheese(resolution=4).save(tmp_path / "meshes" / "mine.msh")

@@ -5,8 +5,8 @@ import meshio
 import numpy as np
 import pytest
 from licrom import ConfigError, FileFormatError, LicromWarning, Mesh, MeshError
-from licrom.cli import main
-from licrom.surface import Surface, TetrahedralizeParams, tetrahedralize
+from licrom.cli.commands import main
+from licrom.geometry.surface import Surface, TetrahedralizeParams, tetrahedralize
 
 # Coarse settings so that a test meshes in about a second.
 COARSE = {"edge_length": 0.2, "epsilon": 0.01}
@@ -218,7 +218,7 @@ def test_a_crash_of_ftetwild_is_a_mesh_error(tmp_path, monkeypatch, kind, messag
 
 
 def test_the_real_ftetwild_crashing_on_a_flat_box_ends_the_child_not_this_process():
-    from licrom.surface import _ftetwild
+    from licrom.geometry.surface import _ftetwild
 
     v, f = box_surface((0.1, 0.1, 0.0))  # what the checks refuse: here handed to fTetWild directly
     with pytest.raises(MeshError, match="fTetWild crashed on this surface: killed by SIGSEGV"):

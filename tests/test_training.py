@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import torch
 from licrom import ConfigError, FileFormatError, Trajectory, meshes
-from licrom.basis import affine_values
-from licrom.model import Model, ModelConfig
-from licrom.rigid import relative_error
-from licrom.training import TrainConfig, evaluate, output_paths, train
-from licrom.training_data import (
+from licrom.learn.model import Model, ModelConfig
+from licrom.learn.training import TrainConfig, evaluate, output_paths, train
+from licrom.learn.training_data import (
     TrainingData,
     make_synthetic_trajectories,
     split_by_trajectory,
 )
+from licrom.rigid import relative_error
+from licrom.subspace.basis import affine_values
 
 # A tiny problem: a coarse box, four short trajectories, cheap epochs.
 # extension=0: these runs are too short to reach POD; test_rank.py trains on past it
@@ -168,7 +168,7 @@ def test_train_config_rejects_bad_values(kwargs):
 
 
 def test_train_config_names_the_accepted_pod_weightings(mesh):
-    from licrom.training.objectives import pod_targets
+    from licrom.learn.training.objectives import pod_targets
 
     with pytest.raises(ConfigError, match="'run', 'frame'"):
         TrainConfig(pod_weighting="energy")
@@ -229,7 +229,7 @@ def test_same_seed_same_result_on_cpu(trajs, tmp_path):
 
 
 def test_resume_continues_where_it_stopped(trajs, tmp_path, monkeypatch):
-    import licrom.training.run as tr
+    import licrom.learn.training.run as tr
 
     cfg = TrainConfig(**{**TINY, "epochs": 3}, seed=2)
     full = train(trajs, None, cfg, ModelConfig(latent_dim=2))
@@ -300,7 +300,7 @@ def test_encoder_against_exact_projection(tmp_path, capsys):
 
 def test_cli_train(data_dir, tmp_path):
     from click.testing import CliRunner
-    from licrom.cli import cli
+    from licrom.cli.commands import cli
 
     out = tmp_path / "cli.lcm"
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(out), "--modes", "2", "--epochs", "1", "--points", "128",
@@ -323,7 +323,7 @@ def test_cli_train(data_dir, tmp_path):
 
 
 def test_gpus_asked_for_where_there_are_none_are_refused_before_the_data_is_read(tmp_path, monkeypatch, capsys):
-    from licrom.cli import main
+    from licrom.cli.commands import main
 
     missing = tmp_path / "no-such-data"  # refused before it is looked at
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
@@ -367,9 +367,9 @@ def test_nodes_whose_peers_never_join_time_out_naming_what_they_wait_for(trajs, 
 
 # --- the POD bound -------------------------------------------------------------------------
 def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
-    from licrom.basis import AffineBasis, MeshBasis, StackedBasis, SubspaceProjector
+    from licrom.learn.training import subspace_report
     from licrom.rigid import body_frame_displacements
-    from licrom.training import subspace_report
+    from licrom.subspace.basis import AffineBasis, MeshBasis, StackedBasis, SubspaceProjector
 
     # six deformation fields, three learned modes: POD(3) leaves a real error to compare against
     trajs = make_synthetic_trajectories(mesh, count=5, frames=20, seed=3, modes=6, rotation=True)
@@ -401,12 +401,13 @@ def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
 # --- a body-frame model end to end -------------------------------------------------------
 def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_path, mesh):
     from licrom import BodyFrameSim, ReducedSim
+    from licrom.reduced.world import WorldFrameSim
 
     out = tmp_path / "body.lcm"
     model = train(data_dir, out, TrainConfig(**TINY, val_indices=(3,), seed=1), ModelConfig(latent_dim=3, field_width=32))
     assert model.frame == "body" and model.n_modes == 3 and model.metadata["data"]["frame"] == "body"
     # the reported held-out projection error is the final model's (after the output-layer fit)
-    from licrom.training import subspace_report
+    from licrom.learn.training import subspace_report
 
     rep = subspace_report(model, TrainingData(data_dir, val_indices=[3]))
     assert model.metadata["final"]["val_proj_full"] == pytest.approx(rep["val"]["model"], rel=1e-4)
@@ -414,7 +415,7 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     assert back.frame == "body" and back.n_modes == 3
     np.testing.assert_array_equal(back.values(mesh.vertices), model.values(mesh.vertices))
     sim = ReducedSim(back)
-    assert isinstance(sim, BodyFrameSim) and sim.n_modes == 6 + 3
+    assert isinstance(sim, BodyFrameSim) and isinstance(sim, ReducedSim) and sim.n_modes == 6 + 3
     traj = sim.run(5)
     assert traj.n_frames == 6 and traj.converged.all() and np.isfinite(traj.displacements).all()
     assert np.abs(traj.displacements[-1]).max() > 0.0
@@ -425,11 +426,11 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     np.testing.assert_allclose(other.center, sim.center, atol=1e-12)
     np.testing.assert_allclose(other.rotation, sim.rotation, atol=1e-12)
     assert other.run(2).converged.all()
-    # the world-frame model of the same data stays a world-frame ReducedSim, on either mesh
+    # the world-frame model of the same data gives a world-frame simulation, on either mesh
     world = train(data_dir, None, TrainConfig(**TINY, val_indices=(3,), seed=1), ModelConfig(latent_dim=3, field_width=32), frame="world")
     wsim = ReducedSim(world)
-    assert type(wsim) is ReducedSim and wsim.n_modes == 15
-    assert type(wsim.transfer(fine)) is ReducedSim
+    assert type(wsim) is WorldFrameSim and isinstance(wsim, ReducedSim) and wsim.n_modes == 15
+    assert type(wsim.transfer(fine)) is WorldFrameSim
     with pytest.raises(ConfigError, match="newton"):
         ReducedSim(back, solver="prefactored")
 
@@ -452,8 +453,8 @@ def test_resume_never_runs_code_from_a_checkpoint(trajs, tmp_path):
 
 
 def test_resume_takes_the_same_run_and_names_what_differs(trajs, data_dir, tmp_path, capsys):
-    from licrom.cli import main
-    from licrom.training.checkpoints import RUN_KEY, read_checkpoint
+    from licrom.cli.commands import main
+    from licrom.learn.training.checkpoints import RUN_KEY, read_checkpoint
 
     out = tmp_path / "m.lcm"
     folder = output_paths(out)["checkpoints"]

@@ -6,8 +6,9 @@ import warnings
 import numpy as np
 import pytest
 from licrom import AffineBasis, ContactParams, FullSim, InitialState, Material, Plane, ReducedSim, Scene, SolverParams, Trajectory, meshes
-from licrom.body_frame import BodyFrameBasis, BodyFrameSim
 from licrom.errors import LicromWarning, PhysicsWarning, SolverError
+from licrom.reduced.body import BodyFrameSim
+from licrom.subspace.body_basis import BodyFrameBasis
 from licrom.validity import PENETRATION_LIMIT, cubature_min_det, determinants, penetration, tet_determinants
 
 # A 10 cm box centred at the origin (48 tets): its bottom face is at z = -0.05.
@@ -136,7 +137,7 @@ def test_every_plane_is_checked():
 
 
 def test_stepping_many_stops_a_diverging_simulation_even_when_recording_failures():
-    from licrom.reduced_sim import step_many
+    from licrom.reduced.base import step_many
 
     scene = Scene(initial=InitialState(translation=(0, 0, 0.06), velocity=(0, 0, -1e160)), solver=SolverParams(on_failure="record"))
     sims = [SIMULATORS[name](scene) for name in ("reduced", "body_frame")]

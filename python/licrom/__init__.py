@@ -11,10 +11,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-# ``compare`` is a function named like its module: bound here, after the module has loaded,
-# so that importing ``licrom.compare`` (which sets the package attribute to the module) cannot
-# shadow it. The module is numpy-only, so this costs nothing.
-from .compare import compare
+# ``compare`` (the function of :mod:`licrom.analysis.compare`) is numpy-only, so it loads at once.
+from .analysis.compare import compare
 from .errors import (
     AccuracyWarning,
     ConcurrencyError,
@@ -29,38 +27,37 @@ from .errors import (
     ShapeError,
     SolverError,
 )
-from .mesh import Mesh, MeshQuality
-from .scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
-from .trajectory import Trajectory
+from .geometry.mesh import Mesh, MeshQuality
+from .records.trajectory import Trajectory
+from .scene.scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
 
 __version__ = "0.1.0"
 
 # Public names that live in modules with heavy imports, loaded on first access:
-# name -> (module, attribute), attribute None for a public module itself. Explicit, so that a
-# function named like its module (``compare``) can never resolve to the module.
+# name -> (module, attribute), attribute None for a public module itself.
 _LAZY: dict[str, tuple[str, str | None]] = {
-    "meshes": (".meshes", None),
-    "render": (".render", None),
-    "export": (".export", None),
-    "FullSim": (".full_sim", "FullSim"),
-    "generate_dataset": (".dataset", "generate_dataset"),
-    "report_dataset_spec": (".presets", "report_dataset_spec"),
-    "load_scene": (".scene_file", "load_scene"),
-    "SceneFile": (".scene_file", "SceneFile"),
-    "Surface": (".surface", "Surface"),
-    "TetrahedralizeParams": (".surface", "TetrahedralizeParams"),
-    "tetrahedralize": (".surface", "tetrahedralize"),
-    "AffineBasis": (".basis", "AffineBasis"),
-    "MeshBasis": (".basis", "MeshBasis"),
-    "StackedBasis": (".basis", "StackedBasis"),
-    "Cubature": (".cubature", "Cubature"),
-    "ReducedSim": (".reduced_sim", "ReducedSim"),
-    "BodyFrameBasis": (".body_basis", "BodyFrameBasis"),
-    "BodyFrameSim": (".body_frame", "BodyFrameSim"),
-    "Model": (".model", "Model"),
-    "ModelConfig": (".model", "ModelConfig"),
-    "train": (".training", "train"),
-    "TrainConfig": (".training", "TrainConfig"),
+    "meshes": (".geometry.meshes", None),
+    "render": (".viz.render", None),
+    "export": (".records.export", None),
+    "FullSim": (".full", "FullSim"),
+    "generate_dataset": (".data.dataset", "generate_dataset"),
+    "report_dataset_spec": (".data.presets", "report_dataset_spec"),
+    "load_scene": (".data.scene_file", "load_scene"),
+    "SceneFile": (".data.scene_file", "SceneFile"),
+    "Surface": (".geometry.surface", "Surface"),
+    "TetrahedralizeParams": (".geometry.surface", "TetrahedralizeParams"),
+    "tetrahedralize": (".geometry.surface", "tetrahedralize"),
+    "AffineBasis": (".subspace.basis", "AffineBasis"),
+    "MeshBasis": (".subspace.basis", "MeshBasis"),
+    "StackedBasis": (".subspace.basis", "StackedBasis"),
+    "Cubature": (".subspace.cubature", "Cubature"),
+    "ReducedSim": (".reduced.base", "ReducedSim"),
+    "BodyFrameBasis": (".subspace.body_basis", "BodyFrameBasis"),
+    "BodyFrameSim": (".reduced.body", "BodyFrameSim"),
+    "Model": (".learn.model", "Model"),
+    "ModelConfig": (".learn.model", "ModelConfig"),
+    "train": (".learn.training", "train"),
+    "TrainConfig": (".learn.training", "TrainConfig"),
 }
 
 __all__ = [
@@ -105,16 +102,18 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover
-    from . import export, meshes, render
-    from .basis import AffineBasis, MeshBasis, StackedBasis
-    from .body_basis import BodyFrameBasis
-    from .body_frame import BodyFrameSim
-    from .cubature import Cubature
-    from .dataset import generate_dataset
-    from .full_sim import FullSim
-    from .model import Model, ModelConfig
-    from .presets import report_dataset_spec
-    from .reduced_sim import ReducedSim
-    from .scene_file import SceneFile, load_scene
-    from .surface import Surface, TetrahedralizeParams, tetrahedralize
-    from .training import TrainConfig, train
+    from .data.dataset import generate_dataset
+    from .data.presets import report_dataset_spec
+    from .data.scene_file import SceneFile, load_scene
+    from .full import FullSim
+    from .geometry import meshes
+    from .geometry.surface import Surface, TetrahedralizeParams, tetrahedralize
+    from .learn.model import Model, ModelConfig
+    from .learn.training import TrainConfig, train
+    from .records import export
+    from .reduced.base import ReducedSim
+    from .reduced.body import BodyFrameSim
+    from .subspace.basis import AffineBasis, MeshBasis, StackedBasis
+    from .subspace.body_basis import BodyFrameBasis
+    from .subspace.cubature import Cubature
+    from .viz import render

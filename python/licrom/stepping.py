@@ -1,7 +1,7 @@
 """The run loop every simulator shares: step, time, record frames, show progress.
 
-:class:`~licrom.full_sim.FullSim`, :class:`~licrom.reduced_sim.ReducedSim` and
-:class:`~licrom.body_frame.BodyFrameSim` differ in how they take a step and what a
+:class:`~licrom.full.FullSim`, :class:`~licrom.reduced.world.WorldFrameSim` and
+:class:`~licrom.reduced.body.BodyFrameSim` differ in how they take a step and what a
 frame is; the argument checks, the recording cadence, the timing and the progress bar
 (closed also when a step raises) are one piece of code, and so is the rule that one
 simulation serves one thread at a time (:func:`exclusive`).
@@ -129,7 +129,7 @@ class RunRecord:
     __repr__ = concise_repr
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The per-step lists as the arrays :class:`~licrom.trajectory.Trajectory` takes."""
+        """The per-step lists as the arrays :class:`~licrom.records.trajectory.Trajectory` takes."""
         return {
             "times": np.array(self.times, dtype=np.float64),
             "iterations": np.array(self.iterations, dtype=np.int32),

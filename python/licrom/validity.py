@@ -3,8 +3,8 @@
 The model (stable Neo-Hookean elements, penalty contact) keeps running outside its
 valid range: inverted elements have finite energy, and a penalty contact that is too
 soft for its load lets the body sink into the ground. Every simulator
-(:class:`~licrom.full_sim.FullSim`, :class:`~licrom.reduced_sim.ReducedSim`,
-:class:`~licrom.body_frame.BodyFrameSim`) reports these cases the same way:
+(:class:`~licrom.full.FullSim`, :class:`~licrom.reduced.world.WorldFrameSim`,
+:class:`~licrom.reduced.body.BodyFrameSim`) reports these cases the same way:
 
 | case | signal | recorded in the trajectory |
 |---|---|---|
@@ -114,7 +114,7 @@ def check_start(points: np.ndarray, planes: np.ndarray, size: float, what: str) 
         warnings.warn(
             f"{what} starts {depth:.4g} m inside a plane ({100 * depth / size:.3g} % of the object's size "
             f"{size:.4g} m, more than {100 * PENETRATION_LIMIT:.0f} %): the penalty contact will throw it out; "
-            "place it on or above the planes (licrom.placement)",
+            "place it on or above the planes (licrom.scene.placement)",
             PhysicsWarning,
             stacklevel=3,
         )

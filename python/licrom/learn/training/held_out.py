@@ -1,0 +1,110 @@
+"""The trained model checked as a user runs it, on the runs the training held out.
+
+At the end of :func:`~licrom.learn.training.train`, every held-out (validation) run's scene is
+simulated with ``ReducedSim(model, scene=scene)`` and nothing else (the model's own r,
+fitted cubature and contact points), over the run's steps, and compared with the run
+(:func:`licrom.analysis.compare.compare`): the non-rigid deformation error, the final centre of
+mass, stick/slip, and the reduced run's own online error estimate beside them. The
+training report says how wrong the model is on motion it has not seen, and whether its
+estimate knows: an :class:`~licrom.errors.AccuracyWarning` names every held-out run
+above :data:`~licrom.reduced.error_estimate.ERROR_THRESHOLD`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ...analysis.compare import METRICS, compare, verdict
+from ...errors import AccuracyWarning, LicromError, LicromWarning
+from ...records.trajectory import Trajectory
+from ...reduced.base import ReducedSim
+from ...reduced.error_estimate import ERROR_THRESHOLD
+from ..model import Model
+
+__all__ = ["HELD_OUT_RUNS", "check_held_out", "held_out_lines"]
+
+HELD_OUT_RUNS = 8
+"""Held-out runs checked at most (the first ones of the split): each costs a reduced run and a comparison."""
+
+
+def _steps(run: Trajectory) -> tuple[int, int] | None:
+    """``(steps, record_every)`` of a recorded run; None where its frames are not evenly spaced steps."""
+    steps = len(run.iterations)
+    frames = run.n_frames - 1
+    if steps < 1 or frames < 1 or steps % frames:
+        return None
+    return steps, steps // frames
+
+
+def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_runs: int = HELD_OUT_RUNS) -> dict[str, Any]:
+    """Run ``ReducedSim(model, scene=run.scene)`` on each held-out run and compare it with the run.
+
+    Args:
+        model: the trained model (with its fitted cubature).
+        runs: ``(name, full run)`` of the held-out runs.
+        max_runs: runs checked at most.
+
+    Returns:
+        ``{"runs": [per run: name, nonrigid_error, com_error, stick_slip_right, estimate, flagged,
+        step_ms, seconds], "worst_nonrigid_error", "threshold"}``; a run the check cannot replay
+        (frames not evenly spaced, or the reduced run fails) has ``"skipped"`` with the reason.
+    """
+    rows: list[dict[str, Any]] = []
+    for name, run in list(runs)[:max_runs]:
+        cadence = _steps(run)
+        if cadence is None:
+            rows.append({"run": name, "skipped": f"{run.n_frames} frames over {len(run.iterations)} steps are not evenly spaced"})
+            continue
+        start = time.perf_counter()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LicromWarning)  # reported below, per run
+                reduced = ReducedSim(model, scene=run.scene).run(cadence[0], record_every=cadence[1])
+            c = compare(run, reduced)
+        except LicromError as exc:
+            rows.append({"run": name, "skipped": f"{type(exc).__name__}: {exc}"})
+            continue
+        rows.append({
+            "run": name,
+            "nonrigid_error": float(c.nonrigid_error),
+            "com_error": float(c.final_com_error),
+            "stick_slip_right": bool(c.stick_slip_agree),
+            "estimate": float(c.error_estimate),
+            "flagged": bool(c.error_estimate > ERROR_THRESHOLD),
+            "step_ms": float(1e3 * np.median(reduced.step_seconds)),
+            "seconds": time.perf_counter() - start,
+        })
+    done = [r for r in rows if "skipped" not in r]
+    worst = max((r["nonrigid_error"] for r in done), default=float("nan"))
+    misses = [r for r in done if r["nonrigid_error"] > ERROR_THRESHOLD]
+    if misses:
+        shown = ", ".join(f"{r['run']} ({100 * r['nonrigid_error']:.1f} %, estimated {100 * r['estimate']:.1f} %)" for r in misses)
+        warnings.warn(
+            f"the trained model misses {len(misses)} of its {len(done)} held-out runs by more than {100 * ERROR_THRESHOLD:.0f} % "
+            f"non-rigid error with its defaults: {shown}; train with more runs like them, or allow more modes "
+            "(--max-rank, --rank-tolerance)", AccuracyWarning, stacklevel=3)
+    return {"runs": rows, "worst_nonrigid_error": worst, "threshold": ERROR_THRESHOLD}
+
+
+def held_out_lines(report: dict[str, Any]) -> list[str]:
+    """The check as lines of text for the training report (one per run)."""
+    lines = []
+    for r in report.get("runs", []):
+        if "skipped" in r:
+            lines.append(f"  {r['run']}: not checked ({r['skipped']})")
+            continue
+        ok, missed = verdict({"nonrigid_error": r["nonrigid_error"], "final_com_error": r["com_error"],
+                              "stick_slip_agree": r["stick_slip_right"]})
+        lines.append(
+            f"  {r['run']}: non-rigid error {100 * r['nonrigid_error']:.1f} % (estimate {100 * r['estimate']:.1f} %"
+            f"{', flagged' if r['flagged'] else ''}), final centre of mass {100 * r['com_error']:.2f} % of the size, "
+            f"stick/slip {'right' if r['stick_slip_right'] else 'WRONG'}, {r['step_ms']:.2f} ms a step: "
+            + ("meets every target" if ok else "misses " + ", ".join(missed)))
+    if lines:
+        lines += [f"  {m.name} (target {m.target}): {m.definition}" for m in METRICS if m.key in ("nonrigid_error", "final_com_error")]
+    return lines

@@ -1,0 +1,278 @@
+"""Online error estimate of a reduced run: how far its state is from the full equations.
+
+A reduced simulation satisfies the backward-Euler equations only inside its subspace. At a
+small fixed sample of vertices, the full-space residual of the reconstructed state
+
+    ``r_v = m_v (x_t - 2 x_{t-1} + x_{t-2}) / h^2 - m_v g - f_v(x_t)``
+
+(BDF2: ``m_v (x_t - (24 x_{t-1} - 22 x_{t-2} + 8 x_{t-3} - x_{t-4}) / 9) / h'^2`` with
+``h' = 2h/3``, :data:`TARGET_WEIGHTS`) (inertia, gravity, elastic force of the vertex's one-ring tets; contact acts only on a
+vertex inside a plane, and such a sample is left out of that frame) is zero for the full
+solution. Divided by the vertex's own stiffness block (block Jacobi,
+``K_vv = m_v / h^2 I + linear-elastic K_vv at rest``) it becomes a displacement,
+``du_v = K_vv^-1 r_v``: the correction one full-space Jacobi sweep would make there. The
+estimate compares it with the body's non-rigid deformation ``u`` (its body-frame
+displacement) the way :func:`licrom.analysis.compare.nonrigid_error` compares the reduced run with
+the full one, from the run's first contact on:
+
+    ``e(t) = ERROR_SCALE * sqrt(sum_{s<=t} M/M_S sum_v m_v |du_v(s)|^2 / sum_{s<=t} |u(s)|_M^2)``
+
+over every ``ERROR_STRIDE``-th step s (``M/M_S``: total mass over the sample's, so the
+sample stands for the body). It is recorded per frame in ``Trajectory.error_estimate``,
+and its last value is the run-level estimate; an :class:`~licrom.errors.AccuracyWarning`
+is issued once per run when it passes :data:`ERROR_THRESHOLD`. ``step()`` and
+``step_many()`` alone do not compute it: it is a property of a run.
+
+Why a residual at vertices outside the solve: the reduced solver's own residual is zero by
+construction (it is projected onto the subspace); the full-space residual sees what the
+subspace cannot represent. The sample is spread over the body by farthest-point sampling,
+which puts most of it on the surface, and that is where it must be: a smooth deformation the
+subspace misses leaves unbalanced traction on the free surface (the natural boundary
+condition), while at interior vertices only its divergence shows, smaller by the element
+size over the deformation's wavelength. With interior vertices alone, the raw ratio on the
+cheese (all 32 of its interior vertices) stayed at 3-4 % for true errors of 38-103 %
+(r = 2..8); with the surface included it follows them (13-19 % at r = 2). Samples
+inside a plane, now or at the start of the step (friction is lagged), feel contact forces
+that are not modelled, and are left out of that frame. The sample's basis rows, one-ring
+shape gradients and volumes are taken once, so a frame costs a few small numpy calls.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from collections.abc import Callable
+
+import numpy as np
+from scipy.sparse import csr_matrix
+
+from .. import _core
+from ..errors import AccuracyWarning, ConfigError
+from ..geometry.mesh import Mesh
+from ..scene.scene import Scene
+
+__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "SAMPLE_COUNT", "TARGET_WEIGHTS", "ErrorMonitor", "sample_vertices", "warn_estimate"]
+
+TARGET_WEIGHTS = {"backward_euler": (2.0, -1.0), "bdf2": (24 / 9, -22 / 9, 8 / 9, -1 / 9)}
+"""Each integrator's predicted position ``xt - h'^2 g`` as weights of the positions of the steps before, newest
+first (``rust/core/src/integrator.rs``, ``Integrator::target_weights``)."""
+
+EFFECTIVE_STEP = {"backward_euler": 1.0, "bdf2": 2 / 3}
+"""Each integrator's effective step ``h'`` over the time step h."""
+
+SAMPLE_COUNT = 48
+"""Vertices where the residual is evaluated."""
+
+ERROR_STRIDE = 10
+"""Steps between two evaluations of the residual. The run-level estimate is a sum over the
+run, so every tenth step measures it as well as every step, at a tenth of the cost: on the
+864-tet cheese (every tet cubature) the estimate's work was 5 % of the step's at r = 60
+(0.019 ms of 0.37 ms per step, median of 7 runs of 150 steps; 3-8 % per run on a shared
+2-core machine) and 4 % at r = 20 (one evaluation: under 0.1 ms)."""
+
+ERROR_SCALE = 4.0
+"""Factor from the Jacobi displacement ratio to the non-rigid error (dimensionless).
+
+One Jacobi sweep sees a smooth missing deformation only at the element scale, so the raw
+ratio is low: measured by ``experiments/error_estimate_validation.py`` (body-frame POD(r),
+r = 2..60, on the held-out cheese, box and sphere runs of ``body_frame_experiments.py``,
+a softer cheese and a finer cheese mesh; 45 runs), the true non-rigid error was 4.1 times
+the raw ratio (median; middle half 3.0-5.8 times)."""
+
+ERROR_THRESHOLD = 0.15
+"""Run-level estimate above which :class:`~licrom.errors.AccuracyWarning` is issued (dimensionless).
+
+Set at the error to flag: on the 45 validation runs (the same ones that set
+:data:`ERROR_SCALE`), it flagged 36 of the 37 runs with a true non-rigid error above 15 %
+with 1 false alarm (true 9.8 %); the one missed is the tumbling box at r = 60 (true 20 %,
+estimate 4 %), a chaotic scene whose noise floor alone is 13 %: a residual sees the
+subspace's error, not the divergence of nearby trajectories."""
+
+
+def _farthest_points(points: np.ndarray, count: int) -> np.ndarray:
+    """Indices of ``count`` well-spread rows of (p, 3) ``points``, from the one nearest their centroid."""
+    chosen = [int(np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1)))]
+    dist = np.linalg.norm(points - points[chosen[0]], axis=1)
+    for _ in range(count - 1):
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(points - points[nxt], axis=1))
+    return np.array(chosen)
+
+
+def sample_vertices(mesh: Mesh, count: int) -> np.ndarray:
+    """(s,) ``count`` vertices spread over the body and its surface (farthest-point sampling)."""
+    return np.sort(_farthest_points(mesh.vertices, count))
+
+
+class ErrorMonitor:
+    """The full-space residual at a fixed vertex sample of a reduced simulation, every few steps of a run.
+
+    Positions of the sample are ``x = c + R (rest + W q)`` (world-frame models: ``c = 0``,
+    ``R = I``, ``rest = X``; body-frame models: ``rest = Xbar``). A run calls :meth:`start`,
+    then :meth:`after_step` after each step, then :meth:`estimate`.
+
+    Args:
+        mesh: the simulated mesh.
+        values: (n, 3, k) basis values at every vertex.
+        rest: (n, 3) the rest term of the positions (``X`` or ``Xbar``), m.
+        scene: the scene (material, gravity, dt, integrator, planes).
+        count: sample size (all vertices on meshes with fewer).
+        stride: steps between two evaluations, an integer >= 1.
+
+    Attributes:
+        vertices: (s,) the sample vertices.
+        near: (u,) the corners of their one-ring tets (the samples included).
+        stride: steps between two evaluations.
+
+    Raises:
+        ConfigError: ``count`` or ``stride`` not an integer >= 1.
+    """
+
+    def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, count: int = SAMPLE_COUNT,
+                 stride: int = ERROR_STRIDE) -> None:
+        for name, value in (("sample count", count), ("stride", stride)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ConfigError(f"the error estimate's {name} must be an integer >= 1, got {value!r}")
+        self.vertices = sample_vertices(mesh, min(int(count), mesh.n_vertices))
+        self.stride = int(stride)
+        k = values.shape[2]
+        tets = mesh.tets
+        owner, ring = np.nonzero((tets[None] == self.vertices[:, None, None]).any(axis=2))  # (sample, tet) of each ring entry
+        self.near, local = np.unique(np.concatenate([tets[ring].ravel(), self.vertices]), return_inverse=True)
+        corners = local[: 4 * len(ring)].reshape(-1, 4)
+        self._own = local[4 * len(ring):]
+        grads = mesh.shape_gradients[ring]  # (T, 4, 3)
+        own_grad = grads[np.arange(len(ring)), (tets[ring] == self.vertices[owner, None]).argmax(axis=1)]
+        # F_t = sum_a x_a grad_a^T as one sparse map from the near positions (u*3) to the gradients (T*9):
+        # entry (9t + 3i + j, 3 corner_a + i) = grad_a[j].
+        t, a, i, j = np.meshgrid(np.arange(len(ring)), np.arange(4), np.arange(3), np.arange(3), indexing="ij")
+        self._gradient = csr_matrix((grads[t, a, j].ravel(), ((9 * t + 3 * i + j).ravel(), (3 * corners[t, a] + i).ravel())),
+                                    shape=(9 * len(ring), 3 * len(self.near)))
+        volumes = mesh.rest_volumes[ring]
+        # f_v = sum_t P_t (-V_t grad_v) as one sparse map from the stresses (T*9) to the forces (s*3):
+        # entry (3 v + i, 9 t + 3 i + j) = -V_t grad_v[j].
+        t, i, j = np.meshgrid(np.arange(len(ring)), np.arange(3), np.arange(3), indexing="ij")
+        self._stress_to_force = csr_matrix(((-volumes[:, None] * own_grad)[t, j].ravel(), ((3 * owner[t] + i).ravel(), (9 * t + 3 * i + j).ravel())),
+                                           shape=(3 * len(self.vertices), 9 * len(ring)))
+        self._basis = np.ascontiguousarray(values[self.near].reshape(3 * len(self.near), k))
+        self._rest = np.ascontiguousarray(rest[self.near])
+        self._sample_basis = np.ascontiguousarray(values[self.vertices].reshape(3 * len(self.vertices), k))
+        self._sample_rest = np.ascontiguousarray(rest[self.vertices])
+        masses = mesh.vertex_masses(scene.material.density)
+        self._m = masses[self.vertices]
+        self._total_mass = float(masses.sum())
+        h = scene.dt * EFFECTIVE_STEP[scene.integrator]
+        self._target = np.array(TARGET_WEIGHTS[scene.integrator])
+        mu, lam = scene.material.lame
+        gg = own_grad[:, :, None] * own_grad[:, None, :]
+        block = volumes[:, None, None] * (mu * np.einsum("tkk->t", gg)[:, None, None] * np.eye(3) + (mu + lam) * gg)
+        stiffness = np.zeros((len(self.vertices), 3, 3))
+        np.add.at(stiffness, owner, block)
+        self._jacobi = np.linalg.inv(stiffness + (self._m / h**2)[:, None, None] * np.eye(3))
+        self._snh = scene.material.snh_parameters
+        self._h2 = h * h
+        self._weight = np.asarray(scene.gravity, dtype=np.float64) * self._m[:, None]
+        planes = scene.plane_array()
+        self._normals, self._offsets = planes[:, :3], planes[:, 3]
+        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=len(self._target))
+        self._step = 0
+        self._evaluations: list[tuple[int, float, float]] = []
+
+    def sample_positions(self, q: np.ndarray, center: np.ndarray | None = None, rotation: np.ndarray | None = None) -> np.ndarray:
+        """(s, 3) world positions of the sample vertices, m."""
+        y = self._sample_rest + (self._sample_basis @ q).reshape(-1, 3)
+        return y if rotation is None else center + y @ rotation.T
+
+    def elastic_forces(self, near_positions: np.ndarray) -> np.ndarray:
+        """(s, 3) elastic force ``-dE/dx_v`` on each sample vertex, N, from (u, 3) positions of
+        the vertices ``near`` (the samples' one-ring tets' corners)."""
+        stress = _core.snh_pk1((self._gradient @ near_positions.ravel()).reshape(-1, 3, 3), *self._snh)
+        return (self._stress_to_force @ stress.ravel()).reshape(-1, 3)
+
+    @property
+    def history_length(self) -> int:
+        """States the residual reads before the step: 2 (backward Euler) or 4 (BDF2)."""
+        return len(self._target)
+
+    def start(self, history: list[np.ndarray]) -> None:
+        """Begin a run from the (s, 3) sample positions of the last :attr:`history_length` states, oldest first
+        (the current state last)."""
+        if len(history) != self.history_length:
+            raise ConfigError(f"the error estimate needs {self.history_length} states to start from, got {len(history)}")
+        self._history.clear()
+        self._history.extend((1 - len(history) + i, x) for i, x in enumerate(history))
+        self._step = 0
+        self._evaluations = []
+
+    def after_step(self, state: Callable[[], tuple[np.ndarray, np.ndarray | None, np.ndarray | None]],
+                   deformation: Callable[[np.ndarray], float]) -> None:
+        """Count a step; keep the sample positions of the steps before an evaluation that the residual
+        reads (:attr:`history_length`), and evaluate every ``stride``-th step.
+
+        Args:
+            state: ``(q, c, R)`` now (``c``, ``R`` None for world-frame models); called only when needed.
+            deformation: ``|u|_M^2`` (kg m^2) of the non-rigid deformation of the body at ``q``.
+        """
+        self._step += 1
+        wait = -self._step % self.stride
+        if wait > self.history_length:
+            return
+        q, center, rotation = state()
+        if wait:
+            self._history.append((self._step, self.sample_positions(q, center, rotation)))
+            return
+        y = self._rest + (self._basis @ q).reshape(-1, 3)
+        # In the body frame: F(c + R y) = R F(y) and P(R F) = R P(F), so the forces turn with R.
+        force = self.elastic_forces(y)
+        now = y[self._own]
+        if rotation is not None:
+            force, now = force @ rotation.T, center + now @ rotation.T
+        before = self._history[-1][1]
+        predicted = sum(w * x for w, (_, x) in zip(self._target, reversed(self._history)))
+        residual = self._m[:, None] * (now - predicted) / self._h2 - self._weight - force
+        du = np.einsum("sij,sj->si", self._jacobi, residual)
+        # A sample inside a plane now or at the start of the step (friction is lagged) feels contact: left out.
+        free = (np.minimum(now @ self._normals.T, before @ self._normals.T) + self._offsets >= 0.0).all(axis=1)
+        m = self._m * free
+        counted = m.sum()
+        weighted = self._total_mass * float(np.einsum("s,si,si->", m, du, du)) / counted if counted > 0 else 0.0
+        self._evaluations.append((self._step, weighted, deformation(q)))
+        self._history.append((self._step, now))
+
+    def estimate(self, frame_steps: np.ndarray, start_step: int | None) -> np.ndarray:
+        """(f,) running estimate at each frame, from the evaluations since the last :meth:`start`.
+
+        ``ERROR_SCALE * sqrt(sum M/M_S sum_v m_v |du_v|^2 / sum |u|_M^2)`` over the evaluated
+        steps from ``start_step`` (the first contact; None: every step) up to each frame's step;
+        zero where none is counted yet or nothing has deformed.
+
+        Args:
+            frame_steps: (f,) the step of each frame (0 for the state the run started from).
+            start_step: the first step counted.
+        """
+        out = np.zeros(len(frame_steps))
+        if not self._evaluations:
+            return out
+        steps, weighted, deformation = (np.array(a) for a in zip(*self._evaluations))
+        keep = steps >= (0 if start_step is None else start_step)
+        if not keep.any():  # every evaluation before the first contact (a run recorded at few frames)
+            return out
+        steps, num, den = steps[keep], np.cumsum(weighted[keep]), np.cumsum(deformation[keep])
+        last = np.searchsorted(steps, frame_steps, side="right") - 1
+        ok = (last >= 0) & (den[last] > 0)
+        out[ok] = ERROR_SCALE * np.sqrt(num[last[ok]] / den[last[ok]])
+        return out
+
+
+def warn_estimate(estimate: np.ndarray, what: str) -> None:
+    """Warn (:class:`~licrom.errors.AccuracyWarning`) once when the run-level estimate (the last
+    frame's) passes :data:`ERROR_THRESHOLD`."""
+    if len(estimate) and estimate[-1] > ERROR_THRESHOLD:
+        warnings.warn(
+            f"{what}: estimated non-rigid error {100 * estimate[-1]:.3g} % exceeds the threshold "
+            f"{100 * ERROR_THRESHOLD:.0f} % (Trajectory.error_estimate, licrom.reduced.error_estimate): the subspace "
+            "misses this motion; use more modes, or retrain with runs like this scene",
+            AccuracyWarning,
+            stacklevel=3,
+        )
