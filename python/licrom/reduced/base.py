@@ -208,6 +208,21 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
 
     step_many = staticmethod(step_many)
 
+    @property
+    def n_modes(self) -> int:
+        """Number of reduced coordinates k (a body-frame simulation's rigid motion not counted)."""
+        return self._core.n_dofs
+
+    @property
+    def q(self) -> np.ndarray:
+        """(k,) reduced coordinates (a body-frame simulation's modal coordinates)."""
+        return self._core.q
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """(k,) their velocities, per second."""
+        return self._core.qdot
+
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
         return check_field(name, a, self.mesh.n_vertices)
 

@@ -138,10 +138,6 @@ class BodyFrameSim(ReducedSim):
 
     # --- state -------------------------------------------------------------------------
     @property
-    def n_modes(self) -> int:
-        return self._core.n_dofs
-
-    @property
     def center(self) -> np.ndarray:
         """(3,) centre of mass, m."""
         return self._core.center
@@ -150,16 +146,6 @@ class BodyFrameSim(ReducedSim):
     def rotation(self) -> np.ndarray:
         """(3, 3) rotation from the body frame to the world."""
         return self._core.rotation
-
-    @property
-    def q(self) -> np.ndarray:
-        """(k,) modal coordinates."""
-        return self._core.q
-
-    @property
-    def qdot(self) -> np.ndarray:
-        """(k,) modal velocities, per second."""
-        return self._core.qdot
 
     @property
     def velocity(self) -> np.ndarray:

@@ -136,20 +136,6 @@ class WorldFrameSim(ReducedSim):
 
     # --- state -------------------------------------------------------------------------
     @property
-    def n_modes(self) -> int:
-        return self._core.n_dofs
-
-    @property
-    def q(self) -> np.ndarray:
-        """(k,) reduced coordinates."""
-        return self._core.q
-
-    @property
-    def qdot(self) -> np.ndarray:
-        """(k,) reduced velocities."""
-        return self._core.qdot
-
-    @property
     def reduced_mass(self) -> np.ndarray:
         """(k, k) exact reduced mass matrix ``W^T M W``."""
         return self._projector.reduced_mass
