@@ -327,8 +327,8 @@ def section(res: dict) -> str:
     if sample:
         every = {r["name"]: r for r in rows}
         out += ["", "Contact sampled: the same held-out runs with a farthest-point subset of the boundary vertices as contact points "
-                "(`ContactPoints.subset(mesh, N)`: each boundary vertex gives its area to the nearest chosen point), beside every "
-                "boundary vertex (the default). Same model, cubature and machine.", "",
+                "(`ContactPoints.subset(mesh, N)`: each boundary vertex gives its area to the nearest chosen point), beside the "
+                "default run above (`ContactPoints.default`). Same model, cubature and machine.", "",
                 "| held-out run | contact points | non-rigid error | final COM / size | estimate | stick/slip | reduced ms/step | "
                 "full ms/step (GPU) | speed-up | run wall / step |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in sorted(rows + sample, key=lambda r: (r["name"], -r["contact_points"])):

@@ -23,9 +23,10 @@ from ..errors import ConfigError, LicromWarning, SolverError
 from ..geometry.mesh import Mesh
 from ..scene.scene import Scene
 from ..stepping import check_field, check_run_arguments
+from ..subspace.basis import vertex_strain_form
 from ..subspace.cubature import ContactPoints, Cubature
 
-__all__ = ["CUBATURES", "ReducedSim", "sampling", "step_many"]
+__all__ = ["CUBATURES", "ReducedSim", "native_inputs", "sampling", "step_many"]
 
 _DEFAULT_CUBATURE_POINTS = 1000
 
@@ -156,6 +157,33 @@ def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: Contac
     return cubature, contact_points
 
 
+def native_inputs(sim: ReducedSim, strain: str, contact_rest: np.ndarray) -> dict[str, Any]:
+    """The keyword arguments both native systems (``ReducedCore``, ``BodyFrameCore``) take alike,
+    read by one reader in the bindings: the elastic cubature term of ``sim``'s strain Jacobians
+    (``sim._jacobians``), its contact points with their rest positions ``contact_rest`` (the mesh's,
+    or the body frame's), and the scene's contact and time stepping."""
+    scene, idx = sim.scene, sim.contact_points.indices
+    mu, lam = scene.material.snh_parameters
+    return {
+        "cubature_jacobians": sim._jacobians,
+        "cubature_weights": np.ascontiguousarray(sim.cubature.weights, dtype=np.float64),
+        "mu": mu,
+        "lam": lam,
+        "contact_basis": np.ascontiguousarray(sim._values[idx]),
+        "contact_rest": np.ascontiguousarray(contact_rest[idx]),
+        "contact_areas": np.ascontiguousarray(sim.contact_points.areas, dtype=np.float64),
+        "planes": scene.plane_array(),
+        "normal_stiffness": scene.contact.normal_stiffness,
+        "normal_damping": scene.contact.normal_damping,
+        "friction_stiffness": scene.contact.friction_stiffness,
+        "dt": scene.dt,
+        "tolerance": scene.solver.tolerance,
+        "max_iterations": scene.solver.max_iterations,
+        "integrator": scene.integrator,
+        **vertex_strain_form(sim.mesh, sim.cubature.tets, strain, sim._values),
+    }
+
+
 class _CallPicksTheFrame(type):
     """Metaclass of :class:`ReducedSim`: calling the base class itself calls the factory.
 
@@ -205,6 +233,8 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
     contact_points: ContactPoints
     time: float
     _core: Any
+    _values: np.ndarray
+    _jacobians: np.ndarray
 
     step_many = staticmethod(step_many)
 

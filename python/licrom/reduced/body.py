@@ -25,11 +25,11 @@ from ..records.trajectory import Trajectory
 from ..rigid import center_of_mass, rigid_fit
 from ..scene.scene import Scene
 from ..stepping import record_run
-from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
+from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from ..subspace.body_basis import BodyFrameBasis, rigid_momenta
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .base import ReducedSim, _fitted_cubature, sampling
+from .base import ReducedSim, _fitted_cubature, native_inputs, sampling
 from .error_estimate import ErrorMonitor, warn_estimate
 
 __all__ = ["BodyFrameSim"]
@@ -104,30 +104,13 @@ class BodyFrameSim(ReducedSim):
         self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
         a = self._values.reshape(n, 3 * k)
         products = (a.T @ (self._masses[:, None] * a)).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
-        mu, lam = scene.material.snh_parameters
-        idx = self.contact_points.indices
         self._core = _core.BodyFrameCore(
             total_mass=total,
             inertia_moments=np.einsum("v,vi,vj->ij", self._masses, self._xbar, self._xbar),
             mode_moments=np.ascontiguousarray(np.einsum("v,vik,vj->kij", self._masses, self._values, self._xbar)),
             mode_products=np.ascontiguousarray(products),
             gravity=np.asarray(scene.gravity, dtype=np.float64),
-            cubature_jacobians=self._jacobians,
-            cubature_weights=np.ascontiguousarray(self.cubature.weights, dtype=np.float64),
-            mu=mu,
-            lam=lam,
-            contact_basis=np.ascontiguousarray(self._values[idx]),
-            contact_rest=np.ascontiguousarray(self._xbar[idx]),
-            contact_areas=np.ascontiguousarray(self.contact_points.areas, dtype=np.float64),
-            planes=scene.plane_array(),
-            normal_stiffness=scene.contact.normal_stiffness,
-            normal_damping=scene.contact.normal_damping,
-            friction_stiffness=scene.contact.friction_stiffness,
-            dt=scene.dt,
-            tolerance=scene.solver.tolerance,
-            max_iterations=scene.solver.max_iterations,
-            integrator=scene.integrator,
-            **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
+            **native_inputs(self, strain, self._xbar),
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
         self._shapes: dict[bytes, np.ndarray] = {}

@@ -22,10 +22,10 @@ from ..records.trajectory import Trajectory
 from ..rigid import body_frame_displacements
 from ..scene.scene import Scene
 from ..stepping import record_run
-from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, vertex_strain_form
+from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .base import ReducedSim, _fitted_cubature, sampling
+from .base import ReducedSim, _fitted_cubature, native_inputs, sampling
 from .error_estimate import ErrorMonitor, warn_estimate
 
 __all__ = ["SOLVERS", "WorldFrameSim"]
@@ -103,30 +103,13 @@ class WorldFrameSim(ReducedSim):
         self._projector = SubspaceProjector(self._values, self._masses)
         gravity_force = self._projector.reduce(self._masses[:, None] * np.asarray(scene.gravity))
         self._free_fall = np.linalg.solve(self._projector.reduced_mass, gravity_force)  # gravity's acceleration of q
-        mu, lam = scene.material.snh_parameters
-        idx = self.contact_points.indices
         self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
         self._core = _core.ReducedCore(
             mass=self._projector.reduced_mass,
             gravity_force=gravity_force,
-            cubature_jacobians=self._jacobians,
-            cubature_weights=np.ascontiguousarray(self.cubature.weights, dtype=np.float64),
-            mu=mu,
-            lam=lam,
-            contact_basis=np.ascontiguousarray(self._values[idx]),
-            contact_rest=np.ascontiguousarray(mesh.vertices[idx]),
-            contact_areas=np.ascontiguousarray(self.contact_points.areas, dtype=np.float64),
-            planes=scene.plane_array(),
-            normal_stiffness=scene.contact.normal_stiffness,
-            normal_damping=scene.contact.normal_damping,
-            friction_stiffness=scene.contact.friction_stiffness,
-            dt=scene.dt,
             total_mass=float(self._masses.sum()),
-            tolerance=scene.solver.tolerance,
-            max_iterations=scene.solver.max_iterations,
             solver=solver,
-            integrator=scene.integrator,
-            **vertex_strain_form(mesh, self.cubature.tets, strain, self._values),
+            **native_inputs(self, strain, mesh.vertices),
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
         self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene)

@@ -381,8 +381,7 @@ class ContactPoints:
         A subset keeps the reduced step from growing with the mesh; on the 120k-tet cheese, 2000 of 6714 gave the
         error of every vertex (docs/results.md section 13).
         """
-        everyone = cls.all(mesh)
-        return everyone if everyone.count <= DEFAULT_CONTACT_POINTS else cls.subset(mesh, DEFAULT_CONTACT_POINTS)
+        return cls.subset(mesh, min(DEFAULT_CONTACT_POINTS, len(mesh.boundary_vertices)))
 
     @classmethod
     def subset(cls, mesh: Mesh, count: int, seed: int = 0) -> ContactPoints:
