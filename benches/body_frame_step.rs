@@ -155,7 +155,7 @@ fn body_frame_landing(c: &mut Criterion) {
                 // Turned 30 degrees about y, lowest corner 1 cm above the plane.
                 let (sin, cos) = 30.0_f64.to_radians().sin_cos();
                 let rotation = nalgebra::Matrix3::new(cos, 0.0, sin, 0.0, 1.0, 0.0, -sin, 0.0, cos);
-                let normal = m.planes[0].normal();
+                let normal = m.terms.planes[0].normal();
                 let half = m.scene.size / 2.0;
                 let lowest = (0..8)
                     .map(|k| {

@@ -3,11 +3,8 @@
 //! **Recursion threshold 32** instead of faer's 64: below the threshold faer
 //! factors column by column, above it recursively in blocks. The solvers
 //! factor matrices of n = 26-170 (6 + r body coordinates, or the world-frame
-//! modes) ten or more times per step; measured here (one core of an AMD EPYC,
-//! AVX-512, best of three runs of each size), 32 took 0.66x faer's default
-//! time at n = 46, 0.91x at n = 66, 0.77x at n = 126 and 0.95-1.0x at n = 26, 86
-//! and 166 (16 was as good except at n = 26, 1.2x; a threshold of 128 or 256
-//! up to 1.9x slower).
+//! modes) ten or more times per step, and at these sizes the smaller
+//! threshold is as fast or faster at every n tried (measured: docs/results.md section 8, "Solver choices, measured").
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{cholesky_in_place, cholesky_in_place_scratch, LltParams, LltRegularization};

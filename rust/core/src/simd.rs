@@ -30,8 +30,11 @@ pub fn lane_sum(a: &F8) -> f64 {
 
 /// Multiply-add flavour of a kernel instantiation (one per instruction-set level).
 pub trait Madd: Copy {
-    /// `a * b + c`.
-    fn madd(a: f64, b: f64, c: f64) -> f64;
+    /// `a * b + c`, fused (one rounding) unless the flavour says otherwise.
+    #[inline(always)]
+    fn madd(a: f64, b: f64, c: f64) -> f64 {
+        a.mul_add(b, c)
+    }
     /// `a * b + c` lane by lane.
     #[inline(always)]
     fn madd8(a: &F8, b: &F8, c: F8) -> F8 {
@@ -72,10 +75,6 @@ impl Madd for Separate {
 #[cfg(target_arch = "x86_64")]
 impl Madd for Avx2 {
     #[inline(always)]
-    fn madd(a: f64, b: f64, c: f64) -> f64 {
-        a.mul_add(b, c)
-    }
-    #[inline(always)]
     fn madd8(a: &F8, b: &F8, c: F8) -> F8 {
         use std::arch::x86_64::{_mm256_fmadd_pd, _mm256_loadu_pd, _mm256_storeu_pd};
         let mut r = [0.0; LANES];
@@ -93,10 +92,6 @@ impl Madd for Avx2 {
 
 #[cfg(target_arch = "x86_64")]
 impl Madd for Avx512 {
-    #[inline(always)]
-    fn madd(a: f64, b: f64, c: f64) -> f64 {
-        a.mul_add(b, c)
-    }
     #[inline(always)]
     fn madd8(a: &F8, b: &F8, c: F8) -> F8 {
         use std::arch::x86_64::{_mm512_fmadd_pd, _mm512_loadu_pd, _mm512_storeu_pd};

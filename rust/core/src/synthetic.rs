@@ -104,22 +104,89 @@ pub struct BlockModel {
     pub mass: Vec<f64>,
     /// Reduced gravity force, n.
     pub gravity_force: Vec<f64>,
+    /// The sampled elastic and contact terms.
+    pub terms: SampledTerms,
+    /// Total mass, kg.
+    pub total_mass: f64,
+}
+
+/// The elastic and contact arrays a synthetic block samples, in either
+/// model's coordinates (world-frame modes or body-frame modes).
+#[derive(Debug, Clone)]
+pub struct SampledTerms {
     /// K x 9 x n.
     pub cubature_jacobians: Vec<f64>,
-    /// K.
+    /// K, equal weights summing to the volume.
     pub cubature_weights: Vec<f64>,
     /// C x 3 x n.
     pub contact_basis: Vec<f64>,
     /// C x 3.
     pub contact_rest: Vec<f64>,
-    /// C.
+    /// C, equal shares of the faces' area.
     pub contact_areas: Vec<f64>,
-    /// The ground plane z = 0.
+    /// The ground plane through the origin.
     pub planes: Vec<Plane>,
     /// Material.
     pub material: StableNeoHookean,
-    /// Total mass, kg.
-    pub total_mass: f64,
+}
+
+impl SampledTerms {
+    /// The terms of `scene` with the given Jacobians and contact rows (weights, areas, plane and material from the scene).
+    pub fn new(scene: &BlockScene, cubature_jacobians: Vec<f64>, contact_basis: Vec<f64>, contact_rest: Vec<f64>) -> Result<Self> {
+        let (l, k, c) = (scene.size, scene.cubature_points, scene.contact_points);
+        let faces = if scene.contact_on_all_faces { 6.0 } else { 1.0 };
+        let slope = scene.incline.to_radians();
+        Ok(Self {
+            cubature_jacobians,
+            cubature_weights: vec![l * l * l / k.max(1) as f64; k],
+            contact_basis,
+            contact_rest,
+            contact_areas: vec![faces * l * l / c.max(1) as f64; c],
+            planes: vec![Plane::new(Vector3::new(slope.sin(), 0.0, slope.cos()), 0.0, scene.friction)?],
+            material: StableNeoHookean::new(scene.mu, scene.lam)?,
+        })
+    }
+
+    /// The elastic term's inputs.
+    pub fn elastic(&self) -> ElasticInputs<'_> {
+        ElasticInputs {
+            cubature_jacobians: &self.cubature_jacobians,
+            cubature_weights: &self.cubature_weights,
+            vertex_strain: None,
+            material: self.material,
+        }
+    }
+
+    /// The contact points' inputs, with the stiffnesses of `scene`.
+    pub fn contact(&self, scene: &BlockScene) -> ContactInputs<'_> {
+        ContactInputs {
+            basis: &self.contact_basis,
+            rest: &self.contact_rest,
+            areas: &self.contact_areas,
+            planes: &self.planes,
+            normal_stiffness: scene.normal_stiffness,
+            normal_damping: scene.normal_damping,
+            friction_stiffness: scene.friction_stiffness,
+        }
+    }
+}
+
+impl BlockScene {
+    /// Rest position (in the cube [0, L]^3) of contact point j from the face
+    /// coordinates `(u, v)` in [0, L): on the bottom face, or with contact on
+    /// all faces on face j mod 6.
+    pub fn contact_point(&self, j: usize, u: f64, v: f64) -> [f64; 3] {
+        if self.contact_on_all_faces {
+            // Face j mod 6: the axis it is normal to and which side.
+            let (axis, side) = (j % 3, if (j / 3) % 2 == 0 { 0.0 } else { self.size });
+            let mut x = [u, v, 0.0];
+            x.swap(2, axis);
+            x[axis] = side;
+            x
+        } else {
+            [u, v, 0.0]
+        }
+    }
 }
 
 /// SplitMix64 stream of uniforms in [0, 1).
@@ -242,40 +309,20 @@ impl BlockScene {
         for chunk in cubature_jacobians.chunks_exact_mut(9 * n) {
             basis.jacobian(rng.point(l), chunk);
         }
-        let cubature_weights = vec![l * l * l / k.max(1) as f64; k];
 
         let c = self.contact_points;
         let mut contact_basis = vec![0.0; c * 3 * n];
         let mut contact_rest = vec![0.0; c * 3];
         for (j, (chunk, rest)) in contact_basis.chunks_exact_mut(3 * n).zip(contact_rest.chunks_exact_mut(3)).enumerate() {
-            let (u, v) = (l * rng.next(), l * rng.next());
-            let x = if self.contact_on_all_faces {
-                // Face j mod 6: the axis it is normal to and which side.
-                let (axis, side) = (j % 3, if (j / 3) % 2 == 0 { 0.0 } else { l });
-                let mut x = [u, v, 0.0];
-                x.swap(2, axis);
-                x[axis] = side;
-                x
-            } else {
-                [u, v, 0.0]
-            };
+            let x = self.contact_point(j, l * rng.next(), l * rng.next());
             basis.values(x, chunk);
             rest.copy_from_slice(&x);
         }
-        let faces = if self.contact_on_all_faces { 6.0 } else { 1.0 };
-        let contact_areas = vec![faces * l * l / c.max(1) as f64; c];
-        let slope = self.incline.to_radians();
         Ok(BlockModel {
             scene: *self,
             mass,
             gravity_force,
-            cubature_jacobians,
-            cubature_weights,
-            contact_basis,
-            contact_rest,
-            contact_areas,
-            planes: vec![Plane::new(Vector3::new(slope.sin(), 0.0, slope.cos()), 0.0, self.friction)?],
-            material: StableNeoHookean::new(self.mu, self.lam)?,
+            terms: SampledTerms::new(self, cubature_jacobians, contact_basis, contact_rest)?,
             total_mass,
         })
     }
@@ -292,21 +339,8 @@ impl BlockModel {
         ReducedInputs {
             mass: &self.mass,
             gravity_force: &self.gravity_force,
-            elastic: ElasticInputs {
-                cubature_jacobians: &self.cubature_jacobians,
-                cubature_weights: &self.cubature_weights,
-                vertex_strain: None,
-                material: self.material,
-            },
-            contact: ContactInputs {
-                basis: &self.contact_basis,
-                rest: &self.contact_rest,
-                areas: &self.contact_areas,
-                planes: &self.planes,
-                normal_stiffness: self.scene.normal_stiffness,
-                normal_damping: self.scene.normal_damping,
-                friction_stiffness: self.scene.friction_stiffness,
-            },
+            elastic: self.terms.elastic(),
+            contact: self.terms.contact(&self.scene),
             dt: self.scene.dt,
             integrator: self.scene.integrator,
         }
@@ -320,14 +354,14 @@ impl BlockModel {
         let n = self.n_dofs();
         let (sin, cos) = tilt.to_radians().sin_cos();
         let r = nalgebra::Matrix3::new(cos, 0.0, sin, 0.0, 1.0, 0.0, -sin, 0.0, cos);
-        let normal = self.planes[0].normal();
+        let normal = self.terms.planes[0].normal();
         let lowest = (0..8)
             .map(|c| {
                 let corner = Vector3::new((c & 1) as f64, ((c >> 1) & 1) as f64, ((c >> 2) & 1) as f64) * s.size;
                 normal.dot(&(r * corner))
             })
             .fold(f64::INFINITY, f64::min);
-        let lift = (height - lowest - self.planes[0].offset()) / normal.z;
+        let lift = (height - lowest - self.terms.planes[0].offset()) / normal.z;
         let mut q = vec![0.0; n];
         for i in 0..3 {
             for j in 0..3 {

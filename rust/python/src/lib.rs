@@ -1,6 +1,9 @@
 //! Python bindings of licrom-core (module `licrom._core`): argument checks,
 //! conversions and GIL release; every numerical decision lives in the core.
 
+#[macro_use]
+mod solver_methods;
+
 mod arrays;
 mod batch;
 mod body_frame;

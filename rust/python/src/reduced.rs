@@ -161,19 +161,6 @@ impl ReducedCore {
         exclusive(py, &self.inner)?.set_state(&q.data, &qdot.data).py_err(py)
     }
 
-    /// Advance one time step; return (iterations, residual in m/s).
-    ///
-    /// Raises:
-    ///     SolverError: no convergence within ``max_iterations`` (attributes
-    ///         ``iterations`` and ``residual``) or non-finite values; the state is
-    ///         left unchanged.
-    fn step(&self, py: Python<'_>) -> PyResult<(usize, f64)> {
-        let mut guard = exclusive(py, &self.inner)?;
-        let solver = &mut *guard;
-        let report = py.detach(|| solver.step()).py_err(py)?;
-        Ok((report.iterations, report.residual))
-    }
-
     /// Work counters since construction or :meth:`reset_stats`: ``steps``,
     /// ``iterations`` (Newton directions, as ``step`` reports them),
     /// ``evaluations`` (energy and gradient over all cubature points),
@@ -185,20 +172,6 @@ impl ReducedCore {
     /// and taken).
     fn stats(&self, py: Python<'_>) -> PyResult<HashMap<&'static str, usize>> {
         Ok(stats_dict(exclusive(py, &self.inner)?.stats()))
-    }
-
-    /// ``(min det F, depth)`` of the last step at its accepted iterate: the smallest
-    /// ``det F`` at the cubature points (inf without any) and the deepest penetration of a
-    /// contact point into a plane in m (>= 0); ``(inf, 0)`` before any step.
-    fn validity(&self, py: Python<'_>) -> PyResult<(f64, f64)> {
-        let v = exclusive(py, &self.inner)?.validity();
-        Ok((v.min_det, v.depth))
-    }
-
-    /// Zero the work counters.
-    fn reset_stats(&self, py: Python<'_>) -> PyResult<()> {
-        exclusive(py, &self.inner)?.reset_stats();
-        Ok(())
     }
 
     /// After a step that did not converge, take its last iterate as the new
@@ -255,6 +228,8 @@ impl ReducedCore {
         write(py, out, &[c, 3])
     }
 }
+
+solver_methods!(ReducedCore);
 
 /// The solvers' work counters by name (as `stats()` returns them).
 pub(crate) fn stats_dict(s: SolverStats) -> HashMap<&'static str, usize> {

@@ -61,10 +61,8 @@ pub struct BodyContacts {
 /// Also the body positions `y_s` at the start of the step's q (`q_start`) of
 /// the points that might touch then (`has_y`). Within a step q moves little,
 /// so `|W_s (q - q_start)|` bounds a point's gap much more tightly than
-/// `|W_s q|`: measured on the `body_frame_landing` bench (r = 60, 1000 points
-/// on all faces, 142 of them carrying a force), the bound through `|q|` let
-/// 544 points per evaluation on to their positions, this one 358, and the
-/// step took 8-10 % less time at the same iteration counts.
+/// `|W_s q|`, and fewer points go on to their positions (measured:
+/// docs/results.md section 8, "Solver choices, measured").
 #[derive(Debug, Clone)]
 pub struct ContactStart {
     pub(super) x_prev: Vec<Vector3<f64>>,

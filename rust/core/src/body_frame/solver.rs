@@ -62,24 +62,12 @@
 //! [`LAST_FACTOR_SHARE`] of the tolerance, that step is taken and the solve
 //! stops.
 //!
-//! **Why, measured** (`cargo bench --bench body_frame_step`: the synthetic
-//! block, K = 1000 cubature and C = 1000 contact points, both solvers in one
-//! run). With only the line search, a lagged elastic block refreshed at most
-//! once per step, and the whole contact Hessian formed every iteration, the
-//! body-frame solver needed 9 and 18 iterations where the world-frame one
-//! needed 5 and 6 (cold sliding step, r = 20 and 60) and 209 and 233 where it
-//! needed 149 and 162 (80 landing steps): 1.05-2.2x its time. The contact
-//! model and the stick correction resolve friction's stick/slip switches
-//! without a pass over the cubature points (landing: 139 and 147 iterations);
-//! the drift test and BFGS update fix the elastic block's error along the step,
-//! which one refresh per step left converging linearly at about 0.5 per
-//! iteration (cold step: 5 and 7); the incremental contact Hessian and the
-//! vectorised contact kernels bring an iteration to the world-frame cost.
-//! Body/world time, median of the ratios within 10 runs (5 before) on 2
-//! shared cores under a load of 5-10: cold step 0.87x (r = 20, 5 iterations
-//! each) and 0.92x (r = 60, 7 against 6; before 0.97x, 0.96x, the load hiding
-//! the 9 and 18 iterations); landing 0.91x (r = 20, 139 against 149) and 0.95x
-//! (r = 60, 147 against 162; before 1.86x, 1.97x).
+//! **Why**: with only the line search, a lagged elastic block refreshed at
+//! most once per step and the whole contact Hessian formed every iteration,
+//! the body-frame solver took up to twice the world-frame one's iterations and
+//! time on the same block; the contact model, the stick correction, the drift
+//! test with its BFGS update and the incremental contact Hessian bring it to
+//! the world-frame cost (measured: docs/results.md section 8, "Solver choices, measured").
 
 mod state;
 
@@ -104,13 +92,9 @@ pub const ROTATION_TOLERANCE: f64 = 1e-8;
 /// The lagged elastic Hessian is assembled again when its secant error along
 /// the last step makes up more than this share of the next direction (the
 /// rule of [`crate::solver::ELASTIC_DRIFT`], looser). Its error only slows the
-/// outer iteration, and in the body frame it slows it little: measured on the
-/// held-out runs of the body-frame experiments (learned r = 60, fitted
-/// cubature), raising the share from 0.1 to 0.4 took the assemblies from 284
-/// to 13 on the tumbling cheese (211 to 1 on the ball, 126 to 1 on the
-/// tumbling box) at the same Newton iterations (886 / 881 over 150 steps) and
-/// halved its step (3.2 to 1.6 ms); the landing bench kept its 139 / 147
-/// iterations.
+/// outer iteration, and in the body frame it slows it little, while each
+/// assembly is a pass over every cubature point with an eigen-decomposition
+/// (measured: docs/results.md section 8, "Solver choices, measured").
 pub const BODY_ELASTIC_DRIFT: f64 = 0.4;
 
 /// A step is converged on the last factored Newton matrix, without forming

@@ -10,12 +10,8 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::rotation::skew;
 use super::BodyFrameInputs;
-use crate::contact::Plane;
-use crate::contact_points::ContactInputs;
 use crate::error::Result;
-use crate::material::StableNeoHookean;
-use crate::reduced::ElasticInputs;
-use crate::synthetic::BlockScene;
+use crate::synthetic::{BlockScene, SampledTerms};
 
 /// Owned arrays of a synthetic body-frame block, borrowed by [`BodyBlock::inputs`].
 #[derive(Debug, Clone)]
@@ -36,17 +32,8 @@ pub struct BodyBlock {
     pub inertia_moments: Vec<f64>,
     pub mode_moments: Vec<f64>,
     pub mode_products: Vec<f64>,
-    /// K x 9 x n and K.
-    pub cubature_jacobians: Vec<f64>,
-    pub cubature_weights: Vec<f64>,
-    /// C x 3 x n, C x 3 (Xbar_j) and C.
-    pub contact_basis: Vec<f64>,
-    pub contact_rest: Vec<f64>,
-    pub contact_areas: Vec<f64>,
-    /// The ground plane through the origin.
-    pub planes: Vec<Plane>,
-    /// Material.
-    pub material: StableNeoHookean,
+    /// The sampled elastic and contact terms.
+    pub terms: SampledTerms,
 }
 
 /// Point i of the additive recurrence with the plastic-number increments
@@ -190,30 +177,16 @@ pub fn body_block(scene: &BlockScene, affine: bool) -> Result<BodyBlock> {
             }
         }
     }
-    let cubature_weights = vec![l * l * l / k_count.max(1) as f64; k_count];
 
     let c_count = scene.contact_points;
     let mut contact_basis = vec![0.0; c_count * 3 * n];
     let mut contact_rest = vec![0.0; c_count * 3];
     for jp in 0..c_count {
         let s = sequence(104_729 + jp);
-        let (u, v) = (l * s[0], l * s[1]);
-        let x = if scene.contact_on_all_faces {
-            let (axis, side) = (jp % 3, if (jp / 3) % 2 == 0 { 0.0 } else { l });
-            let mut x = [u, v, 0.0];
-            x.swap(2, axis);
-            x[axis] = side;
-            x
-        } else {
-            [u, v, 0.0]
-        };
-        let xb = Vector3::from(x) - com;
+        let xb = Vector3::from(scene.contact_point(jp, l * s[0], l * s[1])) - com;
         rows(&xb, &mut contact_basis[3 * n * jp..3 * n * (jp + 1)]);
         contact_rest[3 * jp..3 * jp + 3].copy_from_slice(xb.as_slice());
     }
-    let faces = if scene.contact_on_all_faces { 6.0 } else { 1.0 };
-    let contact_areas = vec![faces * l * l / c_count.max(1) as f64; c_count];
-    let slope = scene.incline.to_radians();
     Ok(BodyBlock {
         scene: *scene,
         n,
@@ -224,13 +197,7 @@ pub fn body_block(scene: &BlockScene, affine: bool) -> Result<BodyBlock> {
         inertia_moments: j.transpose().as_slice().to_vec(),
         mode_moments,
         mode_products,
-        cubature_jacobians,
-        cubature_weights,
-        contact_basis,
-        contact_rest,
-        contact_areas,
-        planes: vec![Plane::new(Vector3::new(slope.sin(), 0.0, slope.cos()), 0.0, scene.friction)?],
-        material: StableNeoHookean::new(scene.mu, scene.lam)?,
+        terms: SampledTerms::new(scene, cubature_jacobians, contact_basis, contact_rest)?,
     })
 }
 
@@ -244,21 +211,8 @@ impl BodyBlock {
             mode_moments: &self.mode_moments,
             mode_products: &self.mode_products,
             gravity: [0.0, 0.0, -9.81],
-            elastic: ElasticInputs {
-                cubature_jacobians: &self.cubature_jacobians,
-                cubature_weights: &self.cubature_weights,
-                vertex_strain: None,
-                material: self.material,
-            },
-            contact: ContactInputs {
-                basis: &self.contact_basis,
-                rest: &self.contact_rest,
-                areas: &self.contact_areas,
-                planes: &self.planes,
-                normal_stiffness: s.normal_stiffness,
-                normal_damping: s.normal_damping,
-                friction_stiffness: s.friction_stiffness,
-            },
+            elastic: self.terms.elastic(),
+            contact: self.terms.contact(s),
             dt: s.dt,
             integrator: s.integrator,
         }
@@ -271,6 +225,6 @@ impl BodyBlock {
         let (sin, cos) = s.incline.to_radians().sin_cos();
         let r = Matrix3::new(cos, 0.0, sin, 0.0, 1.0, 0.0, -sin, 0.0, cos);
         let depth = self.total_mass * 9.81 * cos / (s.size * s.size * s.normal_stiffness);
-        (self.planes[0].normal() * (s.size / 2.0 - depth), r)
+        (self.terms.planes[0].normal() * (s.size / 2.0 - depth), r)
     }
 }

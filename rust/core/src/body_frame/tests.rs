@@ -250,7 +250,7 @@ fn turned_case() -> (BodyBlock, BodyFrameSystem, BodyStart, Pose) {
     let mut rng = Rng::new(9);
     let r = random_rotation(&mut rng, 0.4);
     let mut heights: Vec<f64> =
-        (0..b.contact_rest.len() / 3).map(|j| (r * Vector3::from_column_slice(&b.contact_rest[3 * j..3 * j + 3])).z).collect();
+        (0..b.terms.contact_rest.len() / 3).map(|j| (r * Vector3::from_column_slice(&b.terms.contact_rest[3 * j..3 * j + 3])).z).collect();
     heights.sort_by(f64::total_cmp);
     // The third lowest point 5 mm deep.
     let cur = Pose { center: Vector3::new(0.0, 0.0, -heights[2] - 5e-3), rotation: r, q: rng.vec(b.n, 1e-3) };
@@ -280,10 +280,10 @@ fn contact_points_are_skipped_only_where_they_cannot_touch() {
     // gradient are those of the bound through |q| alone. A bound 1 % too
     // tight skips the point and fails here.
     let (b, sys, _, _) = turned_case();
-    let (n, plane) = (b.n, &b.planes[0]);
+    let (n, plane) = (b.n, &b.terms.planes[0]);
     let mut ws = sys.workspace();
     for j in (0..sys.n_contacts()).step_by(7) {
-        let w = nalgebra::DMatrix::from_row_slice(3, n, &b.contact_basis[3 * n * j..3 * n * (j + 1)]);
+        let w = nalgebra::DMatrix::from_row_slice(3, n, &b.terms.contact_basis[3 * n * j..3 * n * (j + 1)]);
         let svd = w.clone().svd(true, true);
         let k = svd.singular_values.imax();
         let sigma = svd.singular_values[k];
@@ -292,7 +292,7 @@ fn contact_points_are_skipped_only_where_they_cannot_touch() {
         let rotation = nalgebra::Rotation3::rotation_between(&u, &plane.normal()).unwrap().into_inner();
         let s = 0.02;
         let q: Vec<f64> = v.iter().map(|vi| s * vi).collect();
-        let y = Vector3::from_column_slice(&b.contact_rest[3 * j..3 * j + 3]) + &w * nalgebra::DVector::from_column_slice(&q);
+        let y = Vector3::from_column_slice(&b.terms.contact_rest[3 * j..3 * j + 3]) + &w * nalgebra::DVector::from_column_slice(&q);
         let g0 = 0.5 * sigma * s;
         let center = plane.normal() * (g0 - plane.gap(&(rotation * y)));
         let cur = Pose { center, rotation, q };
@@ -303,7 +303,8 @@ fn contact_points_are_skipped_only_where_they_cannot_touch() {
         let x: Vec<f64> = [0.0; 6].into_iter().chain(v.iter().map(|vi| -t * vi)).collect();
         let pose = moved(&cur, &x);
         let x_j = pose.center
-            + pose.rotation * (Vector3::from_column_slice(&b.contact_rest[3 * j..3 * j + 3]) + &w * nalgebra::DVector::from_column_slice(&pose.q));
+            + pose.rotation
+                * (Vector3::from_column_slice(&b.terms.contact_rest[3 * j..3 * j + 3]) + &w * nalgebra::DVector::from_column_slice(&pose.q));
         assert!(g0 > 1e-5 && (plane.gap(&x_j) + 1e-6).abs() < 1e-9, "point {j}: start gap {g0}, end gap {}", plane.gap(&x_j));
         let e = sys.evaluate(&start, &pose, true, &mut ws);
         let grad = ws.grad.clone();
@@ -418,7 +419,7 @@ fn stick_switch_turns_slipping_points_into_sticking_ones() {
     sys.hessian(&start, &pose, BodyHessian::GaussNewton, &mut ws, &mut hess);
     sys.stick_switch(&start, &pose, &back, &mut ws, &mut vec![0.0; big]);
     sys.add_switch_rows(&ws, rows, &mut hess);
-    let planes: Vec<Plane> = b.planes.iter().map(|p| Plane::new(p.normal(), p.offset(), 1e9).unwrap()).collect();
+    let planes: Vec<Plane> = b.terms.planes.iter().map(|p| Plane::new(p.normal(), p.offset(), 1e9).unwrap()).collect();
     let inputs = b.inputs();
     let sticky = BodyFrameSystem::new(&BodyFrameInputs { contact: ContactInputs { planes: &planes, ..inputs.contact }, ..inputs }).unwrap();
     // The step start does not depend on the friction coefficient.
@@ -592,7 +593,7 @@ fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
     let scene = BlockScene { learned_modes: 3, cubature_points: 50, contact_points: 60, incline: 25.0, friction: 0.3, ..Default::default() };
     let b = body_block(&scene, true).unwrap();
     let (c, r) = b.resting_pose();
-    let normal = b.planes[0].normal();
+    let normal = b.terms.planes[0].normal();
     let mut s = solver(&b, 1e-10, 100);
     let pose = Pose { center: c - normal * 0.01, rotation: r, q: vec![0.0; b.n] };
     s.set_state(&pose, &[0.2, 0.0, 0.0], &[0.0, 0.5, 0.0], &vec![0.0; b.n]).unwrap();
@@ -600,10 +601,10 @@ fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
     for step in 0..10 {
         s.step().unwrap();
         let p = s.pose();
-        let min_det = cubature_min_det(&b.cubature_jacobians, &p.q);
-        let depth = point_positions(&b.contact_basis, &b.contact_rest, &p.q)
+        let min_det = cubature_min_det(&b.terms.cubature_jacobians, &p.q);
+        let depth = point_positions(&b.terms.contact_basis, &b.terms.contact_rest, &p.q)
             .iter()
-            .map(|y| -b.planes[0].gap(&(p.center + p.rotation * y)))
+            .map(|y| -b.terms.planes[0].gap(&(p.center + p.rotation * y)))
             .fold(0.0, f64::max);
         let v = s.validity();
         check_validity(step, v, min_det, depth);

@@ -19,8 +19,7 @@
 //! widened as they are loaded. At n = 32 the pass is compute bound (30-40 ns
 //! per point whether K is 100 or 5000), but at n = 66 and K = 1000 the f64
 //! Jacobians take 4.3 MB, twice the 2 MB L2 of one core, and the pass waits on
-//! L3: measured on the `body_frame_landing` bench (r = 60), f32 storage cut
-//! the step from 1.04 to 0.89 ms, at the same iteration counts. The rounding
+//! L3; f32 storage halves that (measured: docs/results.md section 8, "Solver choices, measured"). The rounding
 //! (relative 6e-8, far below the discretisation error) is the model: energy,
 //! gradient and Hessian all use the same rounded G (the constant columns are
 //! rounded alike), so they stay consistent and Newton converges as before.
@@ -263,10 +262,7 @@ pub struct VertexStrainInputs<'a> {
 /// four of them per point, and the gradient `sum_v W_v^T f_v` from the
 /// points' vertex forces take a fraction of the multiply-adds of `G_k q` and
 /// `G_k^T P_k`, in f64 rows that fit in cache where the f32 Jacobians did
-/// not. Measured on the tumbling cheese of docs/results.md section 10 (learned
-/// body model, r = 60, its 501 fitted cubature tets, 4 interleaved runs): the
-/// elastic part of an evaluation 53 -> 38 us, the median step 0.93-1.00 ->
-/// 0.82-0.87 ms, Newton iterations 891 -> 893 over the 150 steps.
+/// not (measured: docs/results.md section 8, "Solver choices, measured").
 #[derive(Debug, Clone)]
 pub(super) struct VertexLayout {
     /// `W_v` of the used vertices, U x 3 x n row-major.

@@ -50,7 +50,7 @@ fn regimes(model: &BlockModel, sys: &ReducedSystem, start: &StepStart, q: &[f64]
         }
         let x = sys.contact_position::<Separate>(j, q);
         let dx = x - Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
-        let c = model.contact_areas[j] * s.friction_stiffness / s.dt;
+        let c = model.terms.contact_areas[j] * s.friction_stiffness / s.dt;
         if c * (dx.x * dx.x + dx.y * dx.y).sqrt() <= s.friction * fn_lag {
             stick += 1;
         } else {
@@ -113,10 +113,10 @@ fn projected_assembly_matches_naive_sum() {
 
     let mut naive: Vec<f64> = model.mass.iter().map(|m| m / (h * h)).collect();
     // The system holds the Jacobians in single precision: that rounding is its model.
-    let stored: Vec<f64> = model.cubature_jacobians.iter().map(|&v| f64::from(v as f32)).collect();
-    for (g, w) in stored.chunks_exact(9 * n).zip(&model.cubature_weights) {
+    let stored: Vec<f64> = model.terms.cubature_jacobians.iter().map(|&v| f64::from(v as f32)).collect();
+    for (g, w) in stored.chunks_exact(9 * n).zip(&model.terms.cubature_weights) {
         let f = deformation_gradient(g, &q);
-        let hp = model.material.projected_hessian(&f);
+        let hp = model.terms.material.projected_hessian(&f);
         for r in 0..n {
             for c in 0..n {
                 let mut s = 0.0;
@@ -133,7 +133,7 @@ fn projected_assembly_matches_naive_sum() {
         let x = sys.contact_position::<Separate>(j, &q);
         let xp = Vector3::from_column_slice(&start.x_prev[3 * j..3 * j + 3]);
         let hc = sys.points.model().evaluate(&sys.points.planes()[0], sys.areas[j], start.normal_force[j], &x, &xp).hessian.matrix();
-        let wj = &model.contact_basis[3 * n * j..3 * n * (j + 1)];
+        let wj = &model.terms.contact_basis[3 * n * j..3 * n * (j + 1)];
         for r in 0..n {
             for c in 0..n {
                 naive[r * n + c] +=
@@ -251,10 +251,10 @@ fn rigid_rotation_has_zero_elastic_energy_and_force() {
     // With q = qtilde the inertia vanishes: what is left is -f.q + elastic.
     let gravity_work: f64 = model.gravity_force.iter().zip(&q).map(|(f, x)| f * x).sum();
     let elastic = sys.energy(&start, &q) + gravity_work;
-    assert!(elastic.abs() < 1e-12 * model.material.mu() * model.scene.size.powi(3), "elastic energy {elastic}");
+    assert!(elastic.abs() < 1e-12 * model.terms.material.mu() * model.scene.size.powi(3), "elastic energy {elastic}");
     let mut ws = sys.workspace();
     sys.assemble(&start, &q, Hessian::None, &mut ws);
-    let force_scale = model.material.mu() * model.scene.size.powi(3) * 100.0;
+    let force_scale = model.terms.material.mu() * model.scene.size.powi(3) * 100.0;
     for (g, f) in ws.grad.iter().zip(&model.gravity_force) {
         assert!((g + f).abs() < 1e-10 * force_scale, "elastic force {}", g + f);
     }
@@ -281,13 +281,13 @@ fn invalid_inputs_are_rejected() {
     inp.mass = &indefinite;
     assert!(matches!(ReducedSystem::new(&inp), Err(LicromError::SingularMass { .. })));
 
-    let mut weights = model.cubature_weights.clone();
+    let mut weights = model.terms.cubature_weights.clone();
     weights[0] = -1.0;
     let mut inp = model.inputs();
     inp.elastic.cubature_weights = &weights;
     assert!(matches!(ReducedSystem::new(&inp), Err(LicromError::InvalidParameter { .. })));
 
-    let mut nan = model.contact_rest.clone();
+    let mut nan = model.terms.contact_rest.clone();
     nan[2] = f64::NAN;
     let mut inp = model.inputs();
     inp.contact.rest = &nan;

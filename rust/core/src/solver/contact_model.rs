@@ -44,23 +44,14 @@ const INNER_TOLERANCE: f64 = 0.5;
 /// Share of the outer residual down to which the contact model is minimised
 /// (see `INNER_TOLERANCE`). The outer iteration converges at about 0.1 per
 /// iteration where the lagged elastic block leads it, so a model solved
-/// further is not followed. Measured (`cargo bench --bench body_frame_step`,
-/// two interleaved runs; held-out runs of docs/results.md section 10, r = 60):
-/// 0.1 instead of 0.01 took 6-7 instead of 11-14 model iterations on the cold
-/// step, 3.3 instead of 3.9 ms (world, r = 20) and 9.4-9.6 instead of
-/// 10.6 ms (body, r = 60), with the same outer iterations; the landing the
-/// same within 3 %; 9-14 % off the median step of the tumblers and the ball
-/// (0.3 and 1.0 did no better).
+/// further is not followed (measured: docs/results.md section 8, "Solver choices, measured").
 pub const INNER_FORCING: f64 = 0.1;
 /// A line search on E that ends below this step length along the model's
 /// direction made no progress: the model's minimiser lies where E does not
 /// decrease (a friction switch that the lagged elastic model misjudges), and
 /// the model would lead there again. The next outer iteration then searches
-/// along the plain Newton direction ([`ModelSchedule`]). Measured: the
-/// body-frame solver on the tipping box of docs/results.md section 10 with 80
-/// POD modes stalled at one step for 1000 iterations (residual 1.8e-3 m/s,
-/// steps of 4e-11 to 2e-8); with the plain direction after such a step it
-/// converged in 7 iterations.
+/// along the plain Newton direction ([`ModelSchedule`]); without that rule a
+/// step can stall for good (measured: docs/results.md section 8, "Solver choices, measured").
 pub const STALLED_STEP: f64 = 1e-4;
 
 /// Whether the outer iterations of one time step solve the contact model: not
@@ -100,13 +91,9 @@ impl ModelSchedule {
 /// does; the outer iteration then only removes the elastic nonlinearity, in
 /// ever shorter steps. The rest of the time step goes without the model while
 /// the line search on E keeps taking full steps (a shorter one means
-/// something switched, and the model comes back). Measured on the held-out
-/// runs of docs/results.md section 10 (r = 60, body POD, fitted cubature):
-/// the tumbling cheese's outer iterations converge linearly at about 0.1, and
-/// from the second or third on the model took one evaluation and one
-/// factorisation each to confirm the Newton step; without them its median
-/// step went from 1.22 to 1.03 ms at 897 instead of 884 Newton iterations
-/// over 150 steps, with the same trajectory to the reported digits.
+/// something switched, and the model comes back). Once settled, the model
+/// would only spend an evaluation and a factorisation an iteration confirming
+/// the Newton step (measured: docs/results.md section 8, "Solver choices, measured").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum ModelOutcome {
     /// No step decreased the model: the outer Newton direction stands.

@@ -160,7 +160,7 @@ fn affine_free_fall_matches_backward_euler_point_mass() {
 #[test]
 fn empty_cubature_contacts_and_planes_work() {
     let mut model = BlockScene { learned_modes: 2, cubature_points: 0, contact_points: 0, ..Default::default() }.build().unwrap();
-    model.planes.clear();
+    model.terms.planes.clear();
     let mut s = solver(&model, SolverKind::Newton, 1e-9, 10);
     let report = s.step().unwrap();
     assert!(report.iterations >= 1);
@@ -292,8 +292,11 @@ fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
     let mut depths = vec![];
     for step in 0..10 {
         s.step().unwrap();
-        let min_det = cubature_min_det(&model.cubature_jacobians, s.q());
-        let depth = point_positions(&model.contact_basis, &model.contact_rest, s.q()).iter().map(|x| -model.planes[0].gap(x)).fold(0.0, f64::max);
+        let min_det = cubature_min_det(&model.terms.cubature_jacobians, s.q());
+        let depth = point_positions(&model.terms.contact_basis, &model.terms.contact_rest, s.q())
+            .iter()
+            .map(|x| -model.terms.planes[0].gap(x))
+            .fold(0.0, f64::max);
         let v = s.validity();
         check_validity(step, v, min_det, depth);
         depths.push(v.depth);
