@@ -178,7 +178,7 @@ impl BlockScene {
     pub fn contact_point(&self, j: usize, u: f64, v: f64) -> [f64; 3] {
         if self.contact_on_all_faces {
             // Face j mod 6: the axis it is normal to and which side.
-            let (axis, side) = (j % 3, if (j / 3) % 2 == 0 { 0.0 } else { self.size });
+            let (axis, side) = (j % 3, if (j / 3).is_multiple_of(2) { 0.0 } else { self.size });
             let mut x = [u, v, 0.0];
             x.swap(2, axis);
             x[axis] = side;
