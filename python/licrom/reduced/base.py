@@ -26,7 +26,7 @@ from ..stepping import check_field, check_run_arguments
 from ..subspace.basis import vertex_strain_form
 from ..subspace.cubature import ContactPoints, Cubature
 
-__all__ = ["CUBATURES", "ReducedSim", "native_inputs", "sampling", "step_many"]
+__all__ = ["CUBATURES", "ReducedSim", "mesh_and_scene", "native_inputs", "sampling", "step_many"]
 
 _DEFAULT_CUBATURE_POINTS = 1000
 
@@ -118,6 +118,27 @@ def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:
     """The fitted cubature on ``mesh`` of the model behind ``basis``, if it has one."""
     model = _model_behind(basis)
     return None if model is None else model.cubature_for(mesh)
+
+
+def mesh_and_scene(who: str, mesh: Mesh | None, scene: Scene | None, basis: Any, mesh_from: str, scene_from: Sequence[Any]) -> tuple[Mesh, Scene]:
+    """The mesh and scene a reduced simulation ``who`` runs: those given, else the basis' ``mesh`` and the first
+    ``default_scene`` stored by one of ``scene_from`` (the basis, or also the model behind it).
+
+    Raises:
+        ConfigError: no mesh or scene given or stored (the message says to pass one or to use ``mesh_from``,
+            what stores a mesh), or a scene that is not a :class:`~licrom.Scene`.
+    """
+    if mesh is None:
+        mesh = getattr(basis, "mesh", None)
+        if mesh is None:
+            raise ConfigError(f"{who} needs a mesh: pass mesh=... or {mesh_from} that stores one")
+    if scene is None:
+        scene = next((s for s in (getattr(o, "default_scene", None) for o in scene_from) if s is not None), None)
+        if scene is None:
+            raise ConfigError(f"{who} needs a scene: pass scene=... or a trained model that stores one")
+    if not isinstance(scene, Scene):
+        raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+    return mesh, scene
 
 
 def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: ContactPoints | None, basis: Any = None) -> tuple[Cubature, ContactPoints]:

@@ -29,7 +29,7 @@ from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_
 from ..subspace.body_basis import BodyFrameBasis, rigid_momenta
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .base import ReducedSim, _fitted_cubature, native_inputs, sampling
+from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
 from .error_estimate import ErrorMonitor, warn_estimate
 
 __all__ = ["BodyFrameSim"]
@@ -74,15 +74,7 @@ class BodyFrameSim(ReducedSim):
         strain: str = "mesh",
     ) -> None:
         check_basis(basis)
-        mesh = mesh if mesh is not None else getattr(basis, "mesh", None)
-        if mesh is None:
-            raise ConfigError("BodyFrameSim needs a mesh: pass mesh=... or a basis that stores one")
-        if scene is None:
-            scene = getattr(basis, "default_scene", None) or getattr(getattr(basis, "learned", None), "default_scene", None)
-            if scene is None:
-                raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
-        if not isinstance(scene, Scene):
-            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        mesh, scene = mesh_and_scene("BodyFrameSim", mesh, scene, basis, "a basis", (basis, getattr(basis, "learned", None)))
         self.basis, self.mesh, self.scene = basis, mesh, scene
         self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
         k = int(basis.n_modes)

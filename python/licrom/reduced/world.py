@@ -25,7 +25,7 @@ from ..stepping import record_run
 from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .base import ReducedSim, _fitted_cubature, native_inputs, sampling
+from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
 from .error_estimate import ErrorMonitor, warn_estimate
 
 __all__ = ["SOLVERS", "WorldFrameSim"]
@@ -75,16 +75,7 @@ class WorldFrameSim(ReducedSim):
         solver: str = "newton",
         strain: str = "mesh",
     ) -> None:
-        if mesh is None:
-            mesh = getattr(basis, "mesh", None)
-            if mesh is None:
-                raise ConfigError("ReducedSim needs a mesh: pass mesh=... or a trained model that stores one")
-        if scene is None:
-            scene = getattr(basis, "default_scene", None)
-            if scene is None:
-                raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
-        if not isinstance(scene, Scene):
-            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        mesh, scene = mesh_and_scene("ReducedSim", mesh, scene, basis, "a trained model", (basis,))
         if solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
         check_basis(basis)
