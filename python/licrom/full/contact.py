@@ -14,9 +14,10 @@ __all__ = ['Contacts', 'contact_kernel', 'lagged_normal_kernel', 'stick_kernel']
 
 @wp.struct
 class Contacts:
-    """The contact points (vertex index and boundary area of each) and the planes (unit normal, offset
-    and friction coefficient of each), with the normal force of each point on each plane lagged from
-    the start of the step (``fn_lag[j, p]``, written by :func:`lagged_normal_kernel`)."""
+    """The contact model of a simulation: the contact points (vertex index and boundary area of each), the
+    planes (unit normal, offset and friction coefficient of each), the normal force of each point on each
+    plane lagged from the start of the step (``fn_lag[j, p]``, written by :func:`lagged_normal_kernel`) and
+    the scene's normal stiffness ``kn``, normal damping ``kd`` and friction stiffness ``kf``."""
 
     points: wp.array(dtype=wp.int32)
     areas: wp.array(dtype=f64)
@@ -24,6 +25,9 @@ class Contacts:
     offsets: wp.array(dtype=f64)
     frictions: wp.array(dtype=f64)
     fn_lag: wp.array2d(dtype=f64)
+    kn: f64
+    kd: f64
+    kf: f64
 
 
 @wp.func
@@ -51,19 +55,7 @@ def slip_terms(cap: f64, tdir: vec3d, slip: f64, T: mat33d):
 
 
 @wp.kernel
-def contact_kernel(
-    x: wp.array(dtype=vec3d),
-    x_start: wp.array(dtype=vec3d),
-    c: Contacts,
-    kn: f64,
-    kd: f64,
-    kf: f64,
-    h: f64,
-    terms: int,
-    mode: int,
-    out: Assembly,
-    forces: wp.array(dtype=vec3d),
-):
+def contact_kernel(x: wp.array(dtype=vec3d), x_start: wp.array(dtype=vec3d), c: Contacts, h: f64, terms: int, mode: int, out: Assembly, forces: wp.array(dtype=vec3d)):
     # mode 0 energy, 1 +gradient, 2/3 +Hessian, 4 force only (written to forces[j]).
     j = wp.tid()
     a = c.areas[j]
@@ -78,23 +70,23 @@ def contact_kernel(
         n = c.normals[p]
         g = gap(c, p, xj)
         if (terms & 1) != 0 and g < zero:
-            e += f64(0.5) * a * kn * g * g
-            gj += (a * kn * g) * n
-            hj += (a * kn) * wp.outer(n, n)
+            e += f64(0.5) * a * c.kn * g * g
+            gj += (a * c.kn * g) * n
+            hj += (a * c.kn) * wp.outer(n, n)
         fn = c.fn_lag[j, p]
         if fn > zero:
             dn = wp.dot(n, dx)
-            if (terms & 2) != 0 and dn < zero and kd > zero:
+            if (terms & 2) != 0 and dn < zero and c.kd > zero:
                 # a k_d h / 2 min(v_n, 0)^2 with v_n = dn / h
-                e += f64(0.5) * a * kd * dn * dn / h
-                gj += (a * kd * dn / h) * n
-                hj += (a * kd / h) * wp.outer(n, n)
+                e += f64(0.5) * a * c.kd * dn * dn / h
+                gj += (a * c.kd * dn / h) * n
+                hj += (a * c.kd / h) * wp.outer(n, n)
             cap = c.frictions[p] * fn
             if (terms & 4) != 0 and cap > zero:
                 T = wp.identity(n=3, dtype=f64) - wp.outer(n, n)
                 delta = tangential(n, dx)
                 slip = wp.length(delta)
-                stick = a * kf / h
+                stick = a * c.kf / h
                 if stick * slip <= cap:
                     e += f64(0.5) * stick * slip * slip
                     gf, hf = stick_terms(stick, delta, T)
@@ -117,17 +109,8 @@ def contact_kernel(
 
 
 @wp.kernel
-def stick_kernel(
-    x: wp.array(dtype=vec3d),
-    x_start: wp.array(dtype=vec3d),
-    y: wp.array(dtype=vec3d),
-    c: Contacts,
-    kf: f64,
-    h: f64,
-    out: Assembly,
-    rhs: wp.array(dtype=vec3d),
-    count: wp.array(dtype=wp.int32),
-):
+def stick_kernel(x: wp.array(dtype=vec3d), x_start: wp.array(dtype=vec3d), y: wp.array(dtype=vec3d), c: Contacts, h: f64, out: Assembly,
+                 rhs: wp.array(dtype=vec3d), count: wp.array(dtype=wp.int32)):
     # A slipping contact point whose Newton step (-y) would carry its slip through the
     # stick region is modelled as sticking for a second solve: its slip Hessian and
     # friction gradient are replaced by the stick ones, so the step brings its slip to ~0.
@@ -143,7 +126,7 @@ def stick_kernel(
         if cap > zero and a > zero:
             delta = tangential(n, dx)
             slip = wp.length(delta)
-            stick = a * kf / h
+            stick = a * c.kf / h
             if stick * slip > cap:
                 tdir = delta / slip
                 moved = delta - tangential(n, yj)
@@ -157,6 +140,6 @@ def stick_kernel(
 
 
 @wp.kernel
-def lagged_normal_kernel(x: wp.array(dtype=vec3d), c: Contacts, kn: f64):
+def lagged_normal_kernel(x: wp.array(dtype=vec3d), c: Contacts):
     j, p = wp.tid()
-    c.fn_lag[j, p] = c.areas[j] * kn * wp.max(-gap(c, p, x[c.points[j]]), f64(0.0))
+    c.fn_lag[j, p] = c.areas[j] * c.kn * wp.max(-gap(c, p, x[c.points[j]]), f64(0.0))

@@ -146,6 +146,8 @@ class FullSim:
         self._contacts.offsets = wp.array(planes[:, 3].copy(), dtype=f64, device=dev)
         self._contacts.frictions = wp.array(planes[:, 4].copy(), dtype=f64, device=dev)
         self._contacts.fn_lag = wp.zeros((max(len(idx), 1), max(self._n_planes, 1)), dtype=f64, device=dev)
+        c = scene.contact
+        self._contacts.kn, self._contacts.kd, self._contacts.kf = c.normal_stiffness, c.normal_damping, c.friction_stiffness
         self._forces = wp.zeros(max(len(idx), 1), dtype=wp.vec3d, device=dev)
 
         # State and work arrays.
@@ -313,7 +315,7 @@ class FullSim:
         if len(self._contact_idx) and self._n_planes:
             wp.launch(
                 contact.lagged_normal_kernel, dim=(len(self._contact_idx), self._n_planes), device=dev,
-                inputs=[self._x_now, self._contacts, wp.float64(self.scene.contact.normal_stiffness)],
+                inputs=[self._x_now, self._contacts],
             )
 
     def _evaluate(self, x: Any, mode: int, terms: int = 0b11111) -> None:
@@ -361,11 +363,9 @@ class FullSim:
 
     def _launch_contact(self, x: Any, mode: int, contact_terms: int = 0b111) -> None:
         wp = warp_ready()
-        c = self.scene.contact
         wp.launch(
             contact.contact_kernel, dim=len(self._contact_idx), device=self.device,
-            inputs=[x, self._x_start, self._contacts, wp.float64(c.normal_stiffness), wp.float64(c.normal_damping),
-                    wp.float64(c.friction_stiffness), wp.float64(self._h_step), contact_terms, mode, self._out, self._forces],
+            inputs=[x, self._x_start, self._contacts, wp.float64(self._h_step), contact_terms, mode, self._out, self._forces],
         )
 
     def _energy_value(self) -> float:
@@ -490,13 +490,11 @@ class FullSim:
         """
         dev = self.device
         n = self._n
-        c = self.scene.contact
         wp.copy(self._rhs, self._grad)
         self._count.zero_()
         wp.launch(
             contact.stick_kernel, dim=len(self._contact_idx), device=dev,
-            inputs=[self._x, self._x_start, self._y, self._contacts, wp.float64(c.friction_stiffness), wp.float64(self._h_step), self._out,
-                    self._rhs, self._count],
+            inputs=[self._x, self._x_start, self._y, self._contacts, wp.float64(self._h_step), self._out, self._rhs, self._count],
         )
         switched = int(self._count.numpy()[0])
         if switched == 0:
