@@ -16,6 +16,14 @@ def unit_tet():
 
 
 @pytest.fixture(scope="session")
+def coarse_box():
+    """The coarse box (0.2 x 0.1 x 0.1 m, resolution 3) that the training and rank tests make synthetic runs on."""
+    from licrom import meshes
+
+    return meshes.box((0.2, 0.1, 0.1), resolution=3)
+
+
+@pytest.fixture(scope="session")
 def tiny_demo(tmp_path_factory):
     """The README's main job on an 84-tet cheese: ``(output folder, summary)``.
 

@@ -2,20 +2,7 @@
 
 import numpy as np
 import pytest
-from licrom import (
-    ConfigError,
-    ContactParams,
-    FullSim,
-    InitialState,
-    Material,
-    MeshBasis,
-    Plane,
-    Scene,
-    ShapeError,
-    SolverParams,
-    _core,
-    meshes,
-)
+from licrom import ConfigError, ContactParams, FullSim, InitialState, Material, MeshBasis, Plane, Scene, ShapeError, SolverParams, _core, meshes
 from licrom.errors import PhysicsWarning
 from licrom.reduced.body import BodyFrameSim
 from licrom.rigid import center_of_mass

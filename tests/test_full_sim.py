@@ -9,11 +9,13 @@ from licrom import (
     ContactParams,
     InitialState,
     Material,
+    Mesh,
     Plane,
     Scene,
     ShapeError,
     SolverError,
     SolverParams,
+    _core,
     meshes,
 )
 from licrom.full import FullSim
@@ -165,6 +167,122 @@ def test_friction_matches_finite_differences_in_stick_and_slip(rng):
     np.testing.assert_allclose(force[sticking], area[sticking] * kf * slip[sticking] / h, rtol=1e-10)
     np.testing.assert_allclose(force[slipping], mu * fn[slipping], rtol=1e-10)
     assert np.linalg.eigvalsh(sim.hessian(x, "friction").toarray()).min() > -1e-9 * np.abs(H).max()
+
+
+# --- against the native core ---------------------------------------------------------------
+
+
+def test_elastic_energy_stress_and_hessian_match_the_native_material_point_for_point(rng):
+    """Per tet: energy V Psi(F), gradient V P(F) n_a and Hessian V B^T d2Psi B (exact and PSD-projected) of a one-tet mesh
+    at given deformation gradients, against licrom._core's snh_energy, snh_pk1 and snh_hessian (the reduced model's material)."""
+    rest = np.array([[0.0, 0.0, 0.0], [0.12, 0.01, -0.02], [0.03, 0.09, 0.01], [0.02, -0.01, 0.11]])
+    mesh = Mesh(rest, np.array([[0, 1, 2, 3]]))
+    scene = Scene(material=Material(1e5, 0.3), planes=())
+    sim = FullSim(mesh, scene, device="cpu")
+    mu, lam = scene.material.snh_parameters
+    volume, dm_inv = mesh.rest_volumes[0], mesh.shape_matrix_inverses[0]
+    shape_gradients = np.vstack([-dm_inv.sum(axis=0), dm_inv])  # n_a, a = 0..3
+    dvecf = np.einsum("ik,aj->ijak", np.eye(3), shape_gradients).reshape(9, 12)  # d vec(F) / dx, row-major vec(F)
+    stretched = [np.eye(3) + 0.4 * rng.standard_normal((3, 3)) for _ in range(40)]
+    reflect = np.diag([1.0, 1.0, -1.0])
+    stretched = [f @ reflect if k % 2 and np.linalg.det(f) > 0 else f for k, f in enumerate(stretched)]  # half of them inverted
+    extreme = [np.diag([2.5, 0.6, 0.3]), -np.eye(3), np.diag([1.0, 1.0, -0.5]), np.diag([1.0, 1.0, 1e-4]), np.array([[1.2, 0.36, 0.0], [0.0, 1.2, 0.0], [0.0, 0.0, -1.2]])]
+    Fs = np.array(stretched + extreme)
+    assert (np.linalg.det(Fs) < 0).sum() >= 20
+    psi, pk1 = _core.snh_energy(Fs, mu, lam), _core.snh_pk1(Fs, mu, lam)
+    exact, projected = _core.snh_hessian(Fs, mu, lam, project=False), _core.snh_hessian(Fs, mu, lam, project=True)
+    worst = np.zeros(4)
+    for F, e_ref, p_ref, h_ref, hp_ref in zip(Fs, psi, pk1, exact, projected):
+        x = rest @ F.T + np.array([0.3, -0.2, 0.1])
+        np.testing.assert_allclose(mesh.deformation_gradients(x)[0], F, rtol=0, atol=1e-13)
+        g_ref = volume * shape_gradients @ p_ref.T  # row a: V P n_a
+        H_ref, Hp_ref = (volume * dvecf.T @ h @ dvecf for h in (h_ref, hp_ref))
+        errors = (abs(sim.energy(x, "elastic") - volume * e_ref) / abs(volume * e_ref),
+                  np.abs(sim.gradient(x, "elastic") - g_ref).max() / np.abs(g_ref).max(),
+                  np.abs(sim.hessian(x, "elastic", project=False).toarray() - H_ref).max() / np.abs(H_ref).max(),
+                  np.abs(sim.hessian(x, "elastic").toarray() - Hp_ref).max() / np.abs(Hp_ref).max())
+        worst = np.maximum(worst, errors)
+    print(f"warp against licrom._core over {len(Fs)} F ({(np.linalg.det(Fs) < 0).sum()} inverted): largest relative differences "
+          f"energy {worst[0]:.1e}, stress {worst[1]:.1e}, Hessian {worst[2]:.1e}, projected Hessian {worst[3]:.1e}")
+    assert (worst < 1e-12).all()
+
+
+def _identity_core(sim, scene, mass, **changes):
+    """licrom._core.ReducedCore of the same scene with q the displacement of every vertex (an identity basis), FullSim's contact
+    points, no elastic term (no cubature) and the mass matrix ``mass * I``: its energy is the same incremental potential."""
+    n = 3 * sim.n_vertices
+    idx = sim.contact_indices
+    basis = np.zeros((len(idx), 3, n))
+    for j, v in enumerate(idx):
+        basis[j, :, 3 * v : 3 * v + 3] = np.eye(3)
+    c = scene.contact
+    mu, lam = scene.material.snh_parameters
+    kwargs = dict(mass=mass * np.eye(n), gravity_force=np.zeros(n), cubature_jacobians=np.zeros((0, 9, n)), cubature_weights=np.zeros(0),
+                  mu=mu, lam=lam, contact_basis=basis, contact_rest=sim.mesh.vertices[idx], contact_areas=sim.contact_areas,
+                  planes=scene.plane_array(), normal_stiffness=c.normal_stiffness, normal_damping=c.normal_damping,
+                  friction_stiffness=c.friction_stiffness, dt=scene.dt, total_mass=1.0, tolerance=1e-6, max_iterations=50,
+                  integrator=scene.integrator)
+    return _core.ReducedCore(**{**kwargs, **changes})
+
+
+@pytest.mark.parametrize("integrator", ["backward_euler", "bdf2"])
+def test_contact_and_friction_match_the_native_core_point_for_point(rng, integrator):
+    """Penalty, damping and friction of every contact point against the Rust contact model (``rust/core/src/contact.rs``): a
+    ReducedCore whose coordinates are the vertex displacements gives the same incremental potential, its gradient (the force at
+    each point) and Hessian, from the same start state and lagged normal forces, in and out of contact, approaching and receding,
+    sticking and slipping, on two planes."""
+    mesh = meshes.box(L, resolution=1)
+    contact = ContactParams(normal_stiffness=1e7, normal_damping=3e4, friction_stiffness=1e7)
+    planes = (Plane((0, 0, 1), L / 2 - 2e-3, 0.5), Plane((-1, 0, 0.2), L / 2 - 1e-3, 0.3))  # the floor 2 mm and a wall ~1 mm deep
+    scene = Scene(material=Material(1e5, 0.3), planes=planes, contact=contact, gravity=(0.0, 0.0, 0.0), integrator=integrator)
+    sim = FullSim(mesh, scene, device="cpu")
+    # Without gravity both start BDF2 from x_prev = x - h v, v_prev = v: anchor x_a = x + h v / 3, effective step h' = 2h/3,
+    # and x~ = x_a + h' v = x + h v either way. The core's inertia, of a negligible mass, is taken off exactly.
+    mass, h = 1e-12, scene.dt
+    h_eff = h if integrator == "backward_euler" else 2 * h / 3
+    terms_and_cores = {
+        ("penalty",): _identity_core(sim, scene, mass, normal_damping=0.0, planes=scene.plane_array() * [1, 1, 1, 1, 0]),
+        ("penalty", "damping"): _identity_core(sim, scene, mass, planes=scene.plane_array() * [1, 1, 1, 1, 0]),
+        ("penalty", "damping", "friction"): _identity_core(sim, scene, mass),
+    }
+    x0 = mesh.vertices + 1e-4 * rng.standard_normal(mesh.vertices.shape)
+    v0 = 0.05 * rng.standard_normal(mesh.vertices.shape)
+    sim.set_state(x0, v0)
+    for core in terms_and_cores.values():
+        core.set_state((x0 - mesh.vertices).ravel(), v0.ravel())
+    x_a = x0 if integrator == "backward_euler" else x0 + h * v0 / 3
+    x_tilde = x0 + h * v0
+    plane_rows = scene.plane_array()
+    areas = sim.contact_areas
+    fn = areas[:, None] * contact.normal_stiffness * np.maximum(-(x0[sim.contact_indices] @ plane_rows[:, :3].T + plane_rows[:, 3]), 0.0)
+    threshold = 0.5 * contact.normal_stiffness * 2e-3 * h_eff / contact.friction_stiffness  # the floor's slip where stick turns into slip
+    regimes = set()
+    worst = 0.0
+    for _ in range(6):
+        # Along the floor 0.3 to 3 times its stick threshold from the anchor; pushed in (approaching) or lifted out, up to 2.5 mm.
+        direction = rng.standard_normal((mesh.n_vertices, 2))
+        x = x_a.copy()
+        x[:, :2] += threshold * rng.uniform(0.3, 3.0, (mesh.n_vertices, 1)) * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+        x[:, 2] += rng.uniform(-1.5e-3, 2.5e-3, mesh.n_vertices)
+        for j, v in enumerate(sim.contact_indices):
+            for p, (normal, offset) in enumerate(zip(plane_rows[:, :3], plane_rows[:, 3])):
+                regimes.add("in" if normal @ x[v] + offset < 0 else "out")
+                if fn[j, p] > 0:
+                    dx = x[v] - x_a[v]
+                    regimes.add("approaching" if normal @ dx < 0 else "receding")
+                    slip = np.linalg.norm(dx - (normal @ dx) * normal)
+                    regimes.add("sticking" if areas[j] * contact.friction_stiffness / h_eff * slip <= plane_rows[p, 4] * fn[j, p] else "slipping")
+        q = (x - mesh.vertices).ravel()
+        d = (x - x_tilde).ravel()
+        inertia = (0.5 * mass / h_eff**2 * d @ d, mass / h_eff**2 * d, mass / h_eff**2 * np.eye(q.size))
+        for terms, core in terms_and_cores.items():
+            e, g, H = sim.energy(x, terms), sim.gradient(x, terms).ravel(), sim.hessian(x, terms).toarray()
+            e_ref, g_ref, H_ref = core.energy(q) - inertia[0], core.gradient(q) - inertia[1], core.hessian(q) - inertia[2]
+            errors = abs(e - e_ref) / abs(e_ref), np.abs(g - g_ref).max() / np.abs(g_ref).max(), np.abs(H - H_ref).max() / np.abs(H_ref).max()
+            assert max(errors) < 1e-12, f"{terms}: relative differences (energy, gradient, Hessian) {errors}"
+            worst = max(worst, *errors)
+    print(f"{integrator}: warp against the Rust contact model, largest relative difference {worst:.1e}; regimes {sorted(regimes)}")
+    assert regimes == {"in", "out", "approaching", "receding", "sticking", "slipping"}
 
 
 # --- motion -------------------------------------------------------------------------------

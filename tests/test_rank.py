@@ -1,7 +1,7 @@
 """r chosen from the data (licrom.learn.training.rank) and its use by train and the CLI."""
 
 import pytest
-from licrom import ConfigError, meshes
+from licrom import ConfigError
 from licrom.learn.model import ModelConfig
 from licrom.learn.training import RankChoice, TrainConfig, choose_rank, output_paths, train
 from licrom.learn.training_data import TrainingData, make_synthetic_trajectories
@@ -11,14 +11,9 @@ SMALL_NET = dict(field_width=32, encoder_point_widths=(16, 32), encoder_fc_width
 
 
 @pytest.fixture(scope="module")
-def mesh():
-    return meshes.box((0.2, 0.1, 0.1), resolution=3)
-
-
-@pytest.fixture(scope="module")
-def rank4(mesh):
+def rank4(coarse_box):
     """World-frame residuals that lie exactly in a 4-dimensional space (4 fields, no rotation)."""
-    return make_synthetic_trajectories(mesh, count=6, frames=24, seed=5, modes=4, rotation=False)
+    return make_synthetic_trajectories(coarse_box, count=6, frames=24, seed=5, modes=4, rotation=False)
 
 
 def test_curve_drops_to_zero_at_the_known_rank(rank4):
@@ -32,20 +27,20 @@ def test_curve_drops_to_zero_at_the_known_rank(rank4):
     assert "r =    4" in choice.describe() and "<- chosen" in choice.describe()
 
 
-def test_tolerance_and_cap(mesh, rank4):
-    rotating = TrainingData(make_synthetic_trajectories(mesh, count=3, frames=20, seed=1, modes=8), val_fraction=0.0)
+def test_tolerance_and_cap(coarse_box, rank4):
+    rotating = TrainingData(make_synthetic_trajectories(coarse_box, count=3, frames=20, seed=1, modes=8), val_fraction=0.0)
     capped = choose_rank(rotating, tolerance=1e-9, max_rank=6, candidates=(2, 4, 8))
     assert capped.capped and capped.rank == 6 and capped.candidates == (2, 4, 6) and capped.max_rank == 6
     assert capped.method == "leave one run out"
     assert choose_rank(rotating, tolerance=0.99, candidates=(2, 4)).rank == 2
     # the cap also follows the frames: 3 runs of 2 frames
-    few = TrainingData(make_synthetic_trajectories(mesh, count=3, frames=2, seed=1), val_fraction=0.0)
+    few = TrainingData(make_synthetic_trajectories(coarse_box, count=3, frames=2, seed=1), val_fraction=0.0)
     assert choose_rank(few, tolerance=1e-9).max_rank == 6
 
 
-def test_where_no_r_meets_the_tolerance_r_stops_where_the_held_out_error_stops_falling(mesh):
+def test_where_no_r_meets_the_tolerance_r_stops_where_the_held_out_error_stops_falling(coarse_box):
     # a run of 2 fields and one of 6: held out, the second is never spanned by the first's 2 dimensions
-    runs = [make_synthetic_trajectories(mesh, count=1, frames=24, seed=s, modes=m, rotation=False)[0] for s, m in ((11, 2), (12, 6))]
+    runs = [make_synthetic_trajectories(coarse_box, count=1, frames=24, seed=s, modes=m, rotation=False)[0] for s, m in ((11, 2), (12, 6))]
     choice = choose_rank(TrainingData(runs, val_fraction=0.0, frame="world"), tolerance=1e-6, candidates=range(1, 11))
     assert choice.capped and choice.max_rank == 48 and choice.rank <= 6  # not the cap: beyond 6 fields nothing is left to span
     errors = dict(zip(choice.candidates, choice.errors))
@@ -53,10 +48,10 @@ def test_where_no_r_meets_the_tolerance_r_stops_where_the_held_out_error_stops_f
     assert "stops falling" in choice.describe()
 
 
-def test_single_run_and_no_deformation(mesh, rank4):
+def test_single_run_and_no_deformation(coarse_box, rank4):
     single = choose_rank(TrainingData(rank4[:1], val_fraction=0.0, frame="world"), tolerance=1e-6, candidates=range(1, 7))
     assert single.method == "the single run's own frames (nothing to hold out)" and single.rank == 4
-    rigid = TrainingData(make_synthetic_trajectories(mesh, count=2, frames=5, amplitude=0.0), val_fraction=0.0)
+    rigid = TrainingData(make_synthetic_trajectories(coarse_box, count=2, frames=5, amplitude=0.0), val_fraction=0.0)
     still = choose_rank(rigid, candidates=(3, 5))
     assert still.method == "no deformation" and still.rank == 3 and still.errors == (0.0, 0.0, 0.0)  # the cap, 10 frames, is tried too
 

@@ -131,14 +131,19 @@ def test_affine_box_slides_to_rest_at_analytic_distance():
     assert distance == pytest.approx(expected, rel=0.03)
 
 
-def test_pod_error_falls_as_modes_are_added():
-    mesh = meshes.cheese(resolution=5)
+def _tumble_onto_incline(resolution, steps):
+    """A soft cheese dropped, tilted, onto a 20 deg incline (mu 0.3): ``(mesh, scene, full run)``, a deforming run to take POD modes from."""
+    mesh = meshes.cheese(resolution=resolution)
     scene = Scene(
         material=Material(youngs_modulus=5e4),
         planes=(Plane.incline(20.0, 0.3),),
         initial=InitialState(translation=(0, 0, 0.07), rotation=(0.3, 0.2, 0.0)),
     )
-    full = FullSim(mesh, scene).run(60)
+    return mesh, scene, FullSim(mesh, scene).run(steps)
+
+
+def test_pod_error_falls_as_modes_are_added():
+    mesh, scene, full = _tumble_onto_incline(resolution=5, steps=60)
     errors = []
     for k in (2, 4, 8, 16):
         pod, _ = MeshBasis.pod(mesh, full.displacements, k)
@@ -222,13 +227,7 @@ def test_prefactored_converges_through_a_landing():
 
 
 def test_prefactored_follows_newton_with_pod_modes_on_an_incline():
-    mesh = meshes.cheese(resolution=4)
-    scene = Scene(
-        material=Material(youngs_modulus=5e4),
-        planes=(Plane.incline(20.0, 0.3),),
-        initial=InitialState(translation=(0, 0, 0.07), rotation=(0.3, 0.2, 0.0)),
-    )
-    full = FullSim(mesh, scene).run(30)
+    mesh, scene, full = _tumble_onto_incline(resolution=4, steps=30)
     pod, _ = MeshBasis.pod(mesh, full.displacements, 4)
     basis = StackedBasis(AffineBasis(), pod)
     runs = {s: ReducedSim(basis, mesh, scene, cubature=Cubature.full(mesh), solver=s).run(30) for s in ("newton", "prefactored")}

@@ -22,13 +22,8 @@ TINY = dict(epochs=2, batch_frames=4, points_per_frame=128, encoder_points=64, v
 
 
 @pytest.fixture(scope="module")
-def mesh():
-    return meshes.box((0.2, 0.1, 0.1), resolution=3)
-
-
-@pytest.fixture(scope="module")
-def trajs(mesh):
-    return make_synthetic_trajectories(mesh, count=4, frames=10, seed=3, modes=3, rotation=True)
+def trajs(coarse_box):
+    return make_synthetic_trajectories(coarse_box, count=4, frames=10, seed=3, modes=3, rotation=True)
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +48,7 @@ def test_split_is_by_whole_trajectory():
         split_by_trajectory(3, val_indices=[7])
 
 
-def test_training_data_removes_affine_part(data_dir, trajs, mesh):
+def test_training_data_removes_affine_part(data_dir, trajs, coarse_box):
     d = TrainingData(data_dir, val_indices=[1], frame="world")
     assert d.names == [f"traj_{k:03d}" for k in range(4)]
     assert d.train_indices == [0, 2, 3] and d.val_indices == [1]
@@ -86,8 +81,8 @@ def _rigid_run(mesh, frames=8, dt=0.01):
     return Trajectory(x, mesh.tets, disp, np.gradient(disp, dt, axis=0), t, make_synthetic_trajectories(mesh, 1, 2)[0].scene)
 
 
-def test_body_frame_data_of_a_rigid_run_is_zero(mesh):
-    run = _rigid_run(mesh)
+def test_body_frame_data_of_a_rigid_run_is_zero(coarse_box):
+    run = _rigid_run(coarse_box)
     body = TrainingData([run, run], val_indices=[1], frame="body")
     scale = np.abs(run.displacements).max()
     assert scale > 0.05  # it moved and turned a lot
@@ -99,7 +94,7 @@ def test_body_frame_data_of_a_rigid_run_is_zero(mesh):
     np.testing.assert_allclose(world.train.full_displacements(world.rest, slice(None)), run.displacements, atol=1e-9 * scale)
 
 
-def test_body_frame_data_is_the_deformation_without_rigid_motion(mesh, trajs):
+def test_body_frame_data_is_the_deformation_without_rigid_motion(coarse_box, trajs):
     from licrom.rigid import body_frame_displacements
 
     d = TrainingData(trajs, val_indices=[1], frame="body")
@@ -167,20 +162,20 @@ def test_train_config_rejects_bad_values(kwargs):
         TrainConfig(**kwargs)
 
 
-def test_train_config_names_the_accepted_pod_weightings(mesh):
+def test_train_config_names_the_accepted_pod_weightings(coarse_box):
     from licrom.learn.training.objectives import pod_targets
 
     with pytest.raises(ConfigError, match="'run', 'frame'"):
         TrainConfig(pod_weighting="energy")
-    data = TrainingData(make_synthetic_trajectories(mesh, count=2, frames=5, seed=1), val_fraction=0.0)
+    data = TrainingData(make_synthetic_trajectories(coarse_box, count=2, frames=5, seed=1), val_fraction=0.0)
     with pytest.raises(ConfigError, match="'run', 'frame'"):
         pod_targets(data, 2, "energy")
     # The two weightings give two sets of modes of the same shape.
-    assert pod_targets(data, 2, "run")[0].shape == pod_targets(data, 2, "frame")[0].shape == (2, mesh.n_vertices, 3)
+    assert pod_targets(data, 2, "run")[0].shape == pod_targets(data, 2, "frame")[0].shape == (2, coarse_box.n_vertices, 3)
 
 
 # --- training ----------------------------------------------------------------------------
-def test_train_writes_model_curves_plot_and_checkpoints(data_dir, tmp_path, mesh):
+def test_train_writes_model_curves_plot_and_checkpoints(data_dir, tmp_path, coarse_box):
     out = tmp_path / "m.lcm"
     cfg = TrainConfig(**TINY, val_indices=(3,), seed=5)
     model = train(data_dir, out, cfg, ModelConfig(latent_dim=3), frame="world")
@@ -198,19 +193,19 @@ def test_train_writes_model_curves_plot_and_checkpoints(data_dir, tmp_path, mesh
         assert float(r["val_proj_full"]) <= float(r["val_proj_residual"])
     # learning rate decays
     assert float(rows[1]["lr"]) < float(rows[0]["lr"])
-    assert model.n_modes == 15 and model.mesh.same_as(mesh) and model.frame == "world"
+    assert model.n_modes == 15 and model.mesh.same_as(coarse_box) and model.frame == "world"
     meta = model.metadata
     assert meta["data"]["validation"] == ["traj_003"] and meta["epochs_trained"] == 2
     assert meta["train_config"]["seed"] == 5 and len(meta["history"]) == 2
     assert model.default_scene == model.scenes[0]
     back = Model.load(out)
-    x = mesh.vertices[:9]
+    x = coarse_box.vertices[:9]
     np.testing.assert_array_equal(back.values(x), model.values(x))
     np.testing.assert_array_equal(back.jacobians(x), model.jacobians(x))
     assert back.metadata["data"] == meta["data"]
     # the model is mass-orthonormal in its learned block on the rest mesh
-    b = model.values(mesh.vertices).reshape(-1, model.n_modes)
-    mw = np.repeat(mesh.vertex_masses(1.0), 3)
+    b = model.values(coarse_box.vertices).reshape(-1, model.n_modes)
+    mw = np.repeat(coarse_box.vertex_masses(1.0), 3)
     g = b.T @ (mw[:, None] * b)
     np.testing.assert_allclose(g[12:, 12:], mw.sum() / 3 * np.eye(3), rtol=1e-6, atol=1e-9)
 
@@ -366,13 +361,13 @@ def test_nodes_whose_peers_never_join_time_out_naming_what_they_wait_for(trajs, 
 
 
 # --- the POD bound -------------------------------------------------------------------------
-def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
+def test_subspace_report_meets_the_pod_bound_on_synthetic_data(coarse_box):
     from licrom.learn.training import subspace_report
     from licrom.rigid import body_frame_displacements
     from licrom.subspace.basis import AffineBasis, MeshBasis, StackedBasis, SubspaceProjector
 
     # six deformation fields, three learned modes: POD(3) leaves a real error to compare against
-    trajs = make_synthetic_trajectories(mesh, count=5, frames=20, seed=3, modes=6, rotation=True)
+    trajs = make_synthetic_trajectories(coarse_box, count=5, frames=20, seed=3, modes=6, rotation=True)
     data = TrainingData(trajs, val_indices=[4])
     cfg = TrainConfig(epochs=10, batch_frames=8, points_per_frame=256, encoder_points=64, val_points=64, progress=False, device="cpu")
     model = train(data, None, cfg, ModelConfig(latent_dim=3, field_width=32, encoder_point_widths=(16, 32), encoder_fc_widths=(16,)))
@@ -387,8 +382,8 @@ def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
     assert rep["val"]["model"] <= 1.2 * rep["val"]["pod"] and rep["ratio"] == rep["val"]["model"] / rep["val"]["pod"]
 
     # the POD number, computed independently: affine + POD(3) of the body-frame residuals, held-out run projected
-    pod, _ = MeshBasis.pod(mesh, data.train.residuals, 3)
-    values = StackedBasis(AffineBasis(), pod).values(mesh.vertices)
+    pod, _ = MeshBasis.pod(coarse_box, data.train.residuals, 3)
+    values = StackedBasis(AffineBasis(), pod).values(coarse_box.vertices)
     held_out = body_frame_displacements(data.rest + trajs[4].displacements, data.rest, data.masses)
     q = SubspaceProjector(values, data.masses).project(held_out)
     approx = np.einsum("nic,fc->fni", values, q)
@@ -399,7 +394,7 @@ def test_subspace_report_meets_the_pod_bound_on_synthetic_data(mesh):
 
 
 # --- a body-frame model end to end -------------------------------------------------------
-def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_path, mesh):
+def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_path, coarse_box):
     from licrom import BodyFrameSim, ReducedSim
     from licrom.reduced.world import WorldFrameSim
 
@@ -413,7 +408,7 @@ def test_body_frame_model_trains_saves_loads_runs_and_transfers(data_dir, tmp_pa
     assert model.metadata["final"]["val_proj_full"] == pytest.approx(rep["val"]["model"], rel=1e-4)
     back = Model.load(out)
     assert back.frame == "body" and back.n_modes == 3
-    np.testing.assert_array_equal(back.values(mesh.vertices), model.values(mesh.vertices))
+    np.testing.assert_array_equal(back.values(coarse_box.vertices), model.values(coarse_box.vertices))
     sim = ReducedSim(back)
     assert isinstance(sim, BodyFrameSim) and isinstance(sim, ReducedSim) and sim.n_modes == 6 + 3
     traj = sim.run(5)
@@ -510,9 +505,9 @@ def test_checkpoint_writes_are_atomic_and_a_damaged_one_says_start_afresh(trajs,
         train(trajs, out, TrainConfig(**TINY, seed=4, resume=True), ModelConfig(latent_dim=2))
 
 
-def test_runs_without_deformation_are_refused_naming_the_runs(mesh, tmp_path):
-    rigid = make_synthetic_trajectories(mesh, count=2, frames=4, seed=1, amplitude=0.0)  # rigid motion only
-    still = [Trajectory(mesh.vertices, mesh.tets, np.zeros((3, mesh.n_vertices, 3)), np.zeros((3, mesh.n_vertices, 3)),
+def test_runs_without_deformation_are_refused_naming_the_runs(coarse_box, tmp_path):
+    rigid = make_synthetic_trajectories(coarse_box, count=2, frames=4, seed=1, amplitude=0.0)  # rigid motion only
+    still = [Trajectory(coarse_box.vertices, coarse_box.tets, np.zeros((3, coarse_box.n_vertices, 3)), np.zeros((3, coarse_box.n_vertices, 3)),
                         [0.0, 0.01, 0.02], rigid[0].scene) for _ in range(2)]
     for k, t in enumerate(rigid):
         t.save(tmp_path / f"rigid_{k}.npz", precision="float64")
@@ -521,9 +516,9 @@ def test_runs_without_deformation_are_refused_naming_the_runs(mesh, tmp_path):
                                               r"(rigid_0 .*m\), rigid_1|.*, .*)"):
             train(runs, None, TrainConfig(**TINY, val_fraction=0.0), ModelConfig(latent_dim=2), frame=frame)
     # a run that deforms is enough: the data check passes
-    data = TrainingData([*still, make_synthetic_trajectories(mesh, count=1, frames=4, seed=2)[0]], val_fraction=0.0, frame="world")
+    data = TrainingData([*still, make_synthetic_trajectories(coarse_box, count=1, frames=4, seed=2)[0]], val_fraction=0.0, frame="world")
     data.check_deformation()
-    assert min(data.residual_rms().values()) == 0.0 and max(data.residual_rms().values()) > 1e-6 * mesh.size
+    assert min(data.residual_rms().values()) == 0.0 and max(data.residual_rms().values()) > 1e-6 * coarse_box.size
 
 
 def test_progress_bar_counts_epochs_from_one(trajs, capsys):

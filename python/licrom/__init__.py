@@ -11,22 +11,13 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from . import errors
+
 # ``compare`` (the function of :mod:`licrom.analysis.compare`) is numpy-only, so it loads at once.
 from .analysis.compare import compare
-from .errors import (
-    AccuracyWarning,
-    ConcurrencyError,
-    ConfigError,
-    FileFormatError,
-    LicromError,
-    LicromWarning,
-    MeshError,
-    MissingDependencyError,
-    OutputError,
-    PhysicsWarning,
-    ShapeError,
-    SolverError,
-)
+
+# The exception family, named here for type checkers; ``__all__`` takes it from ``errors.__all__``.
+from .errors import AccuracyWarning, ConcurrencyError, ConfigError, FileFormatError, LicromError, LicromWarning, MeshError, MissingDependencyError, OutputError, PhysicsWarning, ShapeError, SolverError
 from .geometry.mesh import Mesh, MeshQuality
 from .records.trajectory import Trajectory
 from .scene.scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams
@@ -61,18 +52,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
 }
 
 __all__ = [
-    "LicromError",
-    "MeshError",
-    "ShapeError",
-    "ConfigError",
-    "SolverError",
-    "FileFormatError",
-    "OutputError",
-    "ConcurrencyError",
-    "MissingDependencyError",
-    "LicromWarning",
-    "PhysicsWarning",
-    "AccuracyWarning",
+    *(name for name in errors.__all__ if name != "require_optional"),
     "Mesh",
     "MeshQuality",
     "Material",

@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import FileFormatError, LicromError, OutputError
 
-__all__ = ["atomic_path", "check_version", "load_npz", "make_dir", "name_too_long", "output_error", "remove_stale_temporaries", "save_npz"]
+__all__ = ["atomic_path", "check_version", "existing_file", "load_npz", "make_dir", "name_too_long", "output_error", "remove_stale_temporaries", "save_npz"]
 
 _TMP_TAG = ".licrom-tmp-"
 _TMP_NAME = re.compile(r"^\.(?:.*\.)?" + re.escape(_TMP_TAG[1:]) + r"(\d+)-")
@@ -134,6 +134,21 @@ def name_too_long(p: Path) -> str | None:
     if n >= _PATH_MAX:
         return f"the path is {n} bytes long, over the file system's limit of {_PATH_MAX} bytes per path (choose a shorter path)"
     return None
+
+
+def existing_file(path: str | os.PathLike, kind: str) -> Path:
+    """``path`` as a :class:`Path` to read a ``kind`` file from: a path the file system can hold, of a file that is there.
+
+    Raises:
+        FileFormatError: the path is too long (:func:`name_too_long`), or there is no file at it.
+    """
+    p = Path(path)
+    too_long = name_too_long(p)
+    if too_long:
+        raise FileFormatError(f"cannot read {kind} file '{p}': {too_long}")
+    if not p.is_file():
+        raise FileFormatError(f"{kind} file not found: '{p}'")
+    return p
 
 
 _NOT_REGULAR = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
@@ -272,12 +287,7 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
         FileFormatError: the file is missing, truncated, not an ``.npz`` written by
             licrom, or holds a different ``kind`` of data.
     """
-    p = Path(path)
-    too_long = name_too_long(p)
-    if too_long:
-        raise FileFormatError(f"cannot read {kind} file '{p}': {too_long}")
-    if not p.is_file():
-        raise FileFormatError(f"{kind} file not found: '{p}'")
+    p = existing_file(path, kind)
     try:
         with open(p, "rb") as fh:
             if fh.read(4) != b"PK\x03\x04":  # every .npz is a zip archive

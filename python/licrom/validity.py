@@ -130,11 +130,11 @@ def with_steps(min_det_f: np.ndarray, depth: np.ndarray, between: list[tuple[flo
 
 
 def warn_frames(times: np.ndarray, min_det_f: np.ndarray, depth: np.ndarray, size: float, what: str,
-                trailing: tuple[float, float] = (np.inf, 0.0)) -> None:
+                trailing: tuple[float, float] = (np.inf, 0.0), stacklevel: int = 3) -> None:
     """Warn (:class:`PhysicsWarning`) about the frames after the first with inverted
     elements or penetration deeper than ``PENETRATION_LIMIT * size`` (an empty
     ``min_det_f`` is not checked), and about ``trailing`` ``(min det F, depth)``: the
-    steps after the last frame."""
+    steps after the last frame. ``stacklevel`` as in :func:`warnings.warn` (3: the caller's caller)."""
     limit = PENETRATION_LIMIT * size
     for bad, late, message in (
         (min_det_f[1:] <= 0.0, len(min_det_f) > 0 and trailing[0] <= 0.0,
@@ -151,5 +151,5 @@ def warn_frames(times: np.ndarray, min_det_f: np.ndarray, depth: np.ndarray, siz
                 f"{what} left the valid range of its physics: {message} {where}; a smaller dt, a stiffer material or "
                 "stiffer contact keeps it in range (see Trajectory.min_det_f, Trajectory.penetration)",
                 PhysicsWarning,
-                stacklevel=3,
+                stacklevel=stacklevel,
             )

@@ -60,7 +60,7 @@ import sys
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from .._io import name_too_long
 from ..errors import ConfigError, FileFormatError
@@ -87,6 +87,7 @@ __all__ = [
 SCENE_FILE_VERSION = 1
 PROCEDURAL_SHAPES = ("box", "sphere", "cheese")
 _MISSING: Any = object()
+_T = TypeVar("_T")
 
 
 # --- reading checked values -----------------------------------------------------------------
@@ -581,22 +582,11 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
         raise ConfigError(f"object.radius applies to the sphere; a {mesh} takes object.size")
     spec = ObjectSpec(mesh, resolution, size, radius)
 
-    mt = top.table("material")
-    d = Material()
-    material = Material(
-        youngs_modulus=mt.number("youngs_modulus", d.youngs_modulus, 0.0, lo_open=True, unit="Pa"),
-        poisson_ratio=mt.number("poisson_ratio", d.poisson_ratio, -1.0, 0.5, True, True),
-        density=mt.number("density", d.density, 0.0, lo_open=True, unit="kg/m^3"),
-    )
-    mt.done()
-    ct = top.table("contact")
-    c = ContactParams()
-    contact = ContactParams(
-        normal_stiffness=ct.number("normal_stiffness", c.normal_stiffness, 0.0, lo_open=True, unit="N/m^3"),
-        normal_damping=ct.number("normal_damping", c.normal_damping, 0.0, unit="N s/m^3"),
-        friction_stiffness=ct.number("friction_stiffness", c.friction_stiffness, 0.0, lo_open=True, unit="N s/m^3"),
-    )
-    ct.done()
+    positive = {"lo": 0.0, "lo_open": True}
+    material = _number_table(top, "material", Material, youngs_modulus={**positive, "unit": "Pa"},
+                             poisson_ratio={"lo": -1.0, "hi": 0.5, "lo_open": True, "hi_open": True}, density={**positive, "unit": "kg/m^3"})
+    contact = _number_table(top, "contact", ContactParams, normal_stiffness={**positive, "unit": "N/m^3"},
+                            normal_damping={"lo": 0.0, "unit": "N s/m^3"}, friction_stiffness={**positive, "unit": "N s/m^3"})
     st = top.table("solver")
     s = SolverParams()
     solver = SolverParams(
@@ -645,6 +635,16 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
     scene = Scene(material=material, planes=planes, gravity=gravity, dt=dt, integrator=integrator, contact=contact, solver=solver)
     return SceneFile(name=name, description=description, source=where, object=spec, scene=scene, frictions=frictions, slopes=slopes,
                      initial=initial, steps=steps, record_every=record_every, held_out=tuple(held_out))
+
+
+def _number_table(top: _Table, name: str, cls: type[_T], **fields: dict[str, Any]) -> _T:
+    """The table ``name`` of ``top`` as a ``cls`` of numbers: each of ``fields`` read by :meth:`_Table.number`
+    with its keyword arguments (bounds, unit), defaulting to ``cls()``'s value."""
+    table = top.table(name)
+    default = cls()
+    value = cls(**{field: table.number(field, getattr(default, field), **bounds) for field, bounds in fields.items()})
+    table.done()
+    return value
 
 
 def _plane(t: _Table) -> Plane:

@@ -14,7 +14,7 @@ import warp as wp
 
 from ..errors import ConfigError
 
-__all__ = ["ACCEPTED_DEVICES", "KERNEL_MODULES", "check_device_name", "load_kernels", "resolve_device", "warp_ready"]
+__all__ = ["ACCEPTED_DEVICES", "KERNEL_MODULES", "Assembly", "assembly", "check_device_name", "load_kernels", "resolve_device", "warp_ready"]
 
 ACCEPTED_DEVICES = ("auto", "cpu", "cuda", "cuda:N")
 """Device names :class:`~licrom.full.FullSim` accepts (``cuda:N`` is the N-th CUDA device; ``"auto"``,
@@ -35,6 +35,28 @@ MODE_GRADIENT = wp.constant(1)
 MODE_HESSIAN = wp.constant(2)
 MODE_RAW_HESSIAN = wp.constant(3)
 MODE_FORCES = wp.constant(4)
+
+
+@wp.struct
+class Assembly:
+    """Where the evaluation kernels add up what they compute: the energy's partial sums, the gradient and
+    the values of the block-sparse Hessian, with the slot of each vertex's diagonal block and of each
+    tet's 16 blocks in ``values`` (:class:`licrom.full.pcg.BlockHessian`)."""
+
+    energy: wp.array(dtype=f64)
+    grad: wp.array(dtype=vec3d)
+    values: wp.array(dtype=mat33d)
+    diag_slots: wp.array(dtype=wp.int32)
+    slots: wp.array2d(dtype=wp.int32)
+
+
+def assembly(energy: Any, grad: Any, hessian: Any) -> Any:
+    """The :class:`Assembly` of the partial sums ``energy``, the gradient ``grad`` and a ``BlockHessian``'s values and slots."""
+    out = Assembly()
+    out.energy, out.grad = energy, grad
+    out.values, out.diag_slots, out.slots = hessian.values, hessian.diag_slots, hessian.slots
+    return out
+
 
 _initialised = False
 # warp's native library prints this at initialisation on every machine without an NVIDIA driver.

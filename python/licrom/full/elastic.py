@@ -6,16 +6,18 @@ from __future__ import annotations
 
 import warp as wp
 
-from .device import (
-    MODE_ENERGY,
-    MODE_GRADIENT,
-    MODE_HESSIAN,
-    f64,
-    mat33d,
-    vec3d,
-)
+from .device import MODE_ENERGY, MODE_GRADIENT, MODE_HESSIAN, Assembly, f64, mat33d, vec3d
 
-__all__ = ['deformation_gradient', 'tet_kernel']
+__all__ = ['Tets', 'deformation_gradient', 'tet_kernel']
+
+
+@wp.struct
+class Tets:
+    """The mesh's tets: corner indices, inverse rest shape matrices ``Dm^-1`` and rest volumes."""
+
+    ids: wp.array(dtype=wp.vec4i)
+    dminv: wp.array(dtype=mat33d)
+    vol: wp.array(dtype=f64)
 
 
 @wp.func
@@ -56,24 +58,11 @@ def mode_apply(m: int, y: vec3d, qt: mat33d):
 
 
 @wp.kernel
-def tet_kernel(
-    x: wp.array(dtype=vec3d),
-    tets: wp.array(dtype=wp.vec4i),
-    dminv: wp.array(dtype=mat33d),
-    vol: wp.array(dtype=f64),
-    slots: wp.array2d(dtype=wp.int32),
-    mu: f64,
-    lam: f64,
-    alpha: f64,
-    mode: int,
-    energy: wp.array(dtype=f64),
-    grad: wp.array(dtype=vec3d),
-    values: wp.array(dtype=mat33d),
-):
+def tet_kernel(x: wp.array(dtype=vec3d), tets: Tets, mu: f64, lam: f64, alpha: f64, mode: int, out: Assembly):
     t = wp.tid()
-    ids = tets[t]
-    dmi = dminv[t]
-    v = vol[t]
+    ids = tets.ids[t]
+    dmi = tets.dminv[t]
+    v = tets.vol[t]
     F = deformation_gradient(x, ids, dmi)
     one = f64(1.0)
     half = f64(0.5)
@@ -84,7 +73,7 @@ def tet_kernel(
     ic3 = wp.ddot(E, E) + f64(2.0) * tr  # I_C - 3
     jm1 = tr + half * (tr * tr - wp.ddot(E, wp.transpose(E))) + wp.determinant(E)  # J - 1
     psi = half * mu * ic3 + half * lam * jm1 * (jm1 + f64(2.0) * (one - alpha)) - half * mu * log1p_(ic3 * f64(0.25))
-    wp.atomic_add(energy, t % energy.shape[0], v * psi)
+    wp.atomic_add(out.energy, t % out.energy.shape[0], v * psi)
     if mode == MODE_ENERGY:
         return
     ic1 = ic3 + f64(4.0)  # I_C + 1
@@ -96,10 +85,10 @@ def tet_kernel(
     P = psi2 * F + psi3 * cof
     g = v * P * wp.transpose(dmi)  # columns: gradient at vertices 1..3
     gt = wp.transpose(g)
-    wp.atomic_add(grad, ids[0], -(gt[0] + gt[1] + gt[2]))
-    wp.atomic_add(grad, ids[1], gt[0])
-    wp.atomic_add(grad, ids[2], gt[1])
-    wp.atomic_add(grad, ids[3], gt[2])
+    wp.atomic_add(out.grad, ids[0], -(gt[0] + gt[1] + gt[2]))
+    wp.atomic_add(out.grad, ids[1], gt[0])
+    wp.atomic_add(out.grad, ids[2], gt[1])
+    wp.atomic_add(out.grad, ids[3], gt[2])
     if mode == MODE_GRADIENT:
         return
     # Exact Hessian, assembled directly per vertex pair (a, b) with shape gradients n_a:
@@ -192,20 +181,20 @@ def tet_kernel(
                 h22 += wp.outer(e2, w2)
                 h23 += wp.outer(e2, w3)
                 h33 += wp.outer(ev * w3, w3)
-    wp.atomic_add(values, slots[t, 0], h00)
-    wp.atomic_add(values, slots[t, 1], h01)
-    wp.atomic_add(values, slots[t, 2], h02)
-    wp.atomic_add(values, slots[t, 3], h03)
-    wp.atomic_add(values, slots[t, 4], wp.transpose(h01))
-    wp.atomic_add(values, slots[t, 5], h11)
-    wp.atomic_add(values, slots[t, 6], h12)
-    wp.atomic_add(values, slots[t, 7], h13)
-    wp.atomic_add(values, slots[t, 8], wp.transpose(h02))
-    wp.atomic_add(values, slots[t, 9], wp.transpose(h12))
-    wp.atomic_add(values, slots[t, 10], h22)
-    wp.atomic_add(values, slots[t, 11], h23)
-    wp.atomic_add(values, slots[t, 12], wp.transpose(h03))
-    wp.atomic_add(values, slots[t, 13], wp.transpose(h13))
-    wp.atomic_add(values, slots[t, 14], wp.transpose(h23))
-    wp.atomic_add(values, slots[t, 15], h33)
+    wp.atomic_add(out.values, out.slots[t, 0], h00)
+    wp.atomic_add(out.values, out.slots[t, 1], h01)
+    wp.atomic_add(out.values, out.slots[t, 2], h02)
+    wp.atomic_add(out.values, out.slots[t, 3], h03)
+    wp.atomic_add(out.values, out.slots[t, 4], wp.transpose(h01))
+    wp.atomic_add(out.values, out.slots[t, 5], h11)
+    wp.atomic_add(out.values, out.slots[t, 6], h12)
+    wp.atomic_add(out.values, out.slots[t, 7], h13)
+    wp.atomic_add(out.values, out.slots[t, 8], wp.transpose(h02))
+    wp.atomic_add(out.values, out.slots[t, 9], wp.transpose(h12))
+    wp.atomic_add(out.values, out.slots[t, 10], h22)
+    wp.atomic_add(out.values, out.slots[t, 11], h23)
+    wp.atomic_add(out.values, out.slots[t, 12], wp.transpose(h03))
+    wp.atomic_add(out.values, out.slots[t, 13], wp.transpose(h13))
+    wp.atomic_add(out.values, out.slots[t, 14], wp.transpose(h23))
+    wp.atomic_add(out.values, out.slots[t, 15], h33)
 

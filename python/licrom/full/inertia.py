@@ -4,39 +4,22 @@ from __future__ import annotations
 
 import warp as wp
 
-from .device import (
-    MODE_ENERGY,
-    MODE_HESSIAN,
-    f64,
-    mat33d,
-    vec3d,
-)
+from .device import MODE_ENERGY, MODE_HESSIAN, Assembly, f64, vec3d
 
 __all__ = ['axpy_kernel', 'inertia_kernel', 'predict_kernel', 'velocity_kernel']
 
 
 @wp.kernel
-def inertia_kernel(
-    x: wp.array(dtype=vec3d),
-    x_tilde: wp.array(dtype=vec3d),
-    mass: wp.array(dtype=f64),
-    inv_h2: f64,
-    mode: int,
-    diag_slots: wp.array(dtype=wp.int32),
-    energy: wp.array(dtype=f64),
-    grad: wp.array(dtype=vec3d),
-    values: wp.array(dtype=mat33d),
-):
+def inertia_kernel(x: wp.array(dtype=vec3d), x_tilde: wp.array(dtype=vec3d), mass: wp.array(dtype=f64), inv_h2: f64, mode: int, out: Assembly):
     i = wp.tid()
     k = mass[i] * inv_h2
     d = x[i] - x_tilde[i]
-    wp.atomic_add(energy, i % energy.shape[0], f64(0.5) * k * wp.dot(d, d))
+    wp.atomic_add(out.energy, i % out.energy.shape[0], f64(0.5) * k * wp.dot(d, d))
     if mode == MODE_ENERGY:
         return
-    wp.atomic_add(grad, i, k * d)
+    wp.atomic_add(out.grad, i, k * d)
     if mode >= MODE_HESSIAN:
-        wp.atomic_add(values, diag_slots[i], k * wp.identity(n=3, dtype=f64))
-
+        wp.atomic_add(out.values, out.diag_slots[i], k * wp.identity(n=3, dtype=f64))
 
 
 @wp.kernel

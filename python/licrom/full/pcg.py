@@ -9,26 +9,36 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .device import f64, mat33d, vec3d
+from .device import Assembly, f64, mat33d, vec3d
 
 __all__ = [
-    "BlockHessian",
-    'diag_kernel', 'partial_sum', 'pcg_direction_kernel', 'pcg_init_kernel', 'pcg_matvec_kernel', 'pcg_update_kernel', 'stats_kernel']
+    "BlockHessian", "CGVectors",
+    'add_residual_sums', 'diag_kernel', 'partial_sum', 'pcg_direction_kernel', 'pcg_init_kernel', 'pcg_matvec_kernel', 'pcg_update_kernel',
+    'stats_kernel']
 
 
 @wp.kernel
-def diag_kernel(
-    values: wp.array(dtype=mat33d),
-    diag_slots: wp.array(dtype=wp.int32),
-    grad: wp.array(dtype=vec3d),
-    inv_diag: wp.array(dtype=mat33d),
-    partials: wp.array(dtype=f64),
-):
+def diag_kernel(out: Assembly, inv_diag: wp.array(dtype=mat33d), partials: wp.array(dtype=f64)):
     # Inverse diagonal blocks (block-Jacobi preconditioner) and |grad|^2.
     i = wp.tid()
-    inv_diag[i] = wp.inverse(values[diag_slots[i]])
-    gi = grad[i]
+    inv_diag[i] = wp.inverse(out.values[out.diag_slots[i]])
+    gi = out.grad[i]
     wp.atomic_add(partials, i % partials.shape[0], wp.dot(gi, gi))
+
+
+# Preconditioned conjugate gradients on the BSR Hessian, block-Jacobi preconditioner.
+# scal[row, q, part]: partial sums of q = 0: p.Ap, 1: r.z, 2: r.r, in a ring of three rows
+# (iteration k reads row k % 3, writes row (k + 1) % 3, clears row (k + 2) % 3).
+@wp.struct
+class CGVectors:
+    """The preconditioner (inverse diagonal blocks) and the work vectors of the conjugate gradients, with the ring of partial sums ``scal``."""
+
+    inv_diag: wp.array(dtype=mat33d)
+    r: wp.array(dtype=vec3d)
+    z: wp.array(dtype=vec3d)
+    p: wp.array(dtype=vec3d)
+    ap: wp.array(dtype=vec3d)
+    scal: wp.array3d(dtype=f64)
 
 
 @wp.func
@@ -39,97 +49,68 @@ def partial_sum(scal: wp.array3d(dtype=f64), row: int, q: int):
     return s
 
 
-# Preconditioned conjugate gradients on the BSR Hessian, block-Jacobi preconditioner.
-# scal[row, q, part]: partial sums of q = 0: p.Ap, 1: r.z, 2: r.r, in a ring of three rows
-# (iteration k reads row k % 3, writes row (k + 1) % 3, clears row (k + 2) % 3).
+@wp.func
+def add_residual_sums(scal: wp.array3d(dtype=f64), row: int, i: int, r: vec3d, z: vec3d):
+    """Add ``r.z`` and ``r.r`` of vertex ``i`` to the partial sums of ring row ``row``."""
+    part = i % scal.shape[2]
+    wp.atomic_add(scal, row, 1, part, wp.dot(r, z))
+    wp.atomic_add(scal, row, 2, part, wp.dot(r, r))
+
+
 @wp.kernel
-def pcg_init_kernel(
-    b: wp.array(dtype=vec3d),
-    inv_diag: wp.array(dtype=mat33d),
-    x: wp.array(dtype=vec3d),
-    r: wp.array(dtype=vec3d),
-    p: wp.array(dtype=vec3d),
-    scal: wp.array3d(dtype=f64),
-):
+def pcg_init_kernel(b: wp.array(dtype=vec3d), x: wp.array(dtype=vec3d), cg: CGVectors):
     i = wp.tid()
     bi = b[i]
-    zi = inv_diag[i] * bi
+    zi = cg.inv_diag[i] * bi
     x[i] = vec3d()
-    r[i] = bi
-    p[i] = zi
-    part = i % scal.shape[2]
-    wp.atomic_add(scal, 0, 1, part, wp.dot(bi, zi))
-    wp.atomic_add(scal, 0, 2, part, wp.dot(bi, bi))
+    cg.r[i] = bi
+    cg.p[i] = zi
+    add_residual_sums(cg.scal, 0, i, bi, zi)
 
 
 @wp.kernel
-def pcg_matvec_kernel(
-    offsets: wp.array(dtype=wp.int32),
-    columns: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=mat33d),
-    p: wp.array(dtype=vec3d),
-    ap: wp.array(dtype=vec3d),
-    scal: wp.array3d(dtype=f64),
-    k: int,
-):
+def pcg_matvec_kernel(offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32), values: wp.array(dtype=mat33d), cg: CGVectors, k: int):
     i = wp.tid()
     s = vec3d()
     for blk in range(offsets[i], offsets[i + 1]):
-        s += values[blk] * p[columns[blk]]
-    ap[i] = s
-    wp.atomic_add(scal, k % 3, 0, i % scal.shape[2], wp.dot(p[i], s))
+        s += values[blk] * cg.p[columns[blk]]
+    cg.ap[i] = s
+    wp.atomic_add(cg.scal, k % 3, 0, i % cg.scal.shape[2], wp.dot(cg.p[i], s))
 
 
 @wp.kernel
-def pcg_update_kernel(
-    inv_diag: wp.array(dtype=mat33d),
-    x: wp.array(dtype=vec3d),
-    r: wp.array(dtype=vec3d),
-    z: wp.array(dtype=vec3d),
-    p: wp.array(dtype=vec3d),
-    ap: wp.array(dtype=vec3d),
-    scal: wp.array3d(dtype=f64),
-    k: int,
-):
+def pcg_update_kernel(x: wp.array(dtype=vec3d), cg: CGVectors, k: int):
     i = wp.tid()
     row = k % 3
-    pap = partial_sum(scal, row, 0)
+    pap = partial_sum(cg.scal, row, 0)
     alpha = f64(0.0)
     if pap > f64(0.0):
-        alpha = partial_sum(scal, row, 1) / pap
-    x[i] = x[i] + alpha * p[i]
-    ri = r[i] - alpha * ap[i]
-    r[i] = ri
-    zi = inv_diag[i] * ri
-    z[i] = zi
-    part = i % scal.shape[2]
-    nxt = (k + 1) % 3
-    wp.atomic_add(scal, nxt, 1, part, wp.dot(ri, zi))
-    wp.atomic_add(scal, nxt, 2, part, wp.dot(ri, ri))
+        alpha = partial_sum(cg.scal, row, 1) / pap
+    x[i] = x[i] + alpha * cg.p[i]
+    ri = cg.r[i] - alpha * cg.ap[i]
+    cg.r[i] = ri
+    zi = cg.inv_diag[i] * ri
+    cg.z[i] = zi
+    add_residual_sums(cg.scal, (k + 1) % 3, i, ri, zi)
 
 
 @wp.kernel
-def pcg_direction_kernel(z: wp.array(dtype=vec3d), p: wp.array(dtype=vec3d), scal: wp.array3d(dtype=f64), k: int):
+def pcg_direction_kernel(cg: CGVectors, k: int):
     i = wp.tid()
-    rz_old = partial_sum(scal, k % 3, 1)
+    rz_old = partial_sum(cg.scal, k % 3, 1)
     beta = f64(0.0)
     if rz_old > f64(0.0):
-        beta = partial_sum(scal, (k + 1) % 3, 1) / rz_old
-    p[i] = z[i] + beta * p[i]
-    if i < scal.shape[2]:
+        beta = partial_sum(cg.scal, (k + 1) % 3, 1) / rz_old
+    cg.p[i] = cg.z[i] + beta * cg.p[i]
+    if i < cg.scal.shape[2]:
         clear = (k + 2) % 3
-        scal[clear, 0, i] = f64(0.0)
-        scal[clear, 1, i] = f64(0.0)
-        scal[clear, 2, i] = f64(0.0)
+        cg.scal[clear, 0, i] = f64(0.0)
+        cg.scal[clear, 1, i] = f64(0.0)
+        cg.scal[clear, 2, i] = f64(0.0)
 
 
 @wp.kernel
-def stats_kernel(
-    grad: wp.array(dtype=vec3d),
-    y: wp.array(dtype=vec3d),
-    mass: wp.array(dtype=f64),
-    partials: wp.array2d(dtype=f64),
-):
+def stats_kernel(grad: wp.array(dtype=vec3d), y: wp.array(dtype=vec3d), mass: wp.array(dtype=f64), partials: wp.array2d(dtype=f64)):
     # partials[0]: grad . y, partials[1]: y^T M y
     i = wp.tid()
     yi = y[i]
@@ -178,15 +159,17 @@ class BlockHessian:
         self.inv_diag = wp.zeros(n, dtype=wp.mat33d, device=device)
         self._offsets = wp.array(offsets, dtype=wp.int32, device=device)
         self._columns = wp.array(c, dtype=wp.int32, device=device)
-        self._r, self._z, self._p, self._ap = (wp.zeros(n, dtype=wp.vec3d, device=device) for _ in range(4))
         self._scal = wp.zeros((3, 3, parts), dtype=f64, device=device)
+        self._cg = CGVectors()
+        self._cg.inv_diag, self._cg.scal = self.inv_diag, self._scal
+        self._cg.r, self._cg.z, self._cg.p, self._cg.ap = (wp.zeros(n, dtype=wp.vec3d, device=device) for _ in range(4))
         self._graphs: dict[int, Any] = {}  # by the solution array: the graph writes into it
 
     def _launch_iteration(self, y: Any, it: int) -> None:
-        dev, n, scal = self.device, self.n, self._scal
-        wp.launch(pcg_matvec_kernel, dim=n, device=dev, inputs=[self._offsets, self._columns, self.values, self._p, self._ap, scal, it])
-        wp.launch(pcg_update_kernel, dim=n, device=dev, inputs=[self.inv_diag, y, self._r, self._z, self._p, self._ap, scal, it])
-        wp.launch(pcg_direction_kernel, dim=n, device=dev, inputs=[self._z, self._p, scal, it])
+        dev, n, cg = self.device, self.n, self._cg
+        wp.launch(pcg_matvec_kernel, dim=n, device=dev, inputs=[self._offsets, self._columns, self.values, cg, it])
+        wp.launch(pcg_update_kernel, dim=n, device=dev, inputs=[y, cg, it])
+        wp.launch(pcg_direction_kernel, dim=n, device=dev, inputs=[cg, it])
 
     def solve(self, b: Any, y: Any, tol: float, maxiter: int) -> int:
         """Solve ``H y = b`` to relative residual ``tol`` (``inv_diag`` must be current).
@@ -196,7 +179,7 @@ class BlockHessian:
         """
         scal = self._scal
         scal.zero_()
-        wp.launch(pcg_init_kernel, dim=self.n, device=self.device, inputs=[b, self.inv_diag, y, self._r, self._p, scal])
+        wp.launch(pcg_init_kernel, dim=self.n, device=self.device, inputs=[b, y, self._cg])
         bb = float(scal.numpy()[0, 2].sum())
         if not (bb > 0.0) or not math.isfinite(bb):
             return 0

@@ -27,6 +27,7 @@ from .device import (
     MODE_GRADIENT,
     MODE_HESSIAN,
     MODE_RAW_HESSIAN,
+    assembly,
     load_kernels,
     resolve_device,
     warp_ready,
@@ -132,17 +133,21 @@ class FullSim:
 
         f64 = wp.float64
         # Static data.
-        self._tets = wp.array(mesh.tets.astype(np.int32), dtype=wp.vec4i, device=dev)
-        self._dminv = wp.array(mesh.shape_matrix_inverses, dtype=wp.mat33d, device=dev)
-        self._vol = wp.array(mesh.rest_volumes, dtype=f64, device=dev)
+        self._tets = elastic.Tets()
+        self._tets.ids = wp.array(mesh.tets.astype(np.int32), dtype=wp.vec4i, device=dev)
+        self._tets.dminv = wp.array(mesh.shape_matrix_inverses, dtype=wp.mat33d, device=dev)
+        self._tets.vol = wp.array(mesh.rest_volumes, dtype=f64, device=dev)
         self._mass = wp.array(self._masses, dtype=f64, device=dev)
-        self._points = wp.array(idx.astype(np.int32), dtype=wp.int32, device=dev)
-        self._areas = wp.array(areas, dtype=f64, device=dev)
-        self._normals = wp.array(planes[:, :3].reshape(-1, 3), dtype=wp.vec3d, device=dev)
-        self._offsets = wp.array(planes[:, 3].copy(), dtype=f64, device=dev)
-        self._frictions = wp.array(planes[:, 4].copy(), dtype=f64, device=dev)
         self._n_planes = len(planes)
-        self._fn_lag = wp.zeros((max(len(idx), 1), max(self._n_planes, 1)), dtype=f64, device=dev)
+        self._contacts = contact.Contacts()
+        self._contacts.points = wp.array(idx.astype(np.int32), dtype=wp.int32, device=dev)
+        self._contacts.areas = wp.array(areas, dtype=f64, device=dev)
+        self._contacts.normals = wp.array(planes[:, :3].reshape(-1, 3), dtype=wp.vec3d, device=dev)
+        self._contacts.offsets = wp.array(planes[:, 3].copy(), dtype=f64, device=dev)
+        self._contacts.frictions = wp.array(planes[:, 4].copy(), dtype=f64, device=dev)
+        self._contacts.fn_lag = wp.zeros((max(len(idx), 1), max(self._n_planes, 1)), dtype=f64, device=dev)
+        c = scene.contact
+        self._contacts.kn, self._contacts.kd, self._contacts.kf = c.normal_stiffness, c.normal_damping, c.friction_stiffness
         self._forces = wp.zeros(max(len(idx), 1), dtype=wp.vec3d, device=dev)
 
         # State and work arrays.
@@ -172,6 +177,7 @@ class FullSim:
         self._stick_correction = True
         # Hessian pattern (a 3x3 block per vertex pair sharing a tet), values and the PCG solve.
         self._hess = pcg.BlockHessian(mesh.tets, n, dev, parts)
+        self._out = assembly(self._energy, self._grad, self._hess)  # where the evaluations add up
 
         self.time = 0.0
         self._step_index = 0
@@ -234,9 +240,9 @@ class FullSim:
         tet ``det F`` and the deepest penetration of a vertex into a plane (m, >= 0)."""
         dev = self.device
         self._validity.fill_(np.inf)
-        wp.launch(validity.tet_det_kernel, dim=self.mesh.n_tets, device=dev, inputs=[self._x, self._tets, self._dminv, self._validity])
+        wp.launch(validity.tet_det_kernel, dim=self.mesh.n_tets, device=dev, inputs=[self._x, self._tets, self._validity])
         if self._n_planes:
-            wp.launch(validity.depth_kernel, dim=self._n, device=dev, inputs=[self._x, self._normals, self._offsets, self._n_planes, self._validity])
+            wp.launch(validity.depth_kernel, dim=self._n, device=dev, inputs=[self._x, self._contacts, self._validity])
         out = self._validity.numpy()
         return float(out[0].min()), max(-float(out[1].min()), 0.0)
 
@@ -309,8 +315,7 @@ class FullSim:
         if len(self._contact_idx) and self._n_planes:
             wp.launch(
                 contact.lagged_normal_kernel, dim=(len(self._contact_idx), self._n_planes), device=dev,
-                inputs=[self._x_now, self._points, self._areas, self._normals, self._offsets,
-                        wp.float64(self.scene.contact.normal_stiffness), self._fn_lag],
+                inputs=[self._x_now, self._contacts],
             )
 
     def _evaluate(self, x: Any, mode: int, terms: int = 0b11111) -> None:
@@ -342,18 +347,15 @@ class FullSim:
             self._grad.zero_()
         if mode >= MODE_HESSIAN:
             self._hess.values.zero_()
-        values = self._hess.values
         if terms & 1:
             wp.launch(
                 inertia.inertia_kernel, dim=self._n, device=dev,
-                inputs=[x, self._x_tilde, self._mass, wp.float64(1.0 / self._h_step**2), mode, self._hess.diag_slots,
-                        self._energy, self._grad, values],
+                inputs=[x, self._x_tilde, self._mass, wp.float64(1.0 / self._h_step**2), mode, self._out],
             )
         if terms & 2:
             wp.launch(
                 elastic.tet_kernel, dim=self.mesh.n_tets, device=dev,
-                inputs=[x, self._tets, self._dminv, self._vol, self._hess.slots, wp.float64(self._mu), wp.float64(self._lam),
-                        wp.float64(self._alpha), mode, self._energy, self._grad, values],
+                inputs=[x, self._tets, wp.float64(self._mu), wp.float64(self._lam), wp.float64(self._alpha), mode, self._out],
             )
         contact_terms = terms >> 2
         if contact_terms and len(self._contact_idx) and self._n_planes:
@@ -361,13 +363,9 @@ class FullSim:
 
     def _launch_contact(self, x: Any, mode: int, contact_terms: int = 0b111) -> None:
         wp = warp_ready()
-        c = self.scene.contact
         wp.launch(
             contact.contact_kernel, dim=len(self._contact_idx), device=self.device,
-            inputs=[x, self._x_start, self._points, self._areas, self._normals, self._offsets, self._frictions,
-                    self._fn_lag, wp.float64(c.normal_stiffness), wp.float64(c.normal_damping),
-                    wp.float64(c.friction_stiffness), wp.float64(self._h_step), contact_terms, mode, self._hess.diag_slots,
-                    self._energy, self._grad, self._hess.values, self._forces],
+            inputs=[x, self._x_start, self._contacts, wp.float64(self._h_step), contact_terms, mode, self._out, self._forces],
         )
 
     def _energy_value(self) -> float:
@@ -406,7 +404,7 @@ class FullSim:
         while iterations < solver.max_iterations:
             self._evaluate(self._x, MODE_HESSIAN)
             self._gnorm.zero_()
-            wp.launch(pcg.diag_kernel, dim=n, device=dev, inputs=[self._hess.values, self._hess.diag_slots, self._grad, self._hess.inv_diag, self._gnorm])
+            wp.launch(pcg.diag_kernel, dim=n, device=dev, inputs=[self._out, self._hess.inv_diag, self._gnorm])
             e0 = self._energy_value() if energy is None else energy
             gnorm = math.sqrt(float(self._gnorm.numpy().sum()))
             if not (math.isfinite(e0) and math.isfinite(gnorm)):
@@ -492,20 +490,17 @@ class FullSim:
         """
         dev = self.device
         n = self._n
-        c = self.scene.contact
         wp.copy(self._rhs, self._grad)
         self._count.zero_()
         wp.launch(
             contact.stick_kernel, dim=len(self._contact_idx), device=dev,
-            inputs=[self._x, self._x_start, self._y, self._points, self._areas, self._normals, self._frictions,
-                    self._fn_lag, wp.float64(c.friction_stiffness), wp.float64(self._h_step), self._hess.diag_slots,
-                    self._hess.values, self._rhs, self._count],
+            inputs=[self._x, self._x_start, self._y, self._contacts, wp.float64(self._h_step), self._out, self._rhs, self._count],
         )
         switched = int(self._count.numpy()[0])
         if switched == 0:
             return 0, None
         self._gnorm.zero_()
-        wp.launch(pcg.diag_kernel, dim=n, device=dev, inputs=[self._hess.values, self._hess.diag_slots, self._grad, self._hess.inv_diag, self._gnorm])
+        wp.launch(pcg.diag_kernel, dim=n, device=dev, inputs=[self._out, self._hess.inv_diag, self._gnorm])
         its = self._hess.solve(self._rhs, self._y_alt, tol, maxiter)
         self._stats.zero_()
         wp.launch(pcg.stats_kernel, dim=n, device=dev, inputs=[self._grad, self._y_alt, self._mass, self._stats])

@@ -8,33 +8,23 @@ from __future__ import annotations
 
 import warp as wp
 
-from .device import f64, mat33d, vec3d
-from .elastic import deformation_gradient
+from .contact import Contacts, gap
+from .device import f64, vec3d
+from .elastic import Tets, deformation_gradient
 
 __all__ = ["depth_kernel", "tet_det_kernel"]
 
 
 @wp.kernel
-def tet_det_kernel(
-    x: wp.array(dtype=vec3d),
-    tets: wp.array(dtype=wp.vec4i),
-    dminv: wp.array(dtype=mat33d),
-    out: wp.array2d(dtype=f64),
-):
+def tet_det_kernel(x: wp.array(dtype=vec3d), tets: Tets, out: wp.array2d(dtype=f64)):
     """``out[0, t % parts] = min det F`` over the tets."""
     t = wp.tid()
-    wp.atomic_min(out, 0, t % out.shape[1], wp.determinant(deformation_gradient(x, tets[t], dminv[t])))
+    wp.atomic_min(out, 0, t % out.shape[1], wp.determinant(deformation_gradient(x, tets.ids[t], tets.dminv[t])))
 
 
 @wp.kernel
-def depth_kernel(
-    x: wp.array(dtype=vec3d),
-    normals: wp.array(dtype=vec3d),
-    offsets: wp.array(dtype=f64),
-    n_planes: int,
-    out: wp.array2d(dtype=f64),
-):
+def depth_kernel(x: wp.array(dtype=vec3d), c: Contacts, out: wp.array2d(dtype=f64)):
     """``out[1, v % parts] = min`` over the planes of the vertices' gaps (negative inside), m."""
     v = wp.tid()
-    for p in range(n_planes):
-        wp.atomic_min(out, 1, v % out.shape[1], wp.dot(normals[p], x[v]) + offsets[p])
+    for p in range(c.normals.shape[0]):
+        wp.atomic_min(out, 1, v % out.shape[1], gap(c, p, x[v]))

@@ -394,14 +394,9 @@ class Mesh:
         """
         import meshio
 
-        from .._io import name_too_long
+        from .._io import existing_file
 
-        p = Path(path)
-        too_long = name_too_long(p)
-        if too_long:
-            raise FileFormatError(f"cannot read mesh file '{p}': {too_long}")
-        if not p.is_file():
-            raise FileFormatError(f"mesh file not found: '{p}'")
+        p = existing_file(path, "mesh")
         missing = _missing_package(p)
         if missing is not None:
             raise missing

@@ -21,12 +21,15 @@ import numpy as np
 from .. import _core
 from ..errors import ConfigError, LicromWarning, SolverError
 from ..geometry.mesh import Mesh
+from ..records.trajectory import Trajectory
 from ..scene.scene import Scene
-from ..stepping import check_field, check_run_arguments
+from ..stepping import RunRecord, check_field, check_run_arguments
 from ..subspace.basis import vertex_strain_form
 from ..subspace.cubature import ContactPoints, Cubature
+from ..validity import CONTACT_TOLERANCE, cubature_min_det, first_touch, penetration, warn_frames, with_steps
+from .error_estimate import ErrorMonitor, warn_estimate
 
-__all__ = ["CUBATURES", "ReducedSim", "native_inputs", "sampling", "step_many"]
+__all__ = ["CUBATURES", "ReducedSim", "mesh_and_scene", "native_inputs", "sampling", "step_many"]
 
 _DEFAULT_CUBATURE_POINTS = 1000
 
@@ -118,6 +121,27 @@ def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:
     """The fitted cubature on ``mesh`` of the model behind ``basis``, if it has one."""
     model = _model_behind(basis)
     return None if model is None else model.cubature_for(mesh)
+
+
+def mesh_and_scene(who: str, mesh: Mesh | None, scene: Scene | None, basis: Any, mesh_from: str, scene_from: Sequence[Any]) -> tuple[Mesh, Scene]:
+    """The mesh and scene a reduced simulation ``who`` runs: those given, else the basis' ``mesh`` and the first
+    ``default_scene`` stored by one of ``scene_from`` (the basis, or also the model behind it).
+
+    Raises:
+        ConfigError: no mesh or scene given or stored (the message says to pass one or to use ``mesh_from``,
+            what stores a mesh), or a scene that is not a :class:`~licrom.Scene`.
+    """
+    if mesh is None:
+        mesh = getattr(basis, "mesh", None)
+        if mesh is None:
+            raise ConfigError(f"{who} needs a mesh: pass mesh=... or {mesh_from} that stores one")
+    if scene is None:
+        scene = next((s for s in (getattr(o, "default_scene", None) for o in scene_from) if s is not None), None)
+        if scene is None:
+            raise ConfigError(f"{who} needs a scene: pass scene=... or a trained model that stores one")
+    if not isinstance(scene, Scene):
+        raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+    return mesh, scene
 
 
 def sampling(mesh: Mesh, cubature: Cubature | str | None, contact_points: ContactPoints | None, basis: Any = None) -> tuple[Cubature, ContactPoints]:
@@ -235,6 +259,7 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
     _core: Any
     _values: np.ndarray
     _jacobians: np.ndarray
+    _monitor: ErrorMonitor
 
     step_many = staticmethod(step_many)
 
@@ -255,6 +280,42 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
 
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
         return check_field(name, a, self.mesh.n_vertices)
+
+    def _trajectory(self, rec: RunRecord, positions: np.ndarray, displacements: np.ndarray, velocities: np.ndarray, qs: np.ndarray,
+                    record_every: int, what: str, kind: dict[str, Any], extra: dict[str, Any]) -> Trajectory:
+        """The :class:`Trajectory` of a run that ``run`` recorded: its frames' (f, n, 3) ``positions``, ``displacements`` and
+        ``velocities`` and (f, k) ``qs``, with each frame's smallest ``det F`` at the cubature points and deepest
+        penetration into a plane, and the online error estimate; each warns, as ``what``, where it leaves its range, at the
+        caller of ``run``. ``info`` holds ``kind`` after its source and ``extra`` after the sampling."""
+        min_det_f = cubature_min_det(self._jacobians, qs)
+        planes = self.scene.plane_array()
+        depth = np.array([penetration(x, planes) for x in positions])
+        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
+        arrays = rec.arrays()
+        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, what, rec.trailing, stacklevel=4)
+        start = first_touch(positions, planes, CONTACT_TOLERANCE * self.mesh.size)
+        estimate = self._monitor.estimate(record_every * np.arange(len(qs)), None if start is None else record_every * start)
+        warn_estimate(estimate, what, stacklevel=4)
+        return Trajectory(
+            rest_positions=self.mesh.vertices,
+            tets=self.mesh.tets,
+            displacements=displacements,
+            velocities=velocities,
+            scene=self.scene,
+            min_det_f=min_det_f,
+            penetration=depth,
+            error_estimate=estimate,
+            **arrays,
+            info={
+                "source": "reduced",
+                **kind,
+                "n_modes": int(self.n_modes),
+                "cubature": self.cubature.scheme,
+                "cubature_points": int(self.cubature.count),
+                "contact_points": int(self.contact_points.count),
+                **extra,
+            },
+        )
 
     def step(self) -> tuple[int, float]:
         """Advance one time step; return (Newton iterations, final residual in m/s).

@@ -28,9 +28,9 @@ from ..stepping import record_run
 from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from ..subspace.body_basis import BodyFrameBasis, rigid_momenta
 from ..subspace.cubature import ContactPoints, Cubature
-from ..validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .base import ReducedSim, _fitted_cubature, native_inputs, sampling
-from .error_estimate import ErrorMonitor, warn_estimate
+from ..validity import check_start
+from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
+from .error_estimate import ErrorMonitor
 
 __all__ = ["BodyFrameSim"]
 
@@ -74,15 +74,7 @@ class BodyFrameSim(ReducedSim):
         strain: str = "mesh",
     ) -> None:
         check_basis(basis)
-        mesh = mesh if mesh is not None else getattr(basis, "mesh", None)
-        if mesh is None:
-            raise ConfigError("BodyFrameSim needs a mesh: pass mesh=... or a basis that stores one")
-        if scene is None:
-            scene = getattr(basis, "default_scene", None) or getattr(getattr(basis, "learned", None), "default_scene", None)
-            if scene is None:
-                raise ConfigError("BodyFrameSim needs a scene: pass scene=... or a trained model that stores one")
-        if not isinstance(scene, Scene):
-            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        mesh, scene = mesh_and_scene("BodyFrameSim", mesh, scene, basis, "a basis", (basis, getattr(basis, "learned", None)))
         self.basis, self.mesh, self.scene = basis, mesh, scene
         self.cubature, self.contact_points = sampling(mesh, cubature, contact_points, basis)
         k = int(basis.n_modes)
@@ -243,35 +235,9 @@ class BodyFrameSim(ReducedSim):
         rec = record_run(step, lambda: (self.positions, self.velocities, self.q), lambda: self.time, steps, record_every, progress, "body frame",
                          self._core.validity)
         positions = np.array([x for x, _, _ in rec.frames])
-        min_det_f = cubature_min_det(self._jacobians, np.array([q for _, _, q in rec.frames]))
-        planes = self.scene.plane_array()
-        depth = np.array([penetration(x, planes) for x in positions])
-        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
-        arrays = rec.arrays()
-        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the body-frame simulation", rec.trailing)
-        start = first_touch(positions, planes, CONTACT_TOLERANCE * self.mesh.size)
-        estimate = monitor.estimate(record_every * np.arange(len(positions)), None if start is None else record_every * start)
-        warn_estimate(estimate, "the body-frame simulation")
-        return Trajectory(
-            rest_positions=self.mesh.vertices,
-            tets=self.mesh.tets,
-            displacements=positions - self.mesh.vertices,
-            velocities=np.array([v for _, v, _ in rec.frames]),
-            scene=self.scene,
-            min_det_f=min_det_f,
-            penetration=depth,
-            error_estimate=estimate,
-            **arrays,
-            info={
-                "source": "reduced",
-                "frame": "body",
-                "solver": "newton",
-                "n_modes": int(self.n_modes),
-                "cubature": self.cubature.scheme,
-                "cubature_points": int(self.cubature.count),
-                "contact_points": int(self.contact_points.count),
-            },
-        )
+        return self._trajectory(rec, positions, positions - self.mesh.vertices, np.array([v for _, v, _ in rec.frames]),
+                                np.array([q for _, _, q in rec.frames]), record_every, "the body-frame simulation",
+                                {"frame": "body", "solver": "newton"}, {})
 
     # --- other meshes ------------------------------------------------------------------
     def transfer(self, mesh: Mesh, cubature: Cubature | None = None, contact_points: ContactPoints | None = None) -> BodyFrameSim:

@@ -265,14 +265,14 @@ class ErrorMonitor:
         return out
 
 
-def warn_estimate(estimate: np.ndarray, what: str) -> None:
+def warn_estimate(estimate: np.ndarray, what: str, stacklevel: int = 3) -> None:
     """Warn (:class:`~licrom.errors.AccuracyWarning`) once when the run-level estimate (the last
-    frame's) passes :data:`ERROR_THRESHOLD`."""
+    frame's) passes :data:`ERROR_THRESHOLD`; ``stacklevel`` as in :func:`warnings.warn` (3: the caller's caller)."""
     if len(estimate) and estimate[-1] > ERROR_THRESHOLD:
         warnings.warn(
             f"{what}: estimated non-rigid error {100 * estimate[-1]:.3g} % exceeds the threshold "
             f"{100 * ERROR_THRESHOLD:.0f} % (Trajectory.error_estimate, licrom.reduced.error_estimate): the subspace "
             "misses this motion; use more modes, or retrain with runs like this scene",
             AccuracyWarning,
-            stacklevel=3,
+            stacklevel=stacklevel,
         )

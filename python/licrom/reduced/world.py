@@ -24,9 +24,9 @@ from ..scene.scene import Scene
 from ..stepping import record_run
 from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from ..subspace.cubature import ContactPoints, Cubature
-from ..validity import CONTACT_TOLERANCE, check_start, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .base import ReducedSim, _fitted_cubature, native_inputs, sampling
-from .error_estimate import ErrorMonitor, warn_estimate
+from ..validity import check_start
+from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
+from .error_estimate import ErrorMonitor
 
 __all__ = ["SOLVERS", "WorldFrameSim"]
 
@@ -75,16 +75,7 @@ class WorldFrameSim(ReducedSim):
         solver: str = "newton",
         strain: str = "mesh",
     ) -> None:
-        if mesh is None:
-            mesh = getattr(basis, "mesh", None)
-            if mesh is None:
-                raise ConfigError("ReducedSim needs a mesh: pass mesh=... or a trained model that stores one")
-        if scene is None:
-            scene = getattr(basis, "default_scene", None)
-            if scene is None:
-                raise ConfigError("ReducedSim needs a scene: pass scene=... or a trained model that stores one")
-        if not isinstance(scene, Scene):
-            raise ConfigError(f"scene must be a licrom.Scene, got {type(scene).__name__}")
+        mesh, scene = mesh_and_scene("ReducedSim", mesh, scene, basis, "a trained model", (basis,))
         if solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {solver!r}")
         check_basis(basis)
@@ -187,36 +178,9 @@ class WorldFrameSim(ReducedSim):
         w = self._values.reshape(-1, self._values.shape[2])
         n = self.mesh.n_vertices
         displacements = (qs @ w.T).reshape(-1, n, 3)
-        min_det_f = cubature_min_det(self._jacobians, qs)
-        planes = self.scene.plane_array()
-        depth = np.array([penetration(self.mesh.vertices + d, planes) for d in displacements])
-        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
-        arrays = rec.arrays()
-        warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, "the reduced simulation", rec.trailing)
-        start = first_touch(self.mesh.vertices + displacements, planes, CONTACT_TOLERANCE * self.mesh.size)
-        estimate = monitor.estimate(record_every * np.arange(len(qs)), None if start is None else record_every * start)
-        warn_estimate(estimate, "the reduced simulation")
-        return Trajectory(
-            rest_positions=self.mesh.vertices,
-            tets=self.mesh.tets,
-            displacements=displacements,
-            velocities=(qdots @ w.T).reshape(-1, n, 3),
-            scene=self.scene,
-            min_det_f=min_det_f,
-            penetration=depth,
-            error_estimate=estimate,
-            **arrays,
-            info={
-                "source": "reduced",
-                "solver": self.solver,
-                "n_modes": int(self.n_modes),
-                "cubature": self.cubature.scheme,
-                "cubature_points": int(self.cubature.count),
-                "contact_points": int(self.contact_points.count),
-                "solver_stats": work,
-                "q": qs.tolist() if qs.size <= 200_000 else None,
-            },
-        )
+        return self._trajectory(rec, self.mesh.vertices + displacements, displacements, (qdots @ w.T).reshape(-1, n, 3), qs, record_every,
+                                "the reduced simulation", {"solver": self.solver},
+                                {"solver_stats": work, "q": qs.tolist() if qs.size <= 200_000 else None})
 
     # --- other meshes ------------------------------------------------------------------
     def transfer(self, mesh: Mesh, cubature: Cubature | None = None, contact_points: ContactPoints | None = None) -> WorldFrameSim:
