@@ -487,5 +487,5 @@ class PhysicsWarning(LicromWarning):
 
 class AccuracyWarning(LicromWarning):
     """A reduced run's online error estimate (``Trajectory.error_estimate``) passed
-    ``licrom.error_estimate.ERROR_THRESHOLD``: its subspace likely misses the motion
-    (see :mod:`licrom.error_estimate`)."""
+    ``licrom.reduced.error_estimate.ERROR_THRESHOLD``: its subspace likely misses the motion
+    (see :mod:`licrom.reduced.error_estimate`)."""

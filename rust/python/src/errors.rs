@@ -139,8 +139,8 @@ or a start inside a plane (see :mod:`licrom.validity`).",
         name: "AccuracyWarning",
         bases: &[Base::Family("LicromWarning")],
         doc: "A reduced run's online error estimate (``Trajectory.error_estimate``) passed
-``licrom.error_estimate.ERROR_THRESHOLD``: its subspace likely misses the motion
-(see :mod:`licrom.error_estimate`).",
+``licrom.reduced.error_estimate.ERROR_THRESHOLD``: its subspace likely misses the motion
+(see :mod:`licrom.reduced.error_estimate`).",
         init: None,
     },
 ];
