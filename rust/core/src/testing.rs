@@ -2,6 +2,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::synthetic::SampledTerms;
 use crate::validity::Validity;
 
 /// SplitMix64: tiny, deterministic, good enough for test data.
@@ -75,34 +76,37 @@ pub fn rel_err(a: &[f64], b: &[f64], floor: f64) -> f64 {
     a.iter().zip(b).fold(0.0_f64, |m, (x, y)| m.max((x - y).abs())) / scale
 }
 
-/// Smallest `det(I + G_k q)` over the K x 9 x n row-major Jacobians `G_k`, summed directly.
-pub fn cubature_min_det(jacobians: &[f64], q: &[f64]) -> f64 {
-    let n = q.len();
-    let dot = |row: &[f64]| row.iter().zip(q).map(|(a, b)| a * b).sum::<f64>();
-    jacobians
-        .chunks_exact(9 * n)
-        .map(|g| {
-            let f: Vec<f64> = (0..9).map(|a| dot(&g[a * n..(a + 1) * n]) + if a % 4 == 0 { 1.0 } else { 0.0 }).collect();
-            Matrix3::from_row_slice(&f).determinant()
-        })
-        .fold(f64::INFINITY, f64::min)
-}
-
-/// `x0_j + W_j q` of each point, from the C x 3 x n row-major rows `W_j` and the C x 3 `x0_j`.
-pub fn point_positions(basis: &[f64], rest: &[f64], q: &[f64]) -> Vec<Vector3<f64>> {
-    let n = q.len();
-    let dot = |row: &[f64]| row.iter().zip(q).map(|(a, b)| a * b).sum::<f64>();
-    basis
-        .chunks_exact(3 * n)
-        .zip(rest.chunks_exact(3))
-        .map(|(w, x0)| Vector3::new(x0[0] + dot(&w[..n]), x0[1] + dot(&w[n..2 * n]), x0[2] + dot(&w[2 * n..])))
-        .collect()
-}
-
-/// Checks a step's reported validity against the direct `min_det` and `depth`
-/// (to 1e-6: it is taken at the accepted iterate, before the step's last
-/// correction below the solver tolerance).
-pub fn check_validity(step: usize, v: Validity, min_det: f64, depth: f64) {
-    assert!((v.min_det - min_det).abs() < 1e-6, "step {step}: det {} against {min_det}", v.min_det);
-    assert!((v.depth - depth).abs() < 1e-6, "step {step}: depth {} against {depth}", v.depth);
+/// Ten steps of a solid started inside the ground, `step` taking one and
+/// returning the reported validity with the state's terms and q (and each
+/// contact point's map to the world): each step reports the smallest `det F`
+/// at the cubature points and the deepest penetration of a point, to 1e-6 (it
+/// is taken at the accepted iterate, before the step's last correction below
+/// the solver tolerance), and the solid is pushed out after the first.
+pub fn check_pushed_out<'a>(mut step: impl FnMut() -> (Validity, &'a SampledTerms, Vec<f64>, Box<dyn Fn(&Vector3<f64>) -> Vector3<f64> + 'a>)) {
+    let mut depths = vec![];
+    for i in 0..10 {
+        let (v, terms, q, place) = step();
+        let n = q.len();
+        let dot = |row: &[f64]| row.iter().zip(&q).map(|(a, b)| a * b).sum::<f64>();
+        let min_det = terms
+            .cubature_jacobians
+            .chunks_exact(9 * n)
+            .map(|g| {
+                let f: Vec<f64> = (0..9).map(|a| dot(&g[a * n..(a + 1) * n]) + if a % 4 == 0 { 1.0 } else { 0.0 }).collect();
+                Matrix3::from_row_slice(&f).determinant()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let depth = terms
+            .contact_basis
+            .chunks_exact(3 * n)
+            .zip(terms.contact_rest.chunks_exact(3))
+            .map(|(w, x0)| place(&Vector3::new(x0[0] + dot(&w[..n]), x0[1] + dot(&w[n..2 * n]), x0[2] + dot(&w[2 * n..]))))
+            .map(|x| -terms.planes[0].gap(&x))
+            .fold(0.0, f64::max);
+        assert!((v.min_det - min_det).abs() < 1e-6, "step {i}: det {} against {min_det}", v.min_det);
+        assert!((v.depth - depth).abs() < 1e-6, "step {i}: depth {} against {depth}", v.depth);
+        depths.push(v.depth);
+    }
+    assert!(depths[0] > 2e-3, "deep after the first step: {depths:?}");
+    assert!(depths[1] < depths[0] && depths[9] < depths[0], "pushed out: {depths:?}");
 }

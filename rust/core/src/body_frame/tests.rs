@@ -10,7 +10,7 @@ use super::*;
 use crate::contact::Plane;
 use crate::contact_points::ContactInputs;
 use crate::synthetic::BlockScene;
-use crate::testing::{check_validity, cubature_min_det, fd_gradient, fd_jacobian, point_positions, rel_err, Rng};
+use crate::testing::{check_pushed_out, fd_gradient, fd_jacobian, rel_err, Rng};
 use crate::LicromError;
 
 fn block(learned_modes: usize, cubature_points: usize, contact_points: usize, affine: bool) -> BodyBlock {
@@ -597,19 +597,9 @@ fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
     let mut s = solver(&b, 1e-10, 100);
     let pose = Pose { center: c - normal * 0.01, rotation: r, q: vec![0.0; b.n] };
     s.set_state(&pose, &[0.2, 0.0, 0.0], &[0.0, 0.5, 0.0], &vec![0.0; b.n]).unwrap();
-    let mut depths = vec![];
-    for step in 0..10 {
+    check_pushed_out(|| {
         s.step().unwrap();
-        let p = s.pose();
-        let min_det = cubature_min_det(&b.terms.cubature_jacobians, &p.q);
-        let depth = point_positions(&b.terms.contact_basis, &b.terms.contact_rest, &p.q)
-            .iter()
-            .map(|y| -b.terms.planes[0].gap(&(p.center + p.rotation * y)))
-            .fold(0.0, f64::max);
-        let v = s.validity();
-        check_validity(step, v, min_det, depth);
-        depths.push(v.depth);
-    }
-    assert!(depths[0] > 2e-3, "deep after the first step: {depths:?}");
-    assert!(depths[1] < depths[0] && depths[9] < depths[0], "pushed out: {depths:?}");
+        let p = s.pose().clone();
+        (s.validity(), &b.terms, p.q.clone(), Box::new(move |y: &Vector3<f64>| p.center + p.rotation * y))
+    });
 }
