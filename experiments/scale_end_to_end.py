@@ -3,6 +3,7 @@
     python experiments/scale_end_to_end.py --device cuda --resolution 42 --runs 20 --work out/scale
     python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
+    python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
 
 The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes and placement code)
 on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
@@ -23,6 +24,10 @@ on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
 Everything goes to ``--work/scale.json`` (trajectories under ``--work/runs``, the model under
 ``--work/model``); ``--section-only`` writes section 13 of ``docs/results.md`` from it.
 ``--small`` runs the tiny cheese for 20 steps on the CPU with 1-epoch training and writes nothing under ``docs``.
+``--bounds MODEL`` generates only the held-out runs (cached under ``--work/runs``) and writes to
+``--work/bounds.json``, for each, the projection error (non-rigid, body frame) of the run onto MODEL's
+learned modes and onto POD(r) of the run's own frames (r = MODEL's; the best r-dimensional subspace
+for that run, the floor no training set can beat), beside each other.
 """
 
 from __future__ import annotations
@@ -140,6 +145,39 @@ def reduced_stage(model: licrom.Model, case: bfe.Case, full: Trajectory, steps: 
         f"(est {bfe._pct(row['estimate'])}, learned proj {bfe._pct(learned)}), COM {bfe._pct(row['com_error'])}, compare {compare_s:.1f} s, "
         f"projection {proj_s:.1f} s")
     return row
+
+
+def own_pod_projection(full: Trajectory, r: int) -> float:
+    """Non-rigid error of ``full`` projected onto POD(r) of its own body-frame frames from first contact on."""
+    own = bfe.body_displacements(full)[bfe.contact_start(full):]
+    pod = bfe.residual_pod(full.mesh, [own], bfe.masses_of(full), r)
+    values = BodyFrameBasis(full.mesh, pod, density=full.scene.material.density).values(full.mesh.vertices)
+    return bfe.body_projection_error(full, values)
+
+
+def bounds_study(args) -> dict:
+    """The held-out runs' subspace bounds for the model ``args.bounds``: learned and own-POD(r) projection errors."""
+    work = Path(args.work)
+    (work / "runs").mkdir(parents=True, exist_ok=True)
+    bfe.CHEESE_RESOLUTION = args.resolution
+    fam = bfe.cheese_family(args.small)
+    model = licrom.Model.load(args.bounds)
+    record = SolverParams(on_failure="record")
+    rows = []
+    for case in fam.held_out[: args.held]:
+        case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
+        path, info = generate(case, fam.mesh, fam.steps, args.device, work / "runs")
+        full = Trajectory.load(path)
+        values = BodyFrameBasis(fam.mesh, model, density=case.scene.material.density).values(fam.mesh.vertices)
+        t0 = time.perf_counter()
+        row = {"name": case.name, "kind": case.kind, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
+               "learned_projection": bfe.body_projection_error(full, values), "own_pod_projection": own_pod_projection(full, model.n_learned),
+               "full_median_step_ms": info["median_step_ms"]}
+        log(f"bounds {case.name}: learned {bfe._pct(row['learned_projection'])}, own POD({model.n_learned}) "
+            f"{bfe._pct(row['own_pod_projection'])} ({time.perf_counter() - t0:.1f} s)")
+        rows.append(row)
+        (work / "bounds.json").write_text(json.dumps({"model": str(args.bounds), "device": args.device, "rows": rows}, indent=1))
+    return {"rows": rows}
 
 
 def main_study(args) -> dict:
@@ -354,6 +392,7 @@ def main() -> None:
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 20 steps, CPU, 1 epoch: a smoke test")
     ap.add_argument("--section-only", action="store_true", help="write the docs section from --work/scale.json")
+    ap.add_argument("--bounds", type=Path, metavar="MODEL", help="only the held-out runs' subspace bounds for MODEL (--work/bounds.json)")
     args = ap.parse_args()
     if args.section_only:
         res = json.loads((Path(args.work) / "scale.json").read_text())
@@ -361,6 +400,9 @@ def main() -> None:
         return
     if args.small:
         args.device, args.resolution = "cpu", 5
+    if args.bounds is not None:
+        bounds_study(args)
+        return
     res = main_study(args)
     print(section(res))
 
