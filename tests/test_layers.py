@@ -21,7 +21,7 @@ FOUNDATION: tuple[str, ...] = ("errors", "_io", "_limits", "_repr", "_blas", "va
 
 LAYERS: tuple[tuple[str, str], ...] = (
     ("geometry", "meshes, procedural meshes, surfaces to tets"),
-    ("scene", "scenes and placement"),
+    ("scene", "scenes, placement and sweeps"),
     ("records", "trajectories and their exports"),
     ("full", "the full simulation (warp)"),
     ("data", "scene files, presets and data sets of full runs"),

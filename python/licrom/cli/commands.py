@@ -23,6 +23,8 @@ __all__ = ["cli", "main"]
 
 # An incline angle: steeper than 90 degrees would be a plane facing down (it read as 180 - angle).
 SLOPE = click.FloatRange(0, 90, max_open=True)
+# A Coulomb coefficient: the range of licrom.scene.sweep.check_friction, as a click type for a usage error.
+FRICTION = click.FloatRange(min=0)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -193,7 +195,7 @@ def scene_command(source, output, mesh_file) -> None:
 @click.option("--youngs-modulus", "-E", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Young's modulus in Pa.")
 @click.option("--poisson-ratio", type=click.FloatRange(-1, 0.5, min_open=True, max_open=True), default=None, show_default="the scene's", help="Poisson ratio in (-1, 0.5).")
 @click.option("--density", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Density in kg/m^3.")
-@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, show_default="the scene's", help="Friction sweep: Coulomb coefficient (repeatable).")
+@click.option("--friction", "--mu", type=FRICTION, multiple=True, show_default="the scene's", help="Friction sweep: Coulomb coefficient (repeatable).")
 @click.option("--slope", type=SLOPE, multiple=True, show_default="the scene's", help="Slope sweep: first plane's incline in degrees, [0, 90) (repeatable).")
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Time step in s.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, show_default="the scene's", help="Time steps per trajectory.")
@@ -390,7 +392,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
 @click.option("--scene", "scene_source", default=None,
               show_default="the model's scene", help="Scene file (.toml) or built-in scene: its held-out scenes (or its sweep), object and time.")
 @click.option("--slope", type=SLOPE, multiple=True, show_default="the scene's", help="Incline angle in degrees, [0, 90) (repeatable).")
-@click.option("--friction", "--mu", type=click.FloatRange(min=0), multiple=True, show_default="the scene's", help="Coulomb coefficient (repeatable).")
+@click.option("--friction", "--mu", type=FRICTION, multiple=True, show_default="the scene's", help="Coulomb coefficient (repeatable).")
 @click.option("--mesh", "mesh_source", default=None,
               show_default="the scene's, else the model's", help="Mesh to run on: a tet mesh file, or cheese:RES / sphere:RES / box:RES.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, show_default="the scene's; 150 without --scene", help="Time steps.")
@@ -416,6 +418,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
     from ..learn.model import Model
     from ..scene.placement import initial_state_between_planes
     from ..scene.scene import Plane
+    from ..scene.sweep import slope_friction_pairs
     from ..viz.report import Case, case_tag, write_report
 
     scene_file = None if scene_source is None else load_scene(scene_source)
@@ -433,9 +436,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
         steps = steps or 150
         planes = [base.planes[0]] if base.planes else []
         if slope or friction:
-            default_mu = base.planes[0].friction if base.planes else 0.5
-            default_slope = base.planes[0].slope_deg if base.planes else 0.0
-            planes = [Plane.incline(s, m) for s in (slope or (default_slope,)) for m in (friction or (default_mu,))]
+            planes = [Plane.incline(s, m) for s, m in slope_friction_pairs(slope, friction, planes[0] if planes else None)]
         cases = []
         for plane in planes:
             # Keep the model scene's placement relative to its plane.

@@ -14,7 +14,6 @@ non-rigid deformation and the planes.
 
 from __future__ import annotations
 
-import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
@@ -26,6 +25,7 @@ from .._io import make_dir
 from ..data.scene_file import SceneFile, load_scene
 from ..errors import ConfigError
 from ..rigid import check_frame
+from ..scene.sweep import held_out_pairs, in_sweep, sweep_axis
 
 __all__ = ["DemoConfig", "run_demo"]
 
@@ -100,12 +100,10 @@ def demo_scene(config: DemoConfig) -> SceneFile:
     if not scene.held_out:
         raise ConfigError(f"the demo needs held-out scenes: add [[held_out]] tables (slope, friction) to scene '{scene.name}'")
     first = scene.scene.planes[0]
-    train_slopes = scene.slopes or (first.slope_deg,)
+    train_slopes = sweep_axis(scene.slopes, first.slope_deg)
     train_frictions = scene.frictions or tuple(dict.fromkeys(p.friction for p in scene.scene.planes))
-    for h in scene.held_out:
-        slope = first.slope_deg if h.slope is None else h.slope
-        mu = first.friction if h.friction is None else h.friction
-        if any(math.isclose(slope, s) for s in train_slopes) and any(math.isclose(mu, m) for m in train_frictions):
+    for slope, mu in held_out_pairs(((h.slope, h.friction) for h in scene.held_out), first):
+        if in_sweep((slope, mu), train_slopes, train_frictions):
             raise ConfigError(f"held-out scene (slope {slope:g}, mu {mu:g}) is in the training sweep of scene '{scene.name}'; pick a held-out pair")
     return scene
 

@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -42,6 +41,7 @@ from ..geometry.mesh import Mesh
 from ..records.trajectory import TRAJECTORY_FORMAT_VERSION
 from ..scene.placement import initial_state_on_plane
 from ..scene.scene import InitialState, Plane, Scene
+from ..scene.sweep import DEFAULT_FRICTION, check_friction, sweep, sweep_axis, sweep_count, with_friction
 
 __all__ = [
     "DATASET_FORMAT_VERSION",
@@ -70,14 +70,12 @@ def _as_planes(item: Any, friction: float | None) -> tuple[Plane, ...]:
     if isinstance(item, Plane):
         planes: tuple[Plane, ...] = (item,)
     elif isinstance(item, (int, float, np.integer, np.floating)) and not isinstance(item, bool):
-        planes = (Plane.incline(float(item), 0.5 if friction is None else friction),)
+        planes = (Plane.incline(float(item), DEFAULT_FRICTION if friction is None else friction),)
     elif isinstance(item, (tuple, list)) and all(isinstance(p, Plane) for p in item):
         planes = tuple(item)
     else:
         raise ConfigError(f"planes entries must be slopes in degrees, Plane objects or tuples of Planes, got {item!r}")
-    if friction is not None:
-        planes = tuple(replace(p, friction=friction) for p in planes)
-    return planes
+    return with_friction(planes, friction)
 
 
 def _describe_planes(planes: tuple[Plane, ...]) -> str:
@@ -210,36 +208,44 @@ def sweep_runs(
 ) -> list[tuple[float | None, tuple[Plane, ...], int, InitialState, Scene]]:
     """The runs of a sweep, in file order: ``(friction, planes, initial index, initial state, scene)`` each.
 
+    Frictions outermost, then planes, then initial states (:func:`licrom.scene.sweep.sweep`).
     Arguments as in :func:`generate_dataset`; ``scene`` is what the run simulates.
 
     Raises:
         ConfigError: bad arguments.
     """
-    mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
-    for m in mus:
-        if m is not None and (not math.isfinite(m) or m < 0):
-            raise ConfigError(f"friction coefficients must be finite and >= 0, got {m}")
-    plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
-    states = [base_scene.initial] if initial_states is None else list(initial_states)
-    for s in states:
-        if not isinstance(s, InitialState):
-            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
-    if not mus or not plane_items or not states:
-        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
+    mus, plane_items, states = _sweep_axes(base_scene, frictions, planes, initial_states)
     if initial_frame not in INITIAL_FRAMES:
         raise ConfigError(f"initial_frame must be one of {INITIAL_FRAMES}, got {initial_frame!r}")
     runs = []
-    for mu in mus:
-        for p_item in plane_items:
-            run_planes = _as_planes(p_item, mu)
-            for k, state in enumerate(states):
-                initial = state
-                if initial_frame == "plane":
-                    if not run_planes:
-                        raise ConfigError("initial_frame='plane' needs at least one plane in every run")
-                    initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
-                runs.append((mu, run_planes, k, state, base_scene.replace(planes=run_planes, initial=initial)))
+    for mu, p_item, (k, state) in sweep(mus, plane_items, tuple(enumerate(states))):
+        run_planes = _as_planes(p_item, mu)
+        initial = state
+        if initial_frame == "plane":
+            if not run_planes:
+                raise ConfigError("initial_frame='plane' needs at least one plane in every run")
+            initial = initial_state_on_plane(state, run_planes[0], mesh, base_scene.material.density)
+        runs.append((mu, run_planes, k, state, base_scene.replace(planes=run_planes, initial=initial)))
     return runs
+
+
+def _sweep_axes(base_scene: Scene, frictions: Sequence[float] | None, planes: Sequence[Any] | None,
+                initial_states: Sequence[InitialState] | None) -> tuple[tuple[float | None, ...], tuple[Any, ...], tuple[InitialState, ...]]:
+    """The checked axes of a sweep: friction coefficients (``(None,)``: the planes keep their own), plane
+    entries and initial states, the base scene's where None.
+
+    Raises:
+        ConfigError: a bad friction or initial state, or an empty axis.
+    """
+    mus = None if frictions is None else tuple(check_friction(m, f"frictions[{i}]") for i, m in enumerate(frictions))
+    plane_items = (tuple(base_scene.planes),) if planes is None else tuple(planes)
+    states = (base_scene.initial,) if initial_states is None else tuple(initial_states)
+    for s in states:
+        if not isinstance(s, InitialState):
+            raise ConfigError(f"initial_states must hold InitialState objects, got {type(s).__name__}")
+    if mus == () or not plane_items or not states:
+        raise ConfigError("frictions, planes and initial_states must not be empty (use None for the base scene's)")
+    return sweep_axis(mus), plane_items, states
 
 
 def local_devices(device: str, jobs: int) -> list[str]:
@@ -385,9 +391,7 @@ def generate_dataset(
     ray_timeout = check_ray_timeout(ray_timeout) if executor == "ray" else None
     # Local runs use this machine's devices; Ray tasks choose on the node that runs them.
     device = resolve_device(device) if executor == "local" else check_device_name(device)
-    mus: list[float | None] = [None] if frictions is None else [float(m) for m in frictions]
-    plane_items = [tuple(base_scene.planes)] if planes is None else list(planes)
-    states = [base_scene.initial] if initial_states is None else list(initial_states)
+    mus, plane_items, states = _sweep_axes(base_scene, frictions, planes, initial_states)
 
     out = make_dir(out_dir)
     # One sweep at a time per directory: two would both write mesh.vtu and the manifest, the last one winning.
@@ -416,7 +420,7 @@ def generate_dataset(
             "n_tets": mesh.n_tets,
             "base_scene": base_scene.to_dict(),
             "sweep": {
-                "frictions": mus,
+                "frictions": list(mus),
                 "planes": [[{"normal": list(p.normal), "offset": p.offset, "friction": p.friction} for p in _as_planes(it, None)]
                            for it in plane_items],
                 "initial_states": [s.__dict__ for s in states],
@@ -516,7 +520,8 @@ class DatasetSpec:
 
     @property
     def n_trajectories(self) -> int:
-        return len(self.frictions or (None,)) * len(self.planes or (None,)) * len(self.initial_states)
+        """How many runs the sweep has: frictions x planes x initial states (:func:`licrom.scene.sweep.sweep_count`)."""
+        return sweep_count(self.frictions, self.planes, self.initial_states)
 
     def scenes(self) -> list[Scene]:
         """The scene of every run, in file order."""

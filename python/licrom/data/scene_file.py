@@ -57,7 +57,9 @@ import math
 import os
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -66,6 +68,7 @@ from .._io import name_too_long
 from ..errors import ConfigError, FileFormatError
 from ..geometry.mesh import Mesh
 from ..scene.scene import INTEGRATORS, ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
+from ..scene.sweep import DEFAULT_FRICTION, check_friction, held_out_pairs, slope_friction_pairs, sweep, sweep_axis, sweep_count, tilted, with_friction
 from .dataset import DatasetSpec
 
 if sys.version_info >= (3, 11):
@@ -147,14 +150,22 @@ class _Table:
             raise ConfigError(f"{self.key(name)} must be 3 numbers{f' ({unit})' if unit else ''}, got {value!r}")
         return tuple(_number(v, f"{self.key(name)}[{i}]", unit=unit) for i, v in enumerate(value))  # type: ignore[return-value]
 
+    def friction(self, name: str, default: Any = _MISSING) -> Any:
+        """A Coulomb coefficient (:func:`licrom.scene.sweep.check_friction`)."""
+        if self.absent(name, default):
+            return default
+        return check_friction(self.raw(name), self.key(name))
+
     def numbers(self, name: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False, hi_open: bool = False,
-                unit: str = "") -> tuple[float, ...] | None:
+                unit: str = "", check: Callable[[Any, str], float] | None = None) -> tuple[float, ...] | None:
+        """A non-empty list of numbers in the range, each read by ``check(value, key)`` (default: :func:`_number` in the range)."""
         value = self.raw(name, None)
         if value is None:
             return None
         if not isinstance(value, list) or not value:
             raise ConfigError(f"{self.key(name)} must be a non-empty list of numbers {_interval(lo, hi, lo_open, hi_open)}, got {value!r}")
-        return tuple(_number(v, f"{self.key(name)}[{i}]", lo, hi, lo_open, hi_open, unit) for i, v in enumerate(value))
+        check = check or partial(_number, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open, unit=unit)
+        return tuple(check(v, f"{self.key(name)}[{i}]") for i, v in enumerate(value))
 
     def string(self, name: str, default: Any = _MISSING, choices: tuple[str, ...] | None = None) -> str:
         value = self.raw(name, default)
@@ -376,7 +387,7 @@ class SceneFile:
             density=m.density if density is None else _number(density, "density", 0.0, lo_open=True, unit="kg/m^3"),
         )
         if frictions is not None:
-            frictions = tuple(_number(v, f"friction {v!r}", 0.0) for v in frictions) or None
+            frictions = tuple(check_friction(v, f"friction {v!r}") for v in frictions) or None
         if slopes is not None:
             slopes = tuple(_number(v, f"slope {v!r}", 0.0, 90.0, hi_open=True, unit="deg") for v in slopes) or None
             if slopes and not self.scene.planes:
@@ -395,13 +406,8 @@ class SceneFile:
 
     @property
     def n_runs(self) -> int:
-        return len(self.frictions or (None,)) * len(self.slopes or (None,)) * len(self.initial)
-
-    def _tilted(self, slope: float, friction: float | None = None) -> tuple[Plane, ...]:
-        first = self.scene.planes[0]
-        mu = first.friction if friction is None else friction
-        plane = Plane.incline(slope, mu, offset=first.offset, azimuth_deg=first.azimuth_deg)
-        return (plane, *self.scene.planes[1:])
+        """How many runs the sweep has: frictions x slopes x initial states (:func:`licrom.scene.sweep.sweep_count`)."""
+        return sweep_count(self.frictions, self.slopes, self.initial)
 
     def initial_states(self, mesh: Mesh) -> tuple[InitialState, ...]:
         """The initial states for ``mesh`` (drops over the ground ``z = 0``, or world-frame states)."""
@@ -416,7 +422,7 @@ class SceneFile:
             mesh=mesh,
             base_scene=self.scene,
             frictions=self.frictions,
-            planes=None if self.slopes is None else tuple(self._tilted(s) for s in self.slopes),
+            planes=None if self.slopes is None else tuple(tilted(self.scene.planes, s) for s in self.slopes),
             initial_states=self.initial_states(mesh),
             steps=self.steps,
             record_every=self.record_every,
@@ -437,16 +443,15 @@ class SceneFile:
             raise ConfigError(f"scene '{self.name}' has no planes; comparisons need at least one")
         first = self.scene.planes[0]
         if slopes or frictions:
-            pairs = [(s, m) for s in (slopes or (first.slope_deg,)) for m in (frictions or (first.friction,))]
+            pairs = slope_friction_pairs(slopes, frictions, first)
         elif self.held_out:
-            pairs = [(first.slope_deg if h.slope is None else h.slope, first.friction if h.friction is None else h.friction)
-                     for h in self.held_out]
-        else:
-            pairs = [(s, m) for m in (self.frictions or (first.friction,)) for s in (self.slopes or (first.slope_deg,))]
+            pairs = held_out_pairs(((h.slope, h.friction) for h in self.held_out), first)
+        else:  # the sweep's order: frictions outermost
+            pairs = [(s, m) for m, s in sweep(sweep_axis(self.frictions, first.friction), sweep_axis(self.slopes, first.slope_deg))]
         state = self.initial_states(mesh)[0]
         out = []
         for slope, mu in pairs:
-            planes = tuple(replace(p, friction=mu) for p in self._tilted(slope, mu))
+            planes = with_friction(tilted(self.scene.planes, slope, mu), mu)
             initial = initial_state_on_plane(state, planes[0], mesh, self.scene.material.density) if self.dropped else state
             out.append((f"slope {slope:g} deg, mu {mu:g}", self.scene.replace(planes=planes, initial=initial)))
         return out
@@ -606,7 +611,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
     planes = (Plane(),) if plane_tables is None else tuple(_plane(t) for t in plane_tables)
 
     sw = top.table("sweep")
-    frictions = sw.numbers("frictions", 0.0)
+    frictions = sw.numbers("frictions", 0.0, check=check_friction)
     slopes = sw.numbers("slopes", 0.0, 90.0, hi_open=True, unit="deg")
     sw.done()
     if slopes is not None and not planes:
@@ -623,7 +628,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
 
     held_out = []
     for t in top.tables("held_out") or []:
-        h = HeldOut(slope=t.number("slope", None, 0.0, 90.0, hi_open=True, unit="deg"), friction=t.number("friction", None, 0.0))
+        h = HeldOut(slope=t.number("slope", None, 0.0, 90.0, hi_open=True, unit="deg"), friction=t.friction("friction", None))
         t.done()
         if h.slope is None and h.friction is None:
             raise ConfigError(f"{t.path} needs a slope, a friction or both")
@@ -652,7 +657,7 @@ def _plane(t: _Table) -> Plane:
     azimuth = t.number("azimuth", None, unit="deg")
     normal = t.vector("normal", None)
     offset = t.number("offset", 0.0, unit="m")
-    friction = t.number("friction", 0.5, 0.0)
+    friction = t.friction("friction", DEFAULT_FRICTION)
     t.done()
     if normal is None:
         return Plane.incline(slope or 0.0, friction, offset=offset, azimuth_deg=azimuth or 0.0)
