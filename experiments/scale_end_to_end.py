@@ -163,12 +163,12 @@ def bounds_study(args) -> dict:
     fam = bfe.cheese_family(args.small)
     model = licrom.Model.load(args.bounds)
     record = SolverParams(on_failure="record")
+    values = BodyFrameBasis(fam.mesh, model, density=fam.cases[0].scene.material.density).values(fam.mesh.vertices)
     rows = []
     for case in fam.held_out[: args.held]:
         case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
         path, info = generate(case, fam.mesh, fam.steps, args.device, work / "runs")
         full = Trajectory.load(path)
-        values = BodyFrameBasis(fam.mesh, model, density=case.scene.material.density).values(fam.mesh.vertices)
         t0 = time.perf_counter()
         row = {"name": case.name, "kind": case.kind, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                "learned_projection": bfe.body_projection_error(full, values), "own_pod_projection": own_pod_projection(full, model.n_learned),

@@ -282,11 +282,11 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
         return check_field(name, a, self.mesh.n_vertices)
 
     def _trajectory(self, rec: RunRecord, positions: np.ndarray, displacements: np.ndarray, velocities: np.ndarray, qs: np.ndarray,
-                    record_every: int, what: str, kind: dict[str, Any], extra: dict[str, Any]) -> Trajectory:
+                    record_every: int, what: str, info: dict[str, Any]) -> Trajectory:
         """The :class:`Trajectory` of a run that ``run`` recorded: its frames' (f, n, 3) ``positions``, ``displacements`` and
         ``velocities`` and (f, k) ``qs``, with each frame's smallest ``det F`` at the cubature points and deepest
         penetration into a plane, and the online error estimate; each warns, as ``what``, where it leaves its range, at the
-        caller of ``run``. ``info`` holds ``kind`` after its source and ``extra`` after the sampling."""
+        caller of ``run``. Its ``info`` holds the source, the sampling and ``info``."""
         min_det_f = cubature_min_det(self._jacobians, qs)
         planes = self.scene.plane_array()
         depth = np.array([penetration(x, planes) for x in positions])
@@ -308,12 +308,11 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
             **arrays,
             info={
                 "source": "reduced",
-                **kind,
                 "n_modes": int(self.n_modes),
                 "cubature": self.cubature.scheme,
                 "cubature_points": int(self.cubature.count),
                 "contact_points": int(self.contact_points.count),
-                **extra,
+                **info,
             },
         )
 

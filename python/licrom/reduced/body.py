@@ -237,7 +237,7 @@ class BodyFrameSim(ReducedSim):
         positions = np.array([x for x, _, _ in rec.frames])
         return self._trajectory(rec, positions, positions - self.mesh.vertices, np.array([v for _, v, _ in rec.frames]),
                                 np.array([q for _, _, q in rec.frames]), record_every, "the body-frame simulation",
-                                {"frame": "body", "solver": "newton"}, {})
+                                {"frame": "body", "solver": "newton"})
 
     # --- other meshes ------------------------------------------------------------------
     def transfer(self, mesh: Mesh, cubature: Cubature | None = None, contact_points: ContactPoints | None = None) -> BodyFrameSim:

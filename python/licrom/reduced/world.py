@@ -179,8 +179,8 @@ class WorldFrameSim(ReducedSim):
         n = self.mesh.n_vertices
         displacements = (qs @ w.T).reshape(-1, n, 3)
         return self._trajectory(rec, self.mesh.vertices + displacements, displacements, (qdots @ w.T).reshape(-1, n, 3), qs, record_every,
-                                "the reduced simulation", {"solver": self.solver},
-                                {"solver_stats": work, "q": qs.tolist() if qs.size <= 200_000 else None})
+                                "the reduced simulation",
+                                {"solver": self.solver, "solver_stats": work, "q": qs.tolist() if qs.size <= 200_000 else None})
 
     # --- other meshes ------------------------------------------------------------------
     def transfer(self, mesh: Mesh, cubature: Cubature | None = None, contact_points: ContactPoints | None = None) -> WorldFrameSim:

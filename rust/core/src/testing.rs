@@ -77,15 +77,15 @@ pub fn rel_err(a: &[f64], b: &[f64], floor: f64) -> f64 {
 }
 
 /// Ten steps of a solid started inside the ground, `step` taking one and
-/// returning the reported validity with the state's terms and q (and each
-/// contact point's map to the world): each step reports the smallest `det F`
+/// returning the reported validity, q and the pose `(c, R)` that carries the
+/// points of `terms` to the world (the identity in the world frame): each step reports the smallest `det F`
 /// at the cubature points and the deepest penetration of a point, to 1e-6 (it
 /// is taken at the accepted iterate, before the step's last correction below
 /// the solver tolerance), and the solid is pushed out after the first.
-pub fn check_pushed_out<'a>(mut step: impl FnMut() -> (Validity, &'a SampledTerms, Vec<f64>, Box<dyn Fn(&Vector3<f64>) -> Vector3<f64> + 'a>)) {
+pub fn check_pushed_out(terms: &SampledTerms, mut step: impl FnMut() -> (Validity, Vec<f64>, Vector3<f64>, Matrix3<f64>)) {
     let mut depths = vec![];
     for i in 0..10 {
-        let (v, terms, q, place) = step();
+        let (v, q, center, rotation) = step();
         let n = q.len();
         let dot = |row: &[f64]| row.iter().zip(&q).map(|(a, b)| a * b).sum::<f64>();
         let min_det = terms
@@ -100,7 +100,7 @@ pub fn check_pushed_out<'a>(mut step: impl FnMut() -> (Validity, &'a SampledTerm
             .contact_basis
             .chunks_exact(3 * n)
             .zip(terms.contact_rest.chunks_exact(3))
-            .map(|(w, x0)| place(&Vector3::new(x0[0] + dot(&w[..n]), x0[1] + dot(&w[n..2 * n]), x0[2] + dot(&w[2 * n..]))))
+            .map(|(w, x0)| center + rotation * Vector3::new(x0[0] + dot(&w[..n]), x0[1] + dot(&w[n..2 * n]), x0[2] + dot(&w[2 * n..])))
             .map(|x| -terms.planes[0].gap(&x))
             .fold(0.0, f64::max);
         assert!((v.min_det - min_det).abs() < 1e-6, "step {i}: det {} against {min_det}", v.min_det);

@@ -597,9 +597,9 @@ fn every_step_reports_the_smallest_det_and_the_deepest_penetration() {
     let mut s = solver(&b, 1e-10, 100);
     let pose = Pose { center: c - normal * 0.01, rotation: r, q: vec![0.0; b.n] };
     s.set_state(&pose, &[0.2, 0.0, 0.0], &[0.0, 0.5, 0.0], &vec![0.0; b.n]).unwrap();
-    check_pushed_out(|| {
+    check_pushed_out(&b.terms, || {
         s.step().unwrap();
-        let p = s.pose().clone();
-        (s.validity(), &b.terms, p.q.clone(), Box::new(move |y: &Vector3<f64>| p.center + p.rotation * y))
+        let p = s.pose();
+        (s.validity(), p.q.clone(), p.center, p.rotation)
     });
 }
