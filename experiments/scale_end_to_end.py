@@ -4,6 +4,7 @@
     python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
     python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
+    python experiments/scale_end_to_end.py --cubatures out/scale/model/cheese.lcm --work out/scale  # cubature against every tet
 
 The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes and placement code)
 on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
@@ -27,7 +28,9 @@ Everything goes to ``--work/scale.json`` (trajectories under ``--work/runs``, th
 ``--bounds MODEL`` generates only the held-out runs (cached under ``--work/runs``) and writes to
 ``--work/bounds.json``, for each, the projection error (non-rigid, body frame) of the run onto MODEL's
 learned modes and onto POD(r) of the run's own frames (r = MODEL's; the best r-dimensional subspace
-for that run, the floor no training set can beat), beside each other.
+for that run, the floor no training set can beat), beside each other. ``--cubatures MODEL`` runs the same
+held-out runs with MODEL's stored cubature, with refits of it to the model's stored training poses at up to
+``--cubature-counts`` tets, and with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's.
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.scene.scene import SolverParams
 from licrom.subspace.body_basis import BodyFrameBasis
-from licrom.subspace.cubature import ContactPoints
+from licrom.subspace.cubature import ContactPoints, Cubature
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
@@ -108,18 +111,20 @@ def profile_top(prof: cProfile.Profile, n: int = 8) -> list[dict]:
     return rows[:n]
 
 
-def reduced_stage(model: licrom.Model, case: bfe.Case, full: Trajectory, steps: int, contact_points: int | None = None) -> dict:
+def reduced_stage(model: licrom.Model, case: bfe.Case, full: Trajectory, steps: int, contact_points: int | None = None,
+                  cubature: str | Cubature | None = None, projection: bool = True) -> dict:
     """``ReducedSim(model, scene=case.scene)`` against the full run: setup (profiled), steps, errors, estimate.
 
     ``contact_points``: a farthest-point subset of that many boundary vertices (``ContactPoints.subset``, its
-    setup time included) in place of the default, every boundary vertex."""
+    setup time included) in place of the default. ``cubature``: ``ReducedSim``'s argument (None: the model's
+    stored fit). ``projection``: also the learned subspace's projection error of the run."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the estimate's AccuracyWarning is reported in the table
         prof = cProfile.Profile()
         t0 = time.perf_counter()
         prof.enable()
         subset = None if contact_points is None else ContactPoints.subset(full.mesh, contact_points)
-        sim = ReducedSim(model, scene=case.scene, contact_points=subset)
+        sim = ReducedSim(model, scene=case.scene, contact_points=subset, cubature=cubature)
         prof.disable()
         setup = time.perf_counter() - t0
         t1 = time.perf_counter()
@@ -129,19 +134,22 @@ def reduced_stage(model: licrom.Model, case: bfe.Case, full: Trajectory, steps: 
     metrics = bfe.run_metrics(full, reduced)
     compare_s = time.perf_counter() - t2
     t3 = time.perf_counter()
-    mesh = full.mesh
-    values = BodyFrameBasis(mesh, model, density=case.scene.material.density).values(mesh.vertices)
-    learned = bfe.body_projection_error(full, values)
+    learned = float("nan")
+    if projection:
+        values = BodyFrameBasis(full.mesh, model, density=case.scene.material.density).values(full.mesh.vertices)
+        learned = bfe.body_projection_error(full, values)
     proj_s = time.perf_counter() - t3
     est = reduced.error_estimate
     steps_ms = 1e3 * np.asarray(reduced.step_seconds)
     row = {"name": case.name, "kind": case.kind, "setup_s": setup, "setup_profile": profile_top(prof), "run_s": run_s,
            "median_step_ms": float(np.median(steps_ms)), "p90_step_ms": float(np.percentile(steps_ms, 90)),
-           "cubature": sim.cubature.count, "contact_points": sim.contact_points.count, "nonrigid_error": metrics["nonrigid_error"], "com_error": metrics["com_error"],
+           "cubature": sim.cubature.count, "cubature_scheme": sim.cubature.scheme, "cubature_fit_error": sim.cubature.fit_error,
+           "contact_points": sim.contact_points.count, "nonrigid_error": metrics["nonrigid_error"], "com_error": metrics["com_error"],
            "stick_slip_right": metrics["stick_slip_right"], "estimate": float(est[-1]) if len(est) else float("nan"),
            "learned_projection": learned, "compare_s": compare_s, "projection_s": proj_s,
            "full_median_step_ms": 1e3 * float(np.median(full.step_seconds))}
-    log(f"reduced {case.name} ({row['contact_points']} contact points): setup {setup:.2f} s, median step {row['median_step_ms']:.3f} ms, non-rigid {bfe._pct(row['nonrigid_error'])} "
+    log(f"reduced {case.name} ({row['contact_points']} contact points, {row['cubature']} {row['cubature_scheme']} cubature tets): "
+        f"setup {setup:.2f} s, median step {row['median_step_ms']:.3f} ms, non-rigid {bfe._pct(row['nonrigid_error'])} "
         f"(est {bfe._pct(row['estimate'])}, learned proj {bfe._pct(learned)}), COM {bfe._pct(row['com_error'])}, compare {compare_s:.1f} s, "
         f"projection {proj_s:.1f} s")
     return row
@@ -155,20 +163,29 @@ def own_pod_projection(full: Trajectory, r: int) -> float:
     return bfe.body_projection_error(full, values)
 
 
+def held_out_runs(args, fam: bfe.Family):
+    """Each held-out case of ``fam`` (up to ``--held``) with its full run (generated on ``--device``, cached) and its timing."""
+    record = SolverParams(on_failure="record")
+    for case in fam.held_out[: args.held]:
+        case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
+        path, info = generate(case, fam.mesh, fam.steps, args.device, Path(args.work) / "runs")
+        yield case, Trajectory.load(path), info
+
+
+def held_out_family(args) -> bfe.Family:
+    (Path(args.work) / "runs").mkdir(parents=True, exist_ok=True)
+    bfe.CHEESE_RESOLUTION = args.resolution
+    return bfe.cheese_family(args.small)
+
+
 def bounds_study(args) -> dict:
     """The held-out runs' subspace bounds for the model ``args.bounds``: learned and own-POD(r) projection errors."""
     work = Path(args.work)
-    (work / "runs").mkdir(parents=True, exist_ok=True)
-    bfe.CHEESE_RESOLUTION = args.resolution
-    fam = bfe.cheese_family(args.small)
+    fam = held_out_family(args)
     model = licrom.Model.load(args.bounds)
-    record = SolverParams(on_failure="record")
     values = BodyFrameBasis(fam.mesh, model, density=fam.cases[0].scene.material.density).values(fam.mesh.vertices)
     rows = []
-    for case in fam.held_out[: args.held]:
-        case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
-        path, info = generate(case, fam.mesh, fam.steps, args.device, work / "runs")
-        full = Trajectory.load(path)
+    for case, full, info in held_out_runs(args, fam):
         t0 = time.perf_counter()
         row = {"name": case.name, "kind": case.kind, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                "learned_projection": bfe.body_projection_error(full, values), "own_pod_projection": own_pod_projection(full, model.n_learned),
@@ -177,6 +194,30 @@ def bounds_study(args) -> dict:
             f"{bfe._pct(row['own_pod_projection'])} ({time.perf_counter() - t0:.1f} s)")
         rows.append(row)
         (work / "bounds.json").write_text(json.dumps({"model": str(args.bounds), "device": args.device, "rows": rows}, indent=1))
+    return {"rows": rows}
+
+
+def cubature_study(args) -> dict:
+    """The held-out runs with the model ``args.cubatures``' stored cubature, refits of it to its stored training
+    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), and every tet (``--work/cubatures.json``)."""
+    work = Path(args.work)
+    fam = held_out_family(args)
+    model = licrom.Model.load(args.cubatures)
+    variants: list[tuple[str, str | Cubature | None, float]] = [("stored", None, 0.0)]
+    for count in args.cubature_counts:
+        t0 = time.perf_counter()
+        fit = Cubature.fitted(model, model.cubature_samples, count=count, tolerance=args.cubature_tolerance)
+        fit_s = time.perf_counter() - t0
+        log(f"cubature refit at most {count} tets: {fit.count} tets, residual {fit.fit_error:.2e}, {fit_s:.1f} s")
+        variants.append((f"refit {count}", fit, fit_s))
+    variants.append(("every tet", "full", 0.0))
+    rows = []
+    for case, full, info in held_out_runs(args, fam):
+        for label, cubature, fit_s in variants:
+            row = reduced_stage(model, case, full, fam.steps, cubature=cubature, projection=False)
+            rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
+                         "full_step_ms_device": info["median_step_ms"]})
+            (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
     return {"rows": rows}
 
 
@@ -393,6 +434,10 @@ def main() -> None:
     ap.add_argument("--small", action="store_true", help="tiny cheese, 20 steps, CPU, 1 epoch: a smoke test")
     ap.add_argument("--section-only", action="store_true", help="write the docs section from --work/scale.json")
     ap.add_argument("--bounds", type=Path, metavar="MODEL", help="only the held-out runs' subspace bounds for MODEL (--work/bounds.json)")
+    ap.add_argument("--cubatures", type=Path, metavar="MODEL",
+                    help="only the held-out runs with MODEL's stored cubature, its refits and every tet (--work/cubatures.json)")
+    ap.add_argument("--cubature-counts", type=int, nargs="*", default=[3000], metavar="N", help="most tets of each refit (--cubatures)")
+    ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
     if args.section_only:
         res = json.loads((Path(args.work) / "scale.json").read_text())
@@ -402,6 +447,9 @@ def main() -> None:
         args.device, args.resolution = "cpu", 5
     if args.bounds is not None:
         bounds_study(args)
+        return
+    if args.cubatures is not None:
+        cubature_study(args)
         return
     res = main_study(args)
     print(section(res))

@@ -439,6 +439,12 @@ class Model:
         self._cubature_samples = q
         self._cubature_cache = {}
 
+    @property
+    def cubature_samples(self) -> np.ndarray | None:
+        """(S, n) reduced coordinates of the training poses :attr:`cubature` was fitted to (None without one):
+        refit it with other settings by :meth:`licrom.Cubature.fitted`."""
+        return None if self._cubature_samples is None else self._cubature_samples.copy()
+
     def cubature_for(self, mesh: Mesh | None = None) -> Cubature | None:
         """The fitted cubature on ``mesh`` (default: the model's mesh); None when the model has none.
 
