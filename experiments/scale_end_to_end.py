@@ -4,7 +4,7 @@
     python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
     python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
-    python experiments/scale_end_to_end.py --cubatures out/scale/model/cheese.lcm --work out/scale  # cubature against every tet
+    python experiments/scale_end_to_end.py --cubatures out/scale/model/cheese.lcm --every-tet --own-pod --work out/scale  # cubature, dynamics
 
 The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes and placement code)
 on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
@@ -30,7 +30,8 @@ Everything goes to ``--work/scale.json`` (trajectories under ``--work/runs``, th
 learned modes and onto POD(r) of the run's own frames (r = MODEL's; the best r-dimensional subspace
 for that run, the floor no training set can beat), beside each other. ``--cubatures MODEL`` runs the same
 held-out runs with MODEL's stored cubature, with refits of it to the model's stored training poses at up to
-``--cubature-counts`` tets, and with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's.
+``--cubature-counts`` tets, with every tet (``--every-tet``) and, with ``--own-pod``, on POD(r) of each run's own frames
+with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's, and how much the dynamics'.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from pathlib import Path
 
 import licrom
 import numpy as np
-from licrom import ReducedSim, Trajectory
+from licrom import BodyFrameSim, ReducedSim, Trajectory
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.scene.scene import SolverParams
@@ -178,6 +179,23 @@ def held_out_family(args) -> bfe.Family:
     return bfe.cheese_family(args.small)
 
 
+def own_pod_dynamics(full: Trajectory, case: bfe.Case, r: int, steps: int) -> dict:
+    """The body-frame reduced run on POD(r) of ``full``'s own frames from first contact on, every tet as cubature:
+    the reduced dynamics' error with the best r-dimensional subspace for that run (no training gap, no cubature)."""
+    own = bfe.body_displacements(full)[bfe.contact_start(full):]
+    pod = bfe.residual_pod(full.mesh, [own], bfe.masses_of(full), r)
+    basis = BodyFrameBasis(full.mesh, pod, density=case.scene.material.density)
+    t0 = time.perf_counter()
+    reduced = BodyFrameSim(basis, full.mesh, case.scene, cubature=Cubature.full(full.mesh)).run(steps)
+    metrics = bfe.run_metrics(full, reduced)
+    row = {"name": case.name, "kind": case.kind, "run_s": time.perf_counter() - t0, "median_step_ms": 1e3 * float(np.median(reduced.step_seconds)),
+           "cubature": int(full.mesh.n_tets), "nonrigid_error": metrics["nonrigid_error"], "com_error": metrics["com_error"],
+           "stick_slip_right": metrics["stick_slip_right"], "own_pod_projection": bfe.body_projection_error(full, basis.values(full.mesh.vertices))}
+    log(f"own POD({r}) {case.name}: non-rigid {bfe._pct(row['nonrigid_error'])} (projection {bfe._pct(row['own_pod_projection'])}), "
+        f"COM {bfe._pct(row['com_error'])}, median step {row['median_step_ms']:.1f} ms")
+    return row
+
+
 def bounds_study(args) -> dict:
     """The held-out runs' subspace bounds for the model ``args.bounds``: learned and own-POD(r) projection errors."""
     work = Path(args.work)
@@ -199,7 +217,8 @@ def bounds_study(args) -> dict:
 
 def cubature_study(args) -> dict:
     """The held-out runs with the model ``args.cubatures``' stored cubature, refits of it to its stored training
-    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), and every tet (``--work/cubatures.json``)."""
+    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), and
+    on each run's own POD(r) (``--own-pod``); to ``--work/cubatures.json``."""
     work = Path(args.work)
     fam = held_out_family(args)
     model = licrom.Model.load(args.cubatures)
@@ -210,13 +229,17 @@ def cubature_study(args) -> dict:
         fit_s = time.perf_counter() - t0
         log(f"cubature refit at most {count} tets: {fit.count} tets, residual {fit.fit_error:.2e}, {fit_s:.1f} s")
         variants.append((f"refit {count}", fit, fit_s))
-    variants.append(("every tet", "full", 0.0))
+    if args.every_tet:
+        variants.append(("every tet", "full", 0.0))
     rows = []
     for case, full, info in held_out_runs(args, fam):
         for label, cubature, fit_s in variants:
             row = reduced_stage(model, case, full, fam.steps, cubature=cubature, projection=False)
             rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                          "full_step_ms_device": info["median_step_ms"]})
+            (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
+        if args.own_pod:
+            rows.append({**own_pod_dynamics(full, case, model.n_learned, fam.steps), "variant": f"own POD({model.n_learned}), every tet"})
             (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
     return {"rows": rows}
 
@@ -437,6 +460,8 @@ def main() -> None:
     ap.add_argument("--cubatures", type=Path, metavar="MODEL",
                     help="only the held-out runs with MODEL's stored cubature, its refits and every tet (--work/cubatures.json)")
     ap.add_argument("--cubature-counts", type=int, nargs="*", default=[3000], metavar="N", help="most tets of each refit (--cubatures)")
+    ap.add_argument("--every-tet", action="store_true", help="also every tet as cubature (--cubatures)")
+    ap.add_argument("--own-pod", action="store_true", help="also each held-out run on POD(r) of its own frames, every tet (--cubatures)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
     if args.section_only:
