@@ -90,6 +90,34 @@ def test_tumbling_free_flight_matches_full_simulation(integrator):
     assert err < 1e-8
 
 
+@pytest.mark.parametrize("integrator", ["backward_euler", "bdf2"])
+def test_recorded_frames_are_the_states_read_between_steps(integrator):
+    # run() rebuilds its frames' shapes at the end, all at once: the same positions and velocities
+    # (the integrator's difference of the poses before) as reading them after each step.
+    mesh = meshes.cheese(resolution=4)
+    scene = Scene(planes=(Plane.incline(25.0, 0.3, offset=0.1),), initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.4)),
+                  integrator=integrator)
+    learned = MeshBasis(mesh, 0.01 * np.random.default_rng(3).normal(size=(mesh.n_vertices, 3, 5)))
+    basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
+
+    def sim():
+        return BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+
+    recorded = sim().run(8, record_every=3)
+    stepped = sim()
+    frames = [(stepped.positions, stepped.velocities)]
+    for s in range(1, 9):
+        stepped.step()
+        if s % 3 == 0:
+            frames.append((stepped.positions, stepped.velocities))
+    assert recorded.n_frames == len(frames) == 3
+    scale = np.abs(recorded.velocities).max()
+    assert scale > 0.1
+    for f, (x, v) in enumerate(frames):
+        np.testing.assert_allclose(recorded.displacements[f] + mesh.vertices, x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(recorded.velocities[f], v, rtol=0, atol=1e-10 * scale)
+
+
 def test_basis_carries_no_momentum_on_an_anisotropic_body():
     mesh = meshes.box((0.2, 0.06, 0.03), resolution=3)
     learned = MeshBasis(mesh, np.random.default_rng(0).normal(size=(mesh.n_vertices, 3, 4)))
