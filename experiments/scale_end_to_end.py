@@ -31,7 +31,8 @@ learned modes and onto POD(r) of the run's own frames (r = MODEL's; the best r-d
 for that run, the floor no training set can beat), beside each other. ``--cubatures MODEL`` runs the same
 held-out runs with MODEL's stored cubature, with refits of it to the model's stored training poses at up to
 ``--cubature-counts`` tets, with every tet (``--every-tet``) and, with ``--own-pod``, on POD(r) of each run's own frames
-with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's, and how much the dynamics'.
+with every tet, and with ``--training-pod`` on POD(r) of the training runs' frames (what the learned modes are trained
+towards) with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's, the dynamics', the network's.
 """
 
 from __future__ import annotations
@@ -158,9 +159,7 @@ def reduced_stage(model: licrom.Model, case: bfe.Case, full: Trajectory, steps: 
 
 def own_pod_projection(full: Trajectory, r: int) -> float:
     """Non-rigid error of ``full`` projected onto POD(r) of its own body-frame frames from first contact on."""
-    own = bfe.body_displacements(full)[bfe.contact_start(full):]
-    pod = bfe.residual_pod(full.mesh, [own], bfe.masses_of(full), r)
-    values = BodyFrameBasis(full.mesh, pod, density=full.scene.material.density).values(full.mesh.vertices)
+    values = BodyFrameBasis(full.mesh, own_pod(full, r), density=full.scene.material.density).values(full.mesh.vertices)
     return bfe.body_projection_error(full, values)
 
 
@@ -179,21 +178,40 @@ def held_out_family(args) -> bfe.Family:
     return bfe.cheese_family(args.small)
 
 
-def own_pod_dynamics(full: Trajectory, case: bfe.Case, r: int, steps: int) -> dict:
-    """The body-frame reduced run on POD(r) of ``full``'s own frames from first contact on, every tet as cubature:
-    the reduced dynamics' error with the best r-dimensional subspace for that run (no training gap, no cubature)."""
-    own = bfe.body_displacements(full)[bfe.contact_start(full):]
-    pod = bfe.residual_pod(full.mesh, [own], bfe.masses_of(full), r)
+def pod_dynamics(full: Trajectory, case: bfe.Case, pod, steps: int, label: str) -> dict:
+    """The body-frame reduced run of ``case`` on the POD modes ``pod``, every tet as cubature, against ``full``."""
     basis = BodyFrameBasis(full.mesh, pod, density=case.scene.material.density)
     t0 = time.perf_counter()
     reduced = BodyFrameSim(basis, full.mesh, case.scene, cubature=Cubature.full(full.mesh)).run(steps)
     metrics = bfe.run_metrics(full, reduced)
-    row = {"name": case.name, "kind": case.kind, "run_s": time.perf_counter() - t0, "median_step_ms": 1e3 * float(np.median(reduced.step_seconds)),
-           "cubature": int(full.mesh.n_tets), "nonrigid_error": metrics["nonrigid_error"], "com_error": metrics["com_error"],
-           "stick_slip_right": metrics["stick_slip_right"], "own_pod_projection": bfe.body_projection_error(full, basis.values(full.mesh.vertices))}
-    log(f"own POD({r}) {case.name}: non-rigid {bfe._pct(row['nonrigid_error'])} (projection {bfe._pct(row['own_pod_projection'])}), "
+    row = {"name": case.name, "kind": case.kind, "variant": label, "run_s": time.perf_counter() - t0,
+           "median_step_ms": 1e3 * float(np.median(reduced.step_seconds)), "cubature": int(full.mesh.n_tets),
+           "nonrigid_error": metrics["nonrigid_error"], "com_error": metrics["com_error"], "stick_slip_right": metrics["stick_slip_right"],
+           "projection": bfe.body_projection_error(full, basis.values(full.mesh.vertices))}
+    log(f"{label} {case.name}: non-rigid {bfe._pct(row['nonrigid_error'])} (projection {bfe._pct(row['projection'])}), "
         f"COM {bfe._pct(row['com_error'])}, median step {row['median_step_ms']:.1f} ms")
     return row
+
+
+def own_pod(full: Trajectory, r: int):
+    """POD(r) of ``full``'s own body-frame frames from first contact on: the best r-dimensional subspace for that run."""
+    return bfe.residual_pod(full.mesh, [bfe.body_displacements(full)[bfe.contact_start(full):]], bfe.masses_of(full), r)
+
+
+def training_pod(args, fam: bfe.Family, r: int):
+    """POD(r) of the first ``--runs`` training runs' body-frame frames from first contact on, run-balanced as training
+    balances them (generated on ``--device``, cached): what the learned modes are trained towards."""
+    record = SolverParams(on_failure="record")
+    frames, masses = [], None
+    for case in fam.training[: args.runs]:
+        case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
+        run = Trajectory.load(generate(case, fam.mesh, fam.steps, args.device, Path(args.work) / "runs")[0])
+        masses = bfe.masses_of(run)
+        frames.append(bfe.body_displacements(run)[bfe.contact_start(run):])
+    t0 = time.perf_counter()
+    pod = bfe.residual_pod(fam.mesh, frames, masses, r)
+    log(f"training POD({r}) of {len(frames)} runs, {sum(len(f) for f in frames)} frames: {time.perf_counter() - t0:.1f} s")
+    return pod
 
 
 def bounds_study(args) -> dict:
@@ -218,7 +236,7 @@ def bounds_study(args) -> dict:
 def cubature_study(args) -> dict:
     """The held-out runs with the model ``args.cubatures``' stored cubature, refits of it to its stored training
     poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), and
-    on each run's own POD(r) (``--own-pod``); to ``--work/cubatures.json``."""
+    on each run's own POD(r) (``--own-pod``) and the training runs' (``--training-pod``); to ``--work/cubatures.json``."""
     work = Path(args.work)
     fam = held_out_family(args)
     model = licrom.Model.load(args.cubatures)
@@ -231,6 +249,7 @@ def cubature_study(args) -> dict:
         variants.append((f"refit {count}", fit, fit_s))
     if args.every_tet:
         variants.append(("every tet", "full", 0.0))
+    pods = [(f"training POD({model.n_learned}), every tet", training_pod(args, fam, model.n_learned))] if args.training_pod else []
     rows = []
     for case, full, info in held_out_runs(args, fam):
         for label, cubature, fit_s in variants:
@@ -238,8 +257,10 @@ def cubature_study(args) -> dict:
             rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                          "full_step_ms_device": info["median_step_ms"]})
             (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
+        for label, pod in pods:
+            rows.append(pod_dynamics(full, case, pod, fam.steps, label))
         if args.own_pod:
-            rows.append({**own_pod_dynamics(full, case, model.n_learned, fam.steps), "variant": f"own POD({model.n_learned}), every tet"})
+            rows.append(pod_dynamics(full, case, own_pod(full, model.n_learned), fam.steps, f"own POD({model.n_learned}), every tet"))
             (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
     return {"rows": rows}
 
@@ -461,6 +482,8 @@ def main() -> None:
                     help="only the held-out runs with MODEL's stored cubature, its refits and every tet (--work/cubatures.json)")
     ap.add_argument("--cubature-counts", type=int, nargs="*", default=[3000], metavar="N", help="most tets of each refit (--cubatures)")
     ap.add_argument("--every-tet", action="store_true", help="also every tet as cubature (--cubatures)")
+    ap.add_argument("--training-pod", action="store_true",
+                    help="also each held-out run on POD(r) of the --runs training runs' frames, every tet (--cubatures; generates them)")
     ap.add_argument("--own-pod", action="store_true", help="also each held-out run on POD(r) of its own frames, every tet (--cubatures)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
