@@ -40,6 +40,7 @@ __all__ = ["BodyFrameSim"]
 # (round-off of the orthogonalisation on large meshes stays far below).
 _ORTHOGONALITY = 1e-8
 _KEPT_SHAPES = 4  # body shapes kept by q: BDF2 velocities read three poses, plus the next frame's
+_FRAME_BLOCK = 64  # recorded frames whose body shapes are rebuilt in one matrix product (BodyFrameSim._frames)
 
 
 class BodyFrameSim(ReducedSim):
@@ -137,8 +138,8 @@ class BodyFrameSim(ReducedSim):
     def _body_points(self, q: np.ndarray) -> np.ndarray:
         """(n, 3) body-frame shape ``Xbar + W q`` (read-only).
 
-        The last few shapes are kept by ``q``: a recorded frame reads the current pose and the
-        one or two before it (its velocities), which the frames before it already reconstructed,
+        The last few shapes are kept by ``q``: positions and velocities read between steps read the
+        current pose and the one or two before it, which the reads before already reconstructed,
         and a reconstruction reads all n x 3 x r mode values (on 100k tets, more than the step).
         """
         if self._body is None:
@@ -191,26 +192,27 @@ class BodyFrameSim(ReducedSim):
     def _frames(self, poses: Sequence[Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]]) -> tuple[np.ndarray, np.ndarray]:
         """(F, n, 3) positions and velocities of the frames recorded as :meth:`_poses`.
 
-        Every distinct q is reconstructed once, all in one matrix product: on a 100k-tet mesh a
-        shape reads all n x 3 x r mode values, and one product over the frames reads them once
-        where one per frame reads them every frame (measured: docs/results.md section 13).
+        The distinct q of each block of :data:`_FRAME_BLOCK` frames are reconstructed in one matrix
+        product: on a 100k-tet mesh a shape reads all n x 3 x r mode values, and one product over
+        a block reads them once where one per frame reads them every frame (measured:
+        docs/results.md section 13); the blocks bound the shapes held at once.
         """
-        index: dict[bytes, int] = {}
-        for frame in poses:
-            for _, _, q in frame:
-                index.setdefault(np.ascontiguousarray(q, dtype=np.float64).tobytes(), len(index))
         n, k = self.mesh.n_vertices, self._values.shape[2]
-        if k:
-            qs = np.frombuffer(b"".join(index), dtype=np.float64).reshape(len(index), k)
-            shapes = self._xbar + (qs @ self._values.reshape(3 * n, k).T).reshape(len(index), n, 3)
-        else:
-            shapes = np.broadcast_to(self._xbar, (len(index), n, 3))
+        modes = self._values.reshape(3 * n, k).T
         positions = np.empty((len(poses), n, 3))
         velocities = np.empty((len(poses), n, 3))
-        for f, frame in enumerate(poses):
-            x = [c + shapes[index[np.ascontiguousarray(q, dtype=np.float64).tobytes()]] @ r.T for c, r, q in frame]
-            positions[f] = x[0]
-            velocities[f] = self._difference(x)
+        for first in range(0, len(poses), _FRAME_BLOCK):
+            block = poses[first:first + _FRAME_BLOCK]
+            index: dict[bytes, int] = {}
+            for frame in block:
+                for _, _, q in frame:
+                    index.setdefault(np.ascontiguousarray(q, dtype=np.float64).tobytes(), len(index))
+            qs = np.frombuffer(b"".join(index), dtype=np.float64).reshape(len(index), k)
+            shapes = self._xbar + (qs @ modes).reshape(len(index), n, 3)
+            for f, frame in enumerate(block, start=first):
+                x = [c + shapes[index[np.ascontiguousarray(q, dtype=np.float64).tobytes()]] @ r.T for c, r, q in frame]
+                positions[f] = x[0]
+                velocities[f] = self._difference(x)
         return positions, velocities
 
     def _project(self, field: np.ndarray) -> np.ndarray:
