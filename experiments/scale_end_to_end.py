@@ -163,11 +163,15 @@ def own_pod_projection(full: Trajectory, r: int) -> float:
     return bfe.body_projection_error(full, values)
 
 
-def held_out_runs(args, fam: bfe.Family):
-    """Each held-out case of ``fam`` (up to ``--held``) with its full run (generated on ``--device``, cached) and its timing."""
-    record = SolverParams(on_failure="record")
-    for case in fam.held_out[: args.held]:
-        case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
+def recording_failures(case: bfe.Case) -> bfe.Case:
+    """``case`` with unconverged steps recorded and counted rather than stopping the run (the 100-Newton-iteration
+    cap is met a few times above the tolerance on the 120k-tet mesh, as in section 12)."""
+    return dataclasses.replace(case, scene=case.scene.replace(solver=SolverParams(on_failure="record")))
+
+
+def full_runs(args, fam: bfe.Family, cases: list[bfe.Case]):
+    """Each of ``cases`` (recording failures) with its full run (generated on ``--device``, cached) and its timing."""
+    for case in map(recording_failures, cases):
         path, info = generate(case, fam.mesh, fam.steps, args.device, Path(args.work) / "runs")
         yield case, Trajectory.load(path), info
 
@@ -201,11 +205,8 @@ def own_pod(full: Trajectory, r: int):
 def training_pod(args, fam: bfe.Family, r: int):
     """POD(r) of the first ``--runs`` training runs' body-frame frames from first contact on, run-balanced as training
     balances them (generated on ``--device``, cached): what the learned modes are trained towards."""
-    record = SolverParams(on_failure="record")
     frames, masses = [], None
-    for case in fam.training[: args.runs]:
-        case = dataclasses.replace(case, scene=case.scene.replace(solver=record))
-        run = Trajectory.load(generate(case, fam.mesh, fam.steps, args.device, Path(args.work) / "runs")[0])
+    for _, run, _ in full_runs(args, fam, fam.training[: args.runs]):
         masses = bfe.masses_of(run)
         frames.append(bfe.body_displacements(run)[bfe.contact_start(run):])
     t0 = time.perf_counter()
@@ -221,7 +222,7 @@ def bounds_study(args) -> dict:
     model = licrom.Model.load(args.bounds)
     values = BodyFrameBasis(fam.mesh, model, density=fam.cases[0].scene.material.density).values(fam.mesh.vertices)
     rows = []
-    for case, full, info in held_out_runs(args, fam):
+    for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
         t0 = time.perf_counter()
         row = {"name": case.name, "kind": case.kind, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                "learned_projection": bfe.body_projection_error(full, values), "own_pod_projection": own_pod_projection(full, model.n_learned),
@@ -251,16 +252,22 @@ def cubature_study(args) -> dict:
         variants.append(("every tet", "full", 0.0))
     pods = [(f"training POD({model.n_learned}), every tet", training_pod(args, fam, model.n_learned))] if args.training_pod else []
     rows = []
-    for case, full, info in held_out_runs(args, fam):
+
+    def save() -> None:
+        (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
+
+    for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
         for label, cubature, fit_s in variants:
             row = reduced_stage(model, case, full, fam.steps, cubature=cubature, projection=False)
             rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                          "full_step_ms_device": info["median_step_ms"]})
-            (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
+            save()
         for label, pod in pods:
             rows.append(pod_dynamics(full, case, pod, fam.steps, label))
+            save()
         if args.own_pod:
             rows.append(pod_dynamics(full, case, own_pod(full, model.n_learned), fam.steps, f"own POD({model.n_learned}), every tet"))
+            save()
             (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
     return {"rows": rows}
 
@@ -289,11 +296,8 @@ def main_study(args) -> dict:
     mesh = fam.mesh
     out["stages"]["mesh"] = {"s": time.perf_counter() - t0, "tets": int(mesh.n_tets), "vertices": int(mesh.n_vertices)}
     log(f"mesh and scenes: {mesh.n_tets} tets, {mesh.n_vertices} vertices in {out['stages']['mesh']['s']:.1f} s")
-    # Unconverged steps (the 100-Newton-iteration cap met a few times above the tolerance on this mesh, as in
-    # section 12) are recorded and counted rather than stopping the run.
-    record = SolverParams(on_failure="record")
-    train_cases = [dataclasses.replace(c, scene=c.scene.replace(solver=record)) for c in fam.training[: args.runs]]
-    held_cases = [dataclasses.replace(c, scene=c.scene.replace(solver=record)) for c in fam.held_out[: args.held]]
+    train_cases = [recording_failures(c) for c in fam.training[: args.runs]]
+    held_cases = [recording_failures(c) for c in fam.held_out[: args.held]]
     steps = fam.steps
 
     # 1. generate
