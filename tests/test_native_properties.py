@@ -254,6 +254,15 @@ def test_body_frame_core_raises_or_stays_finite(body_kwargs, data):
     assert_finite((core.center, core.rotation, core.q, core.velocity, core.angular_velocity, core.qdot))
 
 
+def test_a_body_frame_step_that_overflows_is_a_named_error_not_a_converged_state(body_kwargs):
+    # Found by the property above: with a normal damping of 1.3e164 the second step's residual overflowed to
+    # NaN, was measured as 0 and accepted, leaving a NaN rotation behind.
+    core = _core.BodyFrameCore(**{**body_kwargs, "normal_damping": 1.2996445772065094e164, "max_iterations": 30})
+    for _ in range(3):
+        outcome(core.step)
+        assert_finite((core.center, core.rotation, core.q, core.velocity, core.angular_velocity, core.qdot))
+
+
 @PROPERTY
 @given(
     basis=hostile_arrays(like=np.arange(24.0).reshape(2, 3, 4) / 24),

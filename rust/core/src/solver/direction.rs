@@ -192,9 +192,16 @@ impl ReducedSolver {
     }
 }
 
-/// `sqrt(v^T m v)` for the positive definite m (N x N).
+/// `sqrt(v^T m v)` for the positive definite m (N x N); NaN where the form is
+/// (`f64::max` would turn it into 0, a direction that overflowed into a
+/// converged one).
 pub(crate) fn metric_norm(m: &[f64], v: &[f64]) -> f64 {
-    quadratic_form(m, v).max(0.0).sqrt()
+    let form = quadratic_form(m, v);
+    if form < 0.0 {
+        0.0
+    } else {
+        form.sqrt()
+    }
 }
 
 /// How far a lagged elastic Hessian `K_el` is off along the last step `s`
@@ -267,5 +274,23 @@ pub(crate) fn secant_update(stiffness: &mut [f64], mass_over_h2: &[f64], s: &[f6
         for ((k, yj), aj) in row.iter_mut().zip(y.iter()).zip(a_s.iter()) {
             *k += u * yj - v * aj;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::metric_norm;
+
+    #[test]
+    fn metric_norm_keeps_nan_and_clamps_round_off_below_zero() {
+        let m = [2.0, 0.0, 0.0, 3.0];
+        assert_eq!(metric_norm(&m, &[1.0, 1.0]), 5.0f64.sqrt());
+        // A direction that overflowed must not measure as converged.
+        assert!(metric_norm(&m, &[f64::NAN, 1.0]).is_nan());
+        let infinite = metric_norm(&m, &[f64::INFINITY, 0.0]);
+        assert!(infinite.is_nan() || infinite == f64::INFINITY, "an infinite direction measures {infinite}");
+        assert!(metric_norm(&[f64::INFINITY, 0.0, 0.0, -f64::INFINITY], &[1.0, 1.0]).is_nan());
+        // A form below zero by round-off measures zero.
+        assert_eq!(metric_norm(&[-1e-300, 0.0, 0.0, 0.0], &[1.0, 0.0]), 0.0);
     }
 }
