@@ -236,7 +236,8 @@ def bounds_study(args) -> dict:
 
 def cubature_study(args) -> dict:
     """The held-out runs with the model ``args.cubatures``' stored cubature, refits of it to its stored training
-    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), and
+    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), the
+    stored cubature solved to other reduced tolerances (``--reduced-tolerances``), and
     on each run's own POD(r) (``--own-pod``) and the training runs' (``--training-pod``); to ``--work/cubatures.json``."""
     work = Path(args.work)
     fam = held_out_family(args)
@@ -261,6 +262,12 @@ def cubature_study(args) -> dict:
             row = reduced_stage(model, case, full, fam.steps, cubature=cubature, projection=False)
             rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                          "full_step_ms_device": info["median_step_ms"]})
+            save()
+        for tol in args.reduced_tolerances:
+            tight = dataclasses.replace(case, scene=case.scene.replace(solver=dataclasses.replace(case.scene.solver, reduced_tolerance=tol)))
+            row = reduced_stage(model, tight, full, fam.steps, projection=False)
+            rows.append({**row, "variant": f"stored, reduced tolerance {tol:g} m/s", "fit_s": 0.0, "tets": int(fam.mesh.n_tets),
+                         "r": int(model.n_learned), "full_step_ms_device": info["median_step_ms"]})
             save()
         for label, pod in pods:
             rows.append(pod_dynamics(full, case, pod, fam.steps, label))
@@ -489,6 +496,8 @@ def main() -> None:
     ap.add_argument("--training-pod", action="store_true",
                     help="also each held-out run on POD(r) of the --runs training runs' frames, every tet (--cubatures; generates them)")
     ap.add_argument("--own-pod", action="store_true", help="also each held-out run on POD(r) of its own frames, every tet (--cubatures)")
+    ap.add_argument("--reduced-tolerances", type=float, nargs="*", default=[], metavar="T",
+                    help="also the stored cubature with SolverParams.reduced_tolerance = T m/s (--cubatures)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
     if args.section_only:

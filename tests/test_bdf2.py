@@ -46,7 +46,7 @@ def test_scene_file_reads_the_integrator(tmp_path):
 def _free_fall(integrator="bdf2"):
     v0 = np.array([0.5, -0.2, 1.0])
     scene = Scene(material=Material(1e7, 0.3), planes=(), integrator=integrator, initial=InitialState(translation=(0, 0, 1), velocity=tuple(v0)),
-                  solver=SolverParams(tolerance=1e-11))
+                  solver=SolverParams(tolerance=1e-11, reduced_tolerance=1e-11))
     return meshes.box(0.1, resolution=2), scene, v0
 
 
@@ -96,7 +96,7 @@ def test_failed_bdf2_step_keeps_the_history():
     sim = FullSim(mesh, scene)
     sim.run(2)
     x, v = sim.positions, sim.velocities
-    sim.scene = scene.replace(solver=SolverParams(tolerance=1e-14, max_iterations=1))
+    sim.scene = scene.replace(solver=SolverParams(tolerance=1e-14, reduced_tolerance=1e-14, max_iterations=1))
     with pytest.raises(SolverError):
         sim.step()
     np.testing.assert_array_equal(sim.positions, x)
@@ -111,7 +111,7 @@ def test_failed_bdf2_step_keeps_the_history():
 
 def _oscillating_cube(integrator, h):
     mesh = meshes.box(0.1, resolution=2)
-    scene = Scene(material=SOFT, planes=(), gravity=(0.0, 0.0, 0.0), dt=h, integrator=integrator, solver=SolverParams(tolerance=1e-11))
+    scene = Scene(material=SOFT, planes=(), gravity=(0.0, 0.0, 0.0), dt=h, integrator=integrator, solver=SolverParams(tolerance=1e-11, reduced_tolerance=1e-11))
     sim = FullSim(mesh, scene, device="cpu")
     arm = mesh.vertices - mesh.vertices.mean(axis=0)
     v = 3.0 * arm * np.array([1.0, -0.3, -0.3]) + np.cross([0.0, 0.0, 2.0], arm)  # stretch along x, spin about z

@@ -11,7 +11,7 @@ from licrom.subspace.body_basis import BodyFrameBasis
 from licrom.subspace.cubature import Cubature
 from scipy.spatial.transform import Rotation
 
-TIGHT = SolverParams(tolerance=1e-11, max_iterations=100)
+TIGHT = SolverParams(tolerance=1e-11, reduced_tolerance=1e-11, max_iterations=100)
 
 
 def _complement_of_affine(mesh, density):
@@ -68,6 +68,26 @@ def test_full_space_body_frame_basis_reproduces_full_simulation_on_an_incline(in
     err = np.abs(reduced.displacements - full.displacements).max() / scale
     print(f"body-frame full-space basis vs full ({integrator}): max relative position difference {err:.2e}")
     assert err < 1e-8
+
+
+def test_the_reduced_solve_stops_at_the_reduced_tolerance():
+    # The same reduced run solved to the full solver's 1e-6 m/s and to the reduced default:
+    # each step stops below its own threshold, the looser with fewer iterations, and the
+    # motions differ by no more than that threshold's velocity over the time run.
+    mesh = meshes.cheese(resolution=4)
+    basis = BodyFrameBasis(mesh, _complement_of_affine(mesh, 1000.0), density=1000.0)
+    scene = Scene(material=Material(youngs_modulus=2e4, poisson_ratio=0.35), planes=(Plane.incline(25.0, 0.3),),
+                  initial=InitialState(translation=(0.0, 0.0, 0.1), rotation=(0.2, 0.1, 0.0)))
+    steps, loose = 40, SolverParams().reduced_tolerance
+    assert loose > SolverParams().tolerance
+    runs = {tol: BodyFrameSim(basis, mesh, scene.replace(solver=SolverParams(reduced_tolerance=tol)), cubature=Cubature.full(mesh)).run(steps)
+            for tol in (1e-6, loose)}
+    for tol, run in runs.items():
+        assert run.converged.all() and (run.residuals < tol).all()
+    assert runs[loose].iterations.sum() < runs[1e-6].iterations.sum()
+    assert np.abs(runs[loose].displacements[-1]).max() > 0.01  # it landed and slid
+    gap = np.abs(runs[loose].displacements - runs[1e-6].displacements).max()
+    assert 0.0 < gap < loose * steps * scene.dt
 
 
 @pytest.mark.parametrize("integrator", ["backward_euler", "bdf2"])

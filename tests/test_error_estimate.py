@@ -21,7 +21,7 @@ STEPS = 30
 def _scene(mesh: licrom.Mesh, slope: float = 30.0) -> Scene:
     """The mesh dropped 2 cm onto an incline: it lands, deforms and slides."""
     base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01,
-                 solver=SolverParams(tolerance=1e-10, max_iterations=100))
+                 solver=SolverParams(tolerance=1e-10, reduced_tolerance=1e-10, max_iterations=100))
     plane = Plane.incline(slope, friction=0.3)
     flat = drop_state(mesh, 1000.0, 0.02, rotation=(0.15, 0.1, 0.0))
     return base.replace(planes=(plane,), initial=initial_state_on_plane(flat, plane, mesh, 1000.0))

@@ -68,7 +68,7 @@ def test_scene_json_round_trip():
         gravity=(0, 0, -9.8),
         dt=0.005,
         contact=ContactParams(1e7, 10.0, 3e6),
-        solver=SolverParams(1e-7, 30, "record"),
+        solver=SolverParams(1e-7, 30, "record", 3e-5),
         initial=InitialState(translation=(0, 0, 0.1), rotation=(0.1, 0.2, 0.3), velocity=(1, 0, 0)),
     )
     back = Scene.from_json(s.to_json())
@@ -102,6 +102,7 @@ def test_initial_state_is_rigid():
         (lambda: Plane(friction=-0.1), "friction must be >= 0"),
         (lambda: ContactParams(normal_stiffness=0), "normal_stiffness .* must be > 0"),
         (lambda: SolverParams(on_failure="ignore"), "'raise' or 'record'"),
+        (lambda: SolverParams(reduced_tolerance=0.0), r"reduced_tolerance \(m/s\) must be > 0"),
         (lambda: Scene(dt=0.0), r"dt \(s\) must be > 0"),
         (lambda: Scene(gravity=(0, 0)), "3 real numbers"),
     ],
@@ -109,6 +110,13 @@ def test_initial_state_is_rigid():
 def test_bad_parameters(make, match):
     with pytest.raises(ConfigError, match=match):
         make()
+
+
+def test_a_scene_saved_before_the_reduced_tolerance_loads_with_its_default():
+    d = Scene(solver=SolverParams(tolerance=1e-7)).to_dict()
+    del d["solver"]["reduced_tolerance"]
+    back = Scene.from_json(json.dumps(d))
+    assert back.solver.tolerance == 1e-7 and back.solver.reduced_tolerance == SolverParams().reduced_tolerance
 
 
 def test_unknown_scene_version():

@@ -59,6 +59,7 @@ def test_defaults_of_a_minimal_file(tmp_path):
     (MINIMAL + "[material]\nyoungs_modulus = 'soft'", "material.youngs_modulus must be a number > 0 \\(Pa\\)"),
     (MINIMAL + "[contact]\nnormal_damping = -1.0", "contact.normal_damping must be a number >= 0"),
     (MINIMAL + "[solver]\non_failure = 'ignore'", "solver.on_failure must be one of 'raise', 'record'"),
+    (MINIMAL + "[solver]\nreduced_tolerance = -1e-4", "solver.reduced_tolerance"),
     (MINIMAL + "[time]\nsteps = 0", "time.steps must be an integer >= 1, got 0"),
     (MINIMAL + "[time]\ndt = 0.0", r"time.dt must be a number > 0 \(s\)"),
     (MINIMAL + "[sweep]\nfrictions = []", "sweep.frictions must be a non-empty list of numbers >= 0"),

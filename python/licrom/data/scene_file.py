@@ -22,7 +22,7 @@ radius = 0.05                    # sphere: radius, m
 
 [material]                       # youngs_modulus (Pa, > 0), poisson_ratio (-1, 0.5), density (kg/m^3, > 0)
 [contact]                        # normal_stiffness (N/m^3), normal_damping (N s/m^3), friction_stiffness (N s/m^3)
-[solver]                         # tolerance (m/s), max_iterations, on_failure ("raise" | "record")
+[solver]                         # tolerance, reduced_tolerance (m/s), max_iterations, on_failure ("raise" | "record")
 [time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1),
                                  # integrator ("backward_euler" | "bdf2": full simulation only)
 
@@ -598,6 +598,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
         tolerance=st.number("tolerance", s.tolerance, 0.0, lo_open=True, unit="m/s"),
         max_iterations=st.integer("max_iterations", s.max_iterations),
         on_failure=st.string("on_failure", s.on_failure, ("raise", "record")),
+        reduced_tolerance=st.number("reduced_tolerance", s.reduced_tolerance, 0.0, lo_open=True, unit="m/s"),
     )
     st.done()
     tt = top.table("time")

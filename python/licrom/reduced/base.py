@@ -201,7 +201,7 @@ def native_inputs(sim: ReducedSim, strain: str, contact_rest: np.ndarray) -> dic
         "normal_damping": scene.contact.normal_damping,
         "friction_stiffness": scene.contact.friction_stiffness,
         "dt": scene.dt,
-        "tolerance": scene.solver.tolerance,
+        "tolerance": scene.solver.reduced_tolerance,
         "max_iterations": scene.solver.max_iterations,
         "integrator": scene.integrator,
         **vertex_strain_form(sim.mesh, sim.cubature.tets, strain, sim._values),

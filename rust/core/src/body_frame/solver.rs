@@ -550,6 +550,9 @@ impl ContactModelSteps for BodyFrameSolver {
     fn take_direction(&mut self) {
         self.trial.pose.retract(&self.iterate.pose, &self.dir, 1.0);
         std::mem::swap(&mut self.iterate, &mut self.trial);
+        // The new iterate is not evaluated: it keeps the validity of the point the
+        // correction was taken from, not the stale one of the trial buffer.
+        self.iterate.validity = self.trial.validity;
     }
 
     fn switch_rows(&mut self) -> usize {
