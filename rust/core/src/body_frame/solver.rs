@@ -613,6 +613,10 @@ impl NewtonSteps for BodyFrameSolver {
         self.search_line(energy, Objective::Energy)
     }
 
+    fn direction_residual(&self) -> f64 {
+        metric_norm(&self.metric, &self.dir) / self.system.total_mass().sqrt()
+    }
+
     fn recover(&mut self) -> bool {
         false
     }

@@ -574,6 +574,10 @@ impl NewtonSteps for ReducedSolver {
         self.search_line(energy, Objective::Energy)
     }
 
+    fn direction_residual(&self) -> f64 {
+        self.velocity_norm(&self.dir)
+    }
+
     /// A prefactored step falls back to Newton's directions.
     fn recover(&mut self) -> bool {
         if self.mode != SolverKind::Prefactored {
