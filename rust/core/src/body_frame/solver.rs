@@ -389,7 +389,7 @@ impl BodyFrameSolver {
             *d = -g;
         }
         self.chol.solve_in_place(&mut self.dir);
-        let residual = metric_norm(&self.metric, &self.dir) / self.system.total_mass().sqrt();
+        let residual = self.direction_residual();
         if !residual.is_finite() {
             return Err(LicromError::Diverged { iteration, what: "direction" });
         }
@@ -407,7 +407,7 @@ impl BodyFrameSolver {
             *d = -g;
         }
         self.chol.solve_in_place(&mut self.dir);
-        let residual = metric_norm(&self.metric, &self.dir) / self.system.total_mass().sqrt();
+        let residual = self.direction_residual();
         (residual < LAST_FACTOR_SHARE * tolerance).then_some(residual)
     }
 
@@ -613,6 +613,7 @@ impl NewtonSteps for BodyFrameSolver {
         self.search_line(energy, Objective::Energy)
     }
 
+    /// `sqrt(dir^T metric dir / m_total)`, m/s: the metric is the inertia over h^2.
     fn direction_residual(&self) -> f64 {
         metric_norm(&self.metric, &self.dir) / self.system.total_mass().sqrt()
     }
