@@ -266,6 +266,27 @@ def test_reconstruction_matches_numpy(block, rng):
         _core.Reconstruction(w[:10], x)
 
 
+def test_vertex_forces_sum_the_ring_stresses_and_reject_bad_input(rng):
+    mesh = meshes.cheese(resolution=4)
+    tet = 7
+    x = mesh.vertices + 0.01 * mesh.size * rng.normal(size=mesh.vertices.shape)
+    grads, volume = mesh.shape_gradients[tet], mesh.rest_volumes[tet]
+    forces = _core.VertexForces(mesh.n_vertices, 1, mesh.tets[tet:tet + 1], grads[None], volume[None], np.array([0]), np.array([2]), MU, LAM)
+    deformation = x[mesh.tets[tet]].T @ grads
+    expected = -volume * _core.snh_pk1(deformation[None], MU, LAM)[0] @ grads[2]
+    np.testing.assert_allclose(forces.forces(x)[0], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    with pytest.raises(ShapeError, match="positions"):
+        forces.forces(x[:-1])
+    with pytest.raises(ShapeError, match="positions holds NaN"):
+        forces.forces(np.where(np.arange(x.size).reshape(x.shape) == 0, np.nan, x))
+    with pytest.raises(ConfigError, match="own_corners must be below 4"):
+        _core.VertexForces(mesh.n_vertices, 1, mesh.tets[tet:tet + 1], grads[None], volume[None], np.array([0]), np.array([4]), MU, LAM)
+    with pytest.raises(ConfigError, match="volumes"):
+        _core.VertexForces(mesh.n_vertices, 1, mesh.tets[tet:tet + 1], grads[None], -volume[None], np.array([0]), np.array([2]), MU, LAM)
+    with pytest.raises(ShapeError, match="gradients"):
+        _core.VertexForces(mesh.n_vertices, 1, mesh.tets[tet:tet + 1], grads[None, :3], volume[None], np.array([0]), np.array([2]), MU, LAM)
+
+
 @pytest.mark.parametrize(
     "changes, error, match",
     [

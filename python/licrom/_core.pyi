@@ -41,6 +41,7 @@ __all__ = [
     "ReducedCore",
     "ShapeError",
     "SolverError",
+    "VertexForces",
     "line_search",
     "snh_energy",
     "snh_hessian",
@@ -407,6 +408,38 @@ class Reconstruction:
         """Number of points N."""
     def positions(self, q: _Float64Array) -> _Float64Array:
         """(N, 3) positions in m for reduced coordinates ``q`` (n,)."""
+
+@final
+class VertexForces:
+    """Elastic force ``f_v = -sum_t V_t P(F_t) g_{t,v}`` (N) on each of S sample vertices
+    from the positions of the corners of their T one-ring tets, with
+    ``F_t = sum_a y_a g_{t,a}^T`` and the stable Neo-Hookean stress P (``snh_pk1``).
+
+    Args:
+        n_points: number of points whose positions ``forces`` takes.
+        n_samples: number of sample vertices S.
+        corners: (T, 4) int64 point indices of each ring tet's corners, below ``n_points``.
+        gradients: (T, 4, 3) shape gradients of the corners in 1/m.
+        volumes: (T,) rest volumes in m^3, > 0.
+        owners: (T,) int64 the sample (below ``n_samples``) whose ring each tet is in.
+        own_corners: (T,) int64 which corner (0-3) of its tet that sample is.
+        mu, lam: stable Neo-Hookean parameters in Pa.
+    """
+
+    def __new__(
+        cls,
+        n_points: int,
+        n_samples: int,
+        corners: _Int64Array,
+        gradients: _Float64Array,
+        volumes: _Float64Array,
+        owners: _Int64Array,
+        own_corners: _Int64Array,
+        mu: float,
+        lam: float,
+    ) -> Self: ...
+    def forces(self, positions: _Float64Array) -> _Float64Array:
+        """(S, 3) forces in N from (n_points, 3) ``positions`` in m."""
 
 LINE_SEARCH: dict[str, float]
 """The solvers' line-search constants by name: ``armijo``, ``curvature``, ``max_secant``,

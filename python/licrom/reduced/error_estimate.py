@@ -34,7 +34,9 @@ cheese (all 32 of its interior vertices) stayed at 3-4 % for true errors of 38-1
 (r = 2..8); with the surface included it follows them (13-19 % at r = 2). Samples
 inside a plane, now or at the start of the step (friction is lagged), feel contact forces
 that are not modelled, and are left out of that frame. The sample's basis rows, one-ring
-shape gradients and volumes are taken once, so a frame costs a few small numpy calls.
+shape gradients and volumes are taken once; a frame costs one product with the basis rows of
+the rings' vertices, one native pass over the ring tets (``licrom._core.VertexForces``) and a
+few small numpy calls.
 """
 
 from __future__ import annotations
@@ -44,7 +46,6 @@ from collections import deque
 from collections.abc import Callable
 
 import numpy as np
-from scipy.sparse import csr_matrix
 
 from .. import _core
 from ..errors import AccuracyWarning, ConfigError
@@ -142,21 +143,15 @@ class ErrorMonitor:
         self.near, local = np.unique(np.concatenate([tets[ring].ravel(), self.vertices]), return_inverse=True)
         corners = local[: 4 * len(ring)].reshape(-1, 4)
         self._own = local[4 * len(ring):]
+        own_corner = (tets[ring] == self.vertices[owner, None]).argmax(axis=1)
         grads = mesh.shape_gradients[ring]  # (T, 4, 3)
-        own_grad = grads[np.arange(len(ring)), (tets[ring] == self.vertices[owner, None]).argmax(axis=1)]
-        # F_t = sum_a x_a grad_a^T as one sparse map from the near positions (u*3) to the gradients (T*9):
-        # entry (9t + 3i + j, 3 corner_a + i) = grad_a[j].
-        t, a, i, j = np.meshgrid(np.arange(len(ring)), np.arange(4), np.arange(3), np.arange(3), indexing="ij")
-        self._gradient = csr_matrix((grads[t, a, j].ravel(), ((9 * t + 3 * i + j).ravel(), (3 * corners[t, a] + i).ravel())),
-                                    shape=(9 * len(ring), 3 * len(self.near)))
+        own_grad = grads[np.arange(len(ring)), own_corner]
         volumes = mesh.rest_volumes[ring]
-        # f_v = sum_t P_t (-V_t grad_v) as one sparse map from the stresses (T*9) to the forces (s*3):
-        # entry (3 v + i, 9 t + 3 i + j) = -V_t grad_v[j].
-        t, i, j = np.meshgrid(np.arange(len(ring)), np.arange(3), np.arange(3), indexing="ij")
-        self._stress_to_force = csr_matrix(((-volumes[:, None] * own_grad)[t, j].ravel(), ((3 * owner[t] + i).ravel(), (9 * t + 3 * i + j).ravel())),
-                                           shape=(3 * len(self.vertices), 9 * len(ring)))
-        self._basis = np.ascontiguousarray(values[self.near].reshape(3 * len(self.near), k))
-        self._rest = np.ascontiguousarray(rest[self.near])
+        self._forces = _core.VertexForces(len(self.near), len(self.vertices), corners, np.ascontiguousarray(grads), volumes, owner,
+                                          own_corner, *scene.material.snh_parameters)
+        # Positions of the near vertices (a reconstruction needs at least one mode; without, the rest ones).
+        self._near = _core.Reconstruction(values[self.near], rest[self.near]) if k else None
+        self._near_rest = np.ascontiguousarray(rest[self.near])
         self._sample_basis = np.ascontiguousarray(values[self.vertices].reshape(3 * len(self.vertices), k))
         self._sample_rest = np.ascontiguousarray(rest[self.vertices])
         masses = mesh.vertex_masses(scene.material.density)
@@ -170,7 +165,6 @@ class ErrorMonitor:
         stiffness = np.zeros((len(self.vertices), 3, 3))
         np.add.at(stiffness, owner, block)
         self._jacobi = np.linalg.inv(stiffness + (self._m / h**2)[:, None, None] * np.eye(3))
-        self._snh = scene.material.snh_parameters
         self._h2 = h * h
         self._weight = np.asarray(scene.gravity, dtype=np.float64) * self._m[:, None]
         planes = scene.plane_array()
@@ -187,8 +181,7 @@ class ErrorMonitor:
     def elastic_forces(self, near_positions: np.ndarray) -> np.ndarray:
         """(s, 3) elastic force ``-dE/dx_v`` on each sample vertex, N, from (u, 3) positions of
         the vertices ``near`` (the samples' one-ring tets' corners)."""
-        stress = _core.snh_pk1((self._gradient @ near_positions.ravel()).reshape(-1, 3, 3), *self._snh)
-        return (self._stress_to_force @ stress.ravel()).reshape(-1, 3)
+        return self._forces.forces(near_positions)
 
     @property
     def history_length(self) -> int:
@@ -222,7 +215,7 @@ class ErrorMonitor:
         if wait:
             self._history.append((self._step, self.sample_positions(q, center, rotation)))
             return
-        y = self._rest + (self._basis @ q).reshape(-1, 3)
+        y = self._near_rest if self._near is None else self._near.positions(q)
         # In the body frame: F(c + R y) = R F(y) and P(R F) = R P(F), so the forces turn with R.
         force = self.elastic_forces(y)
         now = y[self._own]

@@ -46,6 +46,7 @@ pub mod solver;
 pub mod svd3;
 pub mod synthetic;
 pub mod validity;
+pub mod vertex_forces;
 
 #[cfg(test)]
 mod testing;

@@ -1,0 +1,222 @@
+//! Elastic forces of the full model at a few vertices, from the positions of
+//! the corners of their one-ring tets.
+//!
+//! For a sample vertex v with one-ring tets t (rest volume `V_t`, shape
+//! gradients `g_{t,a}` of its corners a), the force is minus the gradient of
+//! the one ring's stable Neo-Hookean energy `sum_t V_t Psi(F_t)`:
+//!
+//! `F_t = sum_a y_a g_{t,a}^T`, `f_v = -sum_t V_t P(F_t) g_{t,v}`,
+//!
+//! with `P = dPsi/dF` ([`StableNeoHookean::pk1`]) and `g_{t,v}` the gradient of
+//! v's own corner in t. The online error estimate of a reduced run
+//! (`python/licrom/reduced/error_estimate.py`) takes it every few steps at the
+//! reconstructed positions: a few hundred tets, where a sparse product, a
+//! batch of stresses and another sparse product from Python cost five times
+//! as much, on one step in ten of every run.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::error::{check_finite, check_output, LicromError, Result};
+use crate::material::StableNeoHookean;
+
+/// Borrowed description of the T one-ring tets of a sample of vertices.
+#[derive(Debug, Clone, Copy)]
+pub struct RingInputs<'a> {
+    /// Corners of each ring tet, T x 4 point indices.
+    pub corners: &'a [usize],
+    /// Shape gradients of the corners, T x 4 x 3 (row-major), 1/m.
+    pub gradients: &'a [f64],
+    /// Rest volumes, T, m^3 (> 0).
+    pub volumes: &'a [f64],
+    /// The sample each tet's force goes to, T.
+    pub owners: &'a [usize],
+    /// Which corner (0-3) of its tet that sample is, T.
+    pub own_corners: &'a [usize],
+}
+
+/// The one-ring tets of a sample of vertices, in the numbering of the points
+/// whose positions [`VertexForces::forces`] takes.
+#[derive(Debug, Clone)]
+pub struct VertexForces {
+    n_points: usize,
+    n_samples: usize,
+    corners: Vec<[usize; 4]>,
+    gradients: Vec<[Vector3<f64>; 4]>,
+    volumes: Vec<f64>,
+    /// The sample each tet's force goes to and which of its corners that is.
+    owner: Vec<(usize, usize)>,
+    material: StableNeoHookean,
+}
+
+impl VertexForces {
+    /// From the `rings` (corners below `n_points`, owners below `n_samples`)
+    /// and the material, after checking shapes, indices and values.
+    pub fn new(n_points: usize, n_samples: usize, rings: &RingInputs<'_>, material: StableNeoHookean) -> Result<Self> {
+        let RingInputs { corners, gradients, volumes, owners, own_corners } = *rings;
+        let t = volumes.len();
+        for (name, len, shape) in [("corners", corners.len(), 4 * t), ("gradients", gradients.len(), 12 * t)] {
+            if len != shape {
+                return Err(LicromError::shape(name, format!("({t}, {})", shape / t.max(1)), format!("{len} values")));
+            }
+        }
+        for (name, len) in [("owners", owners.len()), ("own_corners", own_corners.len())] {
+            if len != t {
+                return Err(LicromError::shape(name, format!("({t},)"), format!("{len} values")));
+            }
+        }
+        check_finite("gradients", gradients)?;
+        if let Some(v) = volumes.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+            return Err(LicromError::invalid("volumes", format!("must be finite and > 0, found {v}")));
+        }
+        let bad = |name: &str, values: &[usize], bound: usize| -> Result<()> {
+            match values.iter().find(|&&v| v >= bound) {
+                Some(v) => Err(LicromError::invalid(name, format!("must be below {bound}, found {v}"))),
+                None => Ok(()),
+            }
+        };
+        bad("corners", corners, n_points)?;
+        bad("owners", owners, n_samples)?;
+        bad("own_corners", own_corners, 4)?;
+        Ok(Self {
+            n_points,
+            n_samples,
+            corners: corners.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
+            gradients: gradients.chunks_exact(12).map(|g| std::array::from_fn(|a| Vector3::from_row_slice(&g[3 * a..3 * a + 3]))).collect(),
+            volumes: volumes.to_vec(),
+            owner: owners.iter().copied().zip(own_corners.iter().copied()).collect(),
+            material,
+        })
+    }
+
+    /// Number of points whose positions [`Self::forces`] takes.
+    pub fn n_points(&self) -> usize {
+        self.n_points
+    }
+
+    /// Number of sample vertices.
+    pub fn n_samples(&self) -> usize {
+        self.n_samples
+    }
+
+    /// The force on each sample (n_samples x 3, N) into `out`, from the
+    /// positions of the points (n_points x 3, m).
+    pub fn forces(&self, positions: &[f64], out: &mut [f64]) -> Result<()> {
+        if positions.len() != 3 * self.n_points {
+            return Err(LicromError::shape("positions", format!("({}, 3)", self.n_points), format!("{} values", positions.len())));
+        }
+        if out.len() != 3 * self.n_samples {
+            return Err(LicromError::shape("out", format!("({}, 3)", self.n_samples), format!("{} values", out.len())));
+        }
+        check_finite("positions", positions)?;
+        out.fill(0.0);
+        let y = |p: usize| Vector3::new(positions[3 * p], positions[3 * p + 1], positions[3 * p + 2]);
+        for (((corners, g), &volume), &(sample, own)) in self.corners.iter().zip(&self.gradients).zip(&self.volumes).zip(&self.owner) {
+            let f: Matrix3<f64> = (0..4).map(|a| y(corners[a]) * g[a].transpose()).sum();
+            let force = self.material.pk1(&f) * g[own] * -volume;
+            for i in 0..3 {
+                out[3 * sample + i] += force[i];
+            }
+        }
+        check_output("the vertex forces", "positions", out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::Rng;
+
+    /// Two tets sharing the face (1, 2, 3) and their shape gradients.
+    fn two_tets() -> (Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>) {
+        let rest: Vec<f64> = vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0];
+        let tets = vec![0, 1, 2, 3, 4, 3, 2, 1];
+        let (mut grads, mut vols) = (Vec::new(), Vec::new());
+        for t in tets.chunks_exact(4) {
+            let x = |a: usize| Vector3::from_column_slice(&rest[3 * t[a]..3 * t[a] + 3]);
+            let dm = Matrix3::from_columns(&[x(1) - x(0), x(2) - x(0), x(3) - x(0)]);
+            let inv = dm.try_inverse().unwrap();
+            vols.push(dm.determinant().abs() / 6.0);
+            let g: Vec<Vector3<f64>> = (0..3).map(|a| inv.row(a).transpose()).collect();
+            let g0 = -(g[0] + g[1] + g[2]);
+            for v in [g0, g[0], g[1], g[2]] {
+                grads.extend(v.iter());
+            }
+        }
+        (rest, tets, grads, vols)
+    }
+
+    fn ring_energy(material: &StableNeoHookean, tets: &[usize], grads: &[f64], vols: &[f64], y: &[f64]) -> f64 {
+        tets.chunks_exact(4)
+            .enumerate()
+            .map(|(t, c)| {
+                let f: Matrix3<f64> = (0..4)
+                    .map(|a| {
+                        Vector3::from_column_slice(&y[3 * c[a]..3 * c[a] + 3])
+                            * Vector3::from_column_slice(&grads[12 * t + 3 * a..12 * t + 3 * a + 3]).transpose()
+                    })
+                    .sum();
+                vols[t] * material.energy(&f)
+            })
+            .sum()
+    }
+
+    #[test]
+    fn forces_are_minus_the_ring_energy_gradient_by_finite_differences() {
+        let (rest, tets, grads, vols) = two_tets();
+        let material = StableNeoHookean::new(3.0e4, 5.0e4).unwrap();
+        // Samples: the shared vertex 1 (a corner of both tets) and vertex 4 (of the second only).
+        let (owners, own) = (vec![0, 0, 1], vec![1, 3, 0]);
+        let ring_tets = [0usize, 1, 1];
+        let corners: Vec<usize> = ring_tets.iter().flat_map(|&t| tets[4 * t..4 * t + 4].to_vec()).collect();
+        let ring_grads: Vec<f64> = ring_tets.iter().flat_map(|&t| grads[12 * t..12 * t + 12].to_vec()).collect();
+        let ring_vols: Vec<f64> = ring_tets.iter().map(|&t| vols[t]).collect();
+        let rings = RingInputs { corners: &corners, gradients: &ring_grads, volumes: &ring_vols, owners: &owners, own_corners: &own };
+        let forces = VertexForces::new(5, 2, &rings, material).unwrap();
+        let mut rng = Rng::new(5);
+        let y: Vec<f64> = rest.iter().zip(rng.vec(15, 0.1)).map(|(x, d)| x + d).collect();
+        let mut out = vec![0.0; 6];
+        forces.forces(&y, &mut out).unwrap();
+        let eps = 1e-6;
+        for (s, v) in [1usize, 4].into_iter().enumerate() {
+            for i in 0..3 {
+                let (mut plus, mut minus) = (y.clone(), y.clone());
+                plus[3 * v + i] += eps;
+                minus[3 * v + i] -= eps;
+                let fd: f64 =
+                    -(ring_energy(&material, &tets, &grads, &vols, &plus) - ring_energy(&material, &tets, &grads, &vols, &minus)) / (2.0 * eps);
+                assert!((out[3 * s + i] - fd).abs() < 1e-6 * fd.abs().max(1.0), "sample {s} axis {i}: {} vs {fd}", out[3 * s + i]);
+            }
+        }
+    }
+
+    #[test]
+    fn rest_positions_give_no_force() {
+        let (rest, tets, grads, vols) = two_tets();
+        let material = StableNeoHookean::new(3.0e4, 5.0e4).unwrap();
+        let rings = RingInputs { corners: &tets, gradients: &grads, volumes: &vols, owners: &[0, 0], own_corners: &[1, 3] };
+        let forces = VertexForces::new(5, 1, &rings, material).unwrap();
+        let mut out = vec![1.0; 3];
+        forces.forces(&rest, &mut out).unwrap();
+        assert!(out.iter().all(|f| f.abs() < 1e-9), "{out:?}");
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let (rest, tets, grads, vols) = two_tets();
+        let material = StableNeoHookean::new(3.0e4, 5.0e4).unwrap();
+        let make = |corners: &[usize], volumes: &[f64], owners: &[usize], own_corners: &[usize]| {
+            VertexForces::new(5, 1, &RingInputs { corners, gradients: &grads, volumes, owners, own_corners }, material)
+        };
+        assert!(make(&tets[..7], &vols, &[0, 0], &[1, 3]).is_err());
+        assert!(make(&[0, 1, 2, 3, 4, 3, 2, 5], &vols, &[0, 0], &[1, 3]).is_err());
+        assert!(make(&tets, &[vols[0], 0.0], &[0, 0], &[1, 3]).is_err());
+        assert!(make(&tets, &vols, &[0, 1], &[1, 3]).is_err());
+        assert!(make(&tets, &vols, &[0, 0], &[1, 4]).is_err());
+        let forces = make(&tets, &vols, &[0, 0], &[1, 3]).unwrap();
+        let mut out = vec![0.0; 3];
+        assert!(forces.forces(&rest[..12], &mut out).is_err());
+        let mut nan = rest.clone();
+        nan[4] = f64::NAN;
+        assert!(forces.forces(&nan, &mut out).is_err());
+    }
+}
