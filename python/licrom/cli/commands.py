@@ -280,7 +280,7 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
               help="Learned modes r (on top: 12 affine modes in the world frame; 6 affine modes and the rigid motion in the body frame), "
                    "or auto: the smallest r whose leave-runs-out projection error meets --rank-tolerance.")
 @click.option("--rank-tolerance", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
-              show_default="0.05", help="With -r auto: held-out relative projection error to meet.")
+              show_default="0.04", help="With -r auto: held-out relative projection error to meet.")
 @click.option("--max-rank", type=click.IntRange(min=1), default=None, show_default="120", help="With -r auto: the largest r.")
 @click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
