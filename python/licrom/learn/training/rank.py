@@ -30,10 +30,11 @@ DEFAULT_TOLERANCE = 0.04
 Measured on the body-frame experiments' training runs (experiments/body_frame_experiments.py): the
 cheese's curve stays above it up to the cap (7.3 % at r = 120: r = 120, capped), the box's three
 runs never predict each other below 19 % (r where the curve stops falling, 100), and the ball's
-reaches it at the cap (4.2 % at 120, 4.7 % at 100). At 5 % the ball took r = 100, and its rolling
+falls to 4.2 % at the cap (4.7 % at r = 100). At 5 % the ball took r = 100, and its rolling
 held-out run ended 3.2 % of its size away in centre of mass (target 2 %; non-rigid 6.6 %): a
 rolling body's contact patch travels over it, and the last modes carry it (POD of the training
-runs, every tet: 3.7 % at r = 100, 1.2 % at 120). At 4 % it takes r = 120: 2.0 % (non-rigid 6.5 %),
+runs, every tet: 3.7 % at r = 100, 1.2 % at 120). At 4 % no r meets it and the ball takes the
+curve's lowest, r = 120: 2.0 % (non-rigid 6.5 %),
 at 1.25x the step time (docs/results.md section 11)."""
 
 DEFAULT_MAX_RANK = 120
