@@ -20,7 +20,8 @@ use crate::errors::CoreResultExt;
 ///     volumes: (T,) rest volumes in m^3, > 0.
 ///     owners: (T,) int64 the sample (below ``n_samples``) whose ring each tet is in.
 ///     own_corners: (T,) int64 which corner (0-3) of its tet that sample is.
-///     mu, lam: stable Neo-Hookean parameters in Pa.
+///     mu: stable Neo-Hookean parameter mu in Pa.
+///     lam: stable Neo-Hookean parameter lambda in Pa.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct VertexForces {
     inner: CoreVertexForces,
