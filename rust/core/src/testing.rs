@@ -40,6 +40,23 @@ impl Rng {
     }
 }
 
+/// Shape gradients (T x 4 x 3, row-major: corner 0 first) and rest volumes
+/// (T) of the tets `tets` over the points `points`.
+pub fn tet_shape_gradients(points: &[Vector3<f64>], tets: &[[usize; 4]]) -> (Vec<f64>, Vec<f64>) {
+    let (mut grads, mut volumes) = (Vec::new(), Vec::new());
+    for t in tets {
+        let dm = Matrix3::from_columns(&[points[t[1]] - points[t[0]], points[t[2]] - points[t[0]], points[t[3]] - points[t[0]]]);
+        let inv = dm.try_inverse().expect("a non-degenerate tet");
+        let rows: Vec<Vector3<f64>> = (0..3).map(|r| inv.row(r).transpose()).collect();
+        grads.extend((-(rows[0] + rows[1] + rows[2])).iter());
+        for r in &rows {
+            grads.extend(r.iter());
+        }
+        volumes.push(dm.determinant().abs() / 6.0);
+    }
+    (grads, volumes)
+}
+
 /// Central-difference gradient of `f` at `x` with step `h`.
 pub fn fd_gradient(f: impl Fn(&[f64]) -> f64, x: &[f64], h: f64) -> Vec<f64> {
     let mut xp = x.to_vec();

@@ -34,8 +34,8 @@ falls to 4.2 % at the cap (4.7 % at r = 100). At 5 % the ball took r = 100, and 
 held-out run ended 3.2 % of its size away in centre of mass (target 2 %; non-rigid 6.6 %): a
 rolling body's contact patch travels over it, and the last modes carry it (POD of the training
 runs, every tet: 3.7 % at r = 100, 1.2 % at 120). At 4 % no r meets it and the ball takes the
-curve's lowest, r = 120: 2.0 % (non-rigid 6.5 %),
-at 1.25x the step time (docs/results.md section 11)."""
+curve's lowest, r = 120: 2.0 % (non-rigid 6.5 %) at 1.25x the step time (docs/results.md
+section 11)."""
 
 DEFAULT_MAX_RANK = 120
 """Default cap of r: docs/results.md section 10 needed r = 120 for every held-out body-frame run to

@@ -8,7 +8,7 @@ use super::*;
 use crate::dense::rows_dot;
 use crate::simd::Separate;
 use crate::synthetic::{BlockModel, BlockScene};
-use crate::testing::{fd_gradient, fd_jacobian, rel_err, Rng};
+use crate::testing::{fd_gradient, fd_jacobian, rel_err, tet_shape_gradients, Rng};
 
 fn small_block(learned_modes: usize, cubature_points: usize, contact_points: usize) -> BlockModel {
     BlockScene { learned_modes, cubature_points, contact_points, normal_damping: 5.0e3, seed: 3, ..Default::default() }.build().unwrap()
@@ -324,16 +324,7 @@ fn cube_tets(rng: &mut Rng, n: usize) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
     let corners: Vec<Vector3<f64>> =
         (0..8).map(|i| Vector3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64) + Vector3::from_vec(rng.vec(3, 0.1))).collect();
     let tets = [[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]];
-    let mut grads = Vec::new();
-    for t in &tets {
-        let dm = nalgebra::Matrix3::from_columns(&[corners[t[1]] - corners[t[0]], corners[t[2]] - corners[t[0]], corners[t[3]] - corners[t[0]]]);
-        let inv = dm.try_inverse().unwrap();
-        let rows: Vec<Vector3<f64>> = (0..3).map(|r| inv.row(r).transpose()).collect();
-        grads.extend((-(rows[0] + rows[1] + rows[2])).iter());
-        for r in &rows {
-            grads.extend(r.iter());
-        }
-    }
+    let (grads, _) = tet_shape_gradients(&corners, &tets);
     (tets.iter().flatten().copied().collect(), grads, rng.vec(8 * 3 * n, 0.05))
 }
 
