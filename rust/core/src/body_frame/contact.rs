@@ -444,6 +444,11 @@ impl BodyContacts {
         at + count
     }
 
+    /// The first `count` rows in `rows`, row-major, N wide.
+    pub(super) fn switch_rows<'a>(&self, rows: &'a ContactRows, count: usize) -> &'a [f64] {
+        &rows.rows[..count * (6 + self.n)]
+    }
+
     /// Adds `B^T B` of the first `count` rows in `rows` to the full symmetric `hess` (N x N).
     pub(super) fn add_rows(&self, rows: &ContactRows, count: usize, hess: &mut [f64]) {
         add_gram(hess, 6 + self.n, &rows.rows, count);

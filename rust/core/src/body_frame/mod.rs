@@ -507,6 +507,12 @@ impl BodyFrameSystem {
         self.contacts.stick_switch(&start.contact, pose, dir, &ws.terms, &mut ws.rows, rhs)
     }
 
+    /// The first `count` switch rows B of [`Self::stick_switch`], row-major,
+    /// 6 + n wide: the switched matrix is the Newton matrix plus `B^T B`.
+    pub fn switch_rows<'a>(&self, ws: &'a BodyWorkspace, count: usize) -> &'a [f64] {
+        self.contacts.switch_rows(&ws.rows, count)
+    }
+
     /// Adds the product of the first `count` switch rows of
     /// [`Self::stick_switch`] to the full symmetric `hess`.
     pub fn add_switch_rows(&self, ws: &BodyWorkspace, count: usize, hess: &mut [f64]) {

@@ -560,15 +560,28 @@ impl ContactModelSteps for BodyFrameSolver {
         self.system.stick_switch(&self.current, &self.iterate.pose, &self.dir, &mut self.ws, &mut self.stick_dir)
     }
 
+    /// The switched direction was solved on the factor of `hess` (a Newton
+    /// matrix, `newton_factor`): few rows are solved on that factor by the
+    /// Woodbury identity ([`Cholesky::solve_with_rows`]), more by adding them
+    /// and factoring again.
     fn solve_switched(&mut self, rows: usize) -> Option<f64> {
-        self.system.add_switch_rows(&self.ws, rows, &mut self.hess);
-        self.newton_factor = false;
-        self.stats.factorizations += 1;
-        self.chol.factor_shifted(&self.hess, 0.0, &self.metric).ok()?;
         for a in self.stick_dir.iter_mut() {
             *a = -*a;
         }
-        self.chol.solve_in_place(&mut self.stick_dir);
+        if self.newton_factor && self.chol.rows_worth_update(rows) {
+            self.chol.solve_with_rows(self.system.switch_rows(&self.ws, rows), rows, &mut self.stick_dir).ok()?;
+            // The next direction factors anew all the same: kept as the last
+            // factor, this one (no stick rows) misjudges the switched points
+            // and the contact model took more iterations (measured: docs/results.md
+            // section 8, "Solver choices, measured").
+            self.newton_factor = false;
+        } else {
+            self.system.add_switch_rows(&self.ws, rows, &mut self.hess);
+            self.newton_factor = false;
+            self.stats.factorizations += 1;
+            self.chol.factor_shifted(&self.hess, 0.0, &self.metric).ok()?;
+            self.chol.solve_in_place(&mut self.stick_dir);
+        }
         Some(self.iterate.grad.iter().zip(&self.stick_dir).map(|(g, d)| g * d).sum())
     }
 

@@ -294,6 +294,12 @@ impl ReducedSystem {
         dispatch(StickKernel { sys: self, start, dir, ws, rhs })
     }
 
+    /// The first `count` switch rows B of [`Self::stick_switch`], row-major, n
+    /// wide: the switched matrix is the Newton matrix plus `B^T B`.
+    pub fn switch_rows<'a>(&self, ws: &'a Workspace, count: usize) -> &'a [f64] {
+        &ws.contact_rows[..count * self.n]
+    }
+
     /// Adds the product of the first `count` switch rows of [`Self::stick_switch`]
     /// to the full symmetric `hess`.
     pub fn add_switch_rows(&self, ws: &Workspace, count: usize, hess: &mut [f64]) {

@@ -292,15 +292,22 @@ impl ContactModelSteps for ReducedSolver {
         self.system.stick_switch(&self.current, &self.dir, &mut self.ws, &mut self.stick_dir)
     }
 
+    /// Few rows are solved on the factor of `matrix` by the Woodbury identity
+    /// ([`crate::cholesky::Cholesky::solve_with_rows`]), more by adding them and
+    /// factoring again; the next direction factors anew either way.
     fn solve_switched(&mut self, rows: usize) -> Option<f64> {
-        // `matrix` and `chol` now hold the corrected system; the next direction factors anew.
-        self.factor_valid = false;
-        self.system.add_switch_rows(&self.ws, rows, &mut self.matrix);
-        self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).ok()?;
         for a in self.stick_dir.iter_mut() {
             *a = -*a;
         }
-        self.chol.solve_in_place(&mut self.stick_dir);
+        if self.factor_valid && self.chol.rows_worth_update(rows) {
+            self.factor_valid = false;
+            self.chol.solve_with_rows(self.system.switch_rows(&self.ws, rows), rows, &mut self.stick_dir).ok()?;
+        } else {
+            self.factor_valid = false;
+            self.system.add_switch_rows(&self.ws, rows, &mut self.matrix);
+            self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).ok()?;
+            self.chol.solve_in_place(&mut self.stick_dir);
+        }
         Some(self.iterate.grad.iter().zip(&self.stick_dir).map(|(g, d)| g * d).sum())
     }
 
