@@ -43,6 +43,8 @@ pub struct Cholesky {
     z: Vec<f64>,
     s: Vec<f64>,
     u: Vec<f64>,
+    /// Rows of the last [`Self::solve_with_rows`] on the current factor (0: none).
+    kept_rows: usize,
 }
 
 impl std::fmt::Debug for Cholesky {
@@ -55,7 +57,7 @@ impl Cholesky {
     /// Buffers for matrices of size n (no factorisation yet).
     pub fn new(n: usize) -> Self {
         let req = cholesky_in_place_scratch::<f64>(n, Par::Seq, params());
-        Self { n, factor: vec![0.0; n * n], mem: MemBuffer::new(req), z: vec![0.0; n * n], s: vec![0.0; n * n], u: vec![0.0; n] }
+        Self { n, factor: vec![0.0; n * n], mem: MemBuffer::new(req), z: vec![0.0; n * n], s: vec![0.0; n * n], u: vec![0.0; n], kept_rows: 0 }
     }
 
     /// Factorises `a` (n x n, symmetric; only its lower triangle is read), allocating.
@@ -69,6 +71,7 @@ impl Cholesky {
     /// Factorises `a + shift * b` without allocating (`a`, `b` symmetric n x n).
     /// On failure returns the index of the first non-positive pivot.
     pub fn factor_shifted(&mut self, a: &[f64], shift: f64, b: &[f64]) -> Result<(), usize> {
+        self.kept_rows = 0;
         if shift == 0.0 {
             self.factor.copy_from_slice(a);
         } else {
@@ -104,6 +107,7 @@ impl Cholesky {
     /// leaves `rhs` undefined.
     pub fn solve_with_rows(&mut self, rows: &[f64], count: usize, rhs: &mut [f64]) -> Result<(), usize> {
         let n = self.n;
+        self.kept_rows = 0;
         if count == 0 {
             self.solve_in_place(rhs);
             return Ok(());
@@ -122,6 +126,20 @@ impl Cholesky {
         let stack = MemStack::new(&mut self.mem);
         cholesky_in_place(MatMut::from_column_major_slice_mut(s, count, count), LltRegularization::default(), Par::Seq, stack, params())
             .map_err(|faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index }| index)?;
+        self.kept_rows = count;
+        self.solve_with_kept_rows(rhs);
+        Ok(())
+    }
+
+    /// Solves with the rows of the last [`Self::solve_with_rows`] on the current
+    /// factor again (Z and the factor of S kept); false where there are none.
+    pub fn solve_with_kept_rows(&mut self, rhs: &mut [f64]) -> bool {
+        let (n, count) = (self.n, self.kept_rows);
+        if count == 0 {
+            return false;
+        }
+        let l = MatRef::from_column_major_slice(&self.factor, n, n);
+        let (z, s) = (&self.z[..count * n], &self.s[..count * count]);
         solve_lower_triangular_in_place(l, MatMut::from_column_major_slice_mut(rhs, n, 1), Par::Seq);
         let u = &mut self.u[..count];
         for (ui, zi) in u.iter_mut().zip(z.chunks_exact(n)) {
@@ -139,7 +157,7 @@ impl Cholesky {
             }
         }
         solve_upper_triangular_in_place(l.transpose(), MatMut::from_column_major_slice_mut(rhs, n, 1), Par::Seq);
-        Ok(())
+        true
     }
 }
 
@@ -191,6 +209,12 @@ mod tests {
             chol.solve_with_rows(&rows, count, &mut x).unwrap();
             let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             assert!(x.iter().zip(&expected).all(|(u, v)| (u - v).abs() < 1e-9 * scale), "{count} rows");
+            // So are Z and S, for the same system.
+            let mut again = rhs.clone();
+            assert_eq!(chol.solve_with_kept_rows(&mut again), count > 0);
+            if count > 0 {
+                assert_eq!(again, x);
+            }
             // A's factor is kept.
             let mut y = rhs.clone();
             chol.solve_in_place(&mut y);
@@ -198,7 +222,11 @@ mod tests {
             Cholesky::factor(&a, n).unwrap().solve_in_place(&mut plain);
             assert_eq!(y, plain);
         }
+        // A new factorisation drops the rows.
         let mut chol = Cholesky::factor(&a, n).unwrap();
+        chol.solve_with_rows(&rng.vec(2 * n, 1.0), 2, &mut rng.vec(n, 1.0)).unwrap();
+        chol.factor_shifted(&a, 0.0, &a).unwrap();
+        assert!(!chol.solve_with_kept_rows(&mut rng.vec(n, 1.0)));
         let mut rows = rng.vec(2 * n, 1.0);
         rows[3] = f64::NAN;
         assert!(chol.solve_with_rows(&rows, 2, &mut rng.vec(n, 1.0)).is_err());

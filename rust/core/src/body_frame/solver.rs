@@ -106,6 +106,10 @@ pub const BODY_ELASTIC_DRIFT: f64 = 0.4;
 /// the contact model, end this way: their last direction, formerly a matrix
 /// formed and factored only to measure a residual already below the
 /// tolerance, reuses the factor of the one before.
+/// After a stick step solved by the Woodbury identity the last factored
+/// matrix is the switched one (the Newton matrix with the stick rows): its
+/// switched points stick at the step's end, and their rows are the curvature
+/// of sticking (measured: docs/results.md section 8, "Solver choices, measured").
 pub const LAST_FACTOR_SHARE: f64 = 0.5;
 
 /// Solver parameters.
@@ -196,7 +200,8 @@ pub struct BodyFrameSolver {
     metric: Vec<f64>,
     chol: Cholesky,
     /// Whether `chol` holds the factor of a Newton matrix (not a stick-switched
-    /// one) with `metric` its metric, for [`LAST_FACTOR_SHARE`].
+    /// one) with `metric` its metric, for [`LAST_FACTOR_SHARE`]; where it does
+    /// not, the switched matrix is used when `chol` kept its stick rows.
     newton_factor: bool,
     /// The lagged elastic Hessian `K_el` with its BFGS corrections (valid if
     /// `elastic_valid`), and `Mqq/h^2`, n x n.
@@ -400,13 +405,14 @@ impl BodyFrameSolver {
     /// `dir`, and its residual, when that is below [`LAST_FACTOR_SHARE`] of
     /// `tolerance` (m/s): the outer iteration's, or the contact model's.
     fn converged_on_last_factor(&mut self, tolerance: f64) -> Option<f64> {
-        if !self.newton_factor {
-            return None;
-        }
         for (d, g) in self.dir.iter_mut().zip(&self.iterate.grad) {
             *d = -g;
         }
-        self.chol.solve_in_place(&mut self.dir);
+        if self.newton_factor {
+            self.chol.solve_in_place(&mut self.dir);
+        } else if !self.chol.solve_with_kept_rows(&mut self.dir) {
+            return None;
+        }
         let residual = self.direction_residual();
         (residual < LAST_FACTOR_SHARE * tolerance).then_some(residual)
     }
@@ -569,11 +575,10 @@ impl ContactModelSteps for BodyFrameSolver {
             *a = -*a;
         }
         if self.newton_factor && self.chol.rows_worth_update(rows) {
+            // The last factor is now that of the switched matrix (the factor
+            // kept with the rows), not the Newton matrix's alone, which misjudges
+            // the switched points.
             self.chol.solve_with_rows(self.system.switch_rows(&self.ws, rows), rows, &mut self.stick_dir).ok()?;
-            // The next direction factors anew all the same: kept as the last
-            // factor, this one (no stick rows) misjudges the switched points
-            // and the contact model took more iterations (measured: docs/results.md
-            // section 8, "Solver choices, measured").
             self.newton_factor = false;
         } else {
             self.system.add_switch_rows(&self.ws, rows, &mut self.hess);
