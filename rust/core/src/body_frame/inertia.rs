@@ -103,6 +103,21 @@ impl MassMoments {
         self.p.iter().zip(q).fold(self.j, |acc, (p, ql)| acc + p * *ql)
     }
 
+    /// `Y_k` (see [`Self::y_modes`]) at one coordinate vector, three rows at a
+    /// time in a plain loop: nine rows at once, or the three thirds built by a
+    /// closure, ran 2x and 10x slower (one core, AVX-512, n = 126).
+    #[inline(always)]
+    fn y_modes_one<M: Madd>(&self, q: &[f64], k: usize) -> Matrix3<f64> {
+        let n = self.n_modes();
+        let rows = &self.q_by_mode[9 * n * k..9 * n * (k + 1)];
+        let mut t = [0.0; 9];
+        for i in 0..3 {
+            let [third] = rows_dot_many::<M, 3, 1>(&rows[3 * n * i..3 * n * (i + 1)], [q]);
+            t[3 * i..3 * i + 3].copy_from_slice(&third);
+        }
+        self.p[k].transpose() + Matrix3::from_row_slice(&t)
+    }
+
     /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk` at each of the V
     /// coordinate vectors `qs`, in one pass over `Q_lk`.
     #[inline(always)]
@@ -121,6 +136,9 @@ impl MassMoments {
     }
 }
 
+/// Poses a step's history holds at most (BDF2's four).
+const MAX_POSES: usize = 4;
+
 /// What the inertia needs from the start of a step: the predicted centre of
 /// mass `ct` and the moments `B0`, `B_k` against `a_v = sum_i w_i R^i y^i_v`
 /// over the poses i of the step's history with the integrator's weights w_i
@@ -134,6 +152,16 @@ pub struct InertiaTarget {
     /// q^t: `C` and the `a(Y_k)` (see [`Self::add_gauss_newton`]).
     gn_c: Matrix3<f64>,
     gn_axial: Vec<Vector3<f64>>,
+    /// The `Y_k` of the poses of the last [`Self::begin`] (pose-major, n each)
+    /// with their q, `held` of them: a step's history repeats all but the
+    /// newest pose of the one before, whose `Y_k` are taken from here instead
+    /// of another pass over the `Q_lk` (half of that pass for backward Euler,
+    /// three quarters for BDF2). `next_*`: the buffers being filled.
+    held_ys: Vec<Matrix3<f64>>,
+    held_q: Vec<f64>,
+    held: usize,
+    next_ys: Vec<Matrix3<f64>>,
+    next_q: Vec<f64>,
 }
 
 impl InertiaTarget {
@@ -145,6 +173,11 @@ impl InertiaTarget {
             bk: vec![Matrix3::zeros(); n],
             gn_c: Matrix3::zeros(),
             gn_axial: vec![Vector3::zeros(); n],
+            held_ys: vec![Matrix3::zeros(); MAX_POSES * n],
+            held_q: vec![0.0; MAX_POSES * n],
+            held: 0,
+            next_ys: vec![Matrix3::zeros(); MAX_POSES * n],
+            next_q: vec![0.0; MAX_POSES * n],
         }
     }
 
@@ -166,22 +199,58 @@ impl InertiaTarget {
         }
     }
 
-    /// [`Self::begin`]: `O(9 n^2)`, the V poses' `Y_k` in one pass over the
-    /// `Q_lk`, those of the current pose kept for the Gauss-Newton inertia.
+    /// [`Self::begin`]: the `Y_k` of the poses the last call did not see,
+    /// `O(9 n^2)` each (all V in one pass over the `Q_lk` when it saw none),
+    /// those of the current pose kept for the Gauss-Newton inertia.
     #[inline(always)]
     fn begin_impl<M: Madd, const V: usize>(&mut self, m: &MassMoments, poses: [&Pose; V], weights: [f64; V], gravity: &Vector3<f64>, h: f64) {
+        let n = m.n_modes();
         let cur = poses[0];
         self.ct = poses.iter().zip(weights).fold(gravity * (h * h), |acc, (p, w)| acc + p.center * w);
         let turns: [Matrix3<f64>; V] = std::array::from_fn(|i| poses[i].rotation * weights[i]);
         self.b0 = poses.iter().zip(&turns).fold(Matrix3::zeros(), |acc, (p, r)| acc + r * m.y_xbar(&p.q));
         self.gn_c = m.j;
-        let qs: [&[f64]; V] = poses.map(|p| &p.q[..]);
+        let held: [Option<usize>; V] = std::array::from_fn(|v| (0..self.held).find(|&j| self.held_q[j * n..(j + 1) * n] == poses[v].q[..]));
+        if held.iter().all(Option::is_none) {
+            let qs: [&[f64]; V] = poses.map(|p| &p.q[..]);
+            for k in 0..n {
+                for (v, y) in m.y_modes::<M, V>(qs, k).into_iter().enumerate() {
+                    self.next_ys[v * n + k] = y;
+                }
+            }
+        } else {
+            for (v, (pose, held)) in poses.iter().zip(held).enumerate() {
+                let ys = &mut self.next_ys[v * n..(v + 1) * n];
+                match held {
+                    Some(j) => ys.copy_from_slice(&self.held_ys[j * n..(j + 1) * n]),
+                    None => {
+                        for (k, y) in ys.iter_mut().enumerate() {
+                            *y = m.y_modes_one::<M>(&pose.q, k);
+                        }
+                    }
+                }
+            }
+        }
+        for (v, pose) in poses.iter().enumerate() {
+            self.next_q[v * n..(v + 1) * n].copy_from_slice(&pose.q);
+        }
+        std::mem::swap(&mut self.held_ys, &mut self.next_ys);
+        std::mem::swap(&mut self.held_q, &mut self.next_q);
+        self.held = V;
         for (k, (b, a)) in self.bk.iter_mut().zip(self.gn_axial.iter_mut()).enumerate() {
-            let ys = m.y_modes::<M, V>(qs, k);
+            let ys: [Matrix3<f64>; V] = std::array::from_fn(|v| self.held_ys[v * n + k]);
             *b = turns.iter().zip(&ys).fold(Matrix3::zeros(), |acc, (r, y)| acc + r * y);
             *a = axial(&ys[0]);
             self.gn_c += (m.p[k] + ys[0]).transpose() * cur.q[k];
         }
+    }
+
+    /// Takes the `Y_k` held by `other` (the target of the step before, when
+    /// the solver alternates two targets), giving it this one's.
+    pub(super) fn take_held(&mut self, other: &mut InertiaTarget) {
+        std::mem::swap(&mut self.held_ys, &mut other.held_ys);
+        std::mem::swap(&mut self.held_q, &mut other.held_q);
+        std::mem::swap(&mut self.held, &mut other.held);
     }
 
     /// Adds the Gauss-Newton inertia `J^T M J` of the vertex positions,

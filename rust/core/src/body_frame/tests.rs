@@ -98,6 +98,36 @@ fn bdf2_inertia_matches_the_sum_over_vertices_of_four_poses() {
     assert!((d_sys - d_brute).abs() < 1e-10 * d_brute.abs(), "{d_sys} vs {d_brute}");
 }
 
+/// A step's history repeats the poses of the step before, whose `Y_k` the
+/// inertia target keeps: a target carried from step to step gives what a
+/// fresh one does.
+#[test]
+fn inertia_target_carried_over_steps_matches_a_fresh_one() {
+    for integrator in [Integrator::BackwardEuler, Integrator::Bdf2] {
+        let scene = BlockScene { learned_modes: 5, cubature_points: 0, contact_points: 0, integrator, ..Default::default() };
+        let b = body_block(&scene, true).unwrap();
+        let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+        let big = 6 + b.n;
+        let mut rng = Rng::new(13);
+        let poses: Vec<Pose> = (0..8).map(|_| random_pose(&mut rng, b.n, 0.05)).collect();
+        let mut ws = sys.workspace();
+        let mut carried = sys.step_start();
+        let (mut h_carried, mut h_fresh) = (vec![0.0; big * big], vec![0.0; big * big]);
+        for t in 3..8 {
+            let history: Vec<&Pose> = (0..4).map(|i| &poses[t - i]).collect();
+            sys.begin_step(&history, &mut carried);
+            let mut fresh = sys.step_start();
+            sys.begin_step(&history, &mut fresh);
+            let probe = random_pose(&mut rng, b.n, 0.05);
+            let (e_carried, e_fresh) = (sys.energy(&carried, &probe), sys.energy(&fresh, &probe));
+            assert!((e_carried - e_fresh).abs() <= 1e-12 * e_fresh.abs(), "{integrator:?} step {t}: {e_carried} vs {e_fresh}");
+            sys.hessian(&carried, &probe, BodyHessian::GaussNewton, &mut ws, &mut h_carried);
+            sys.hessian(&fresh, &probe, BodyHessian::GaussNewton, &mut ws, &mut h_fresh);
+            assert!(rel_err(&h_carried, &h_fresh, 0.0) < 1e-12, "{integrator:?} step {t}: Gauss-Newton Hessian");
+        }
+    }
+}
+
 #[test]
 fn moments_match_sums_over_vertices() {
     let b = block(3, 0, 0, true);
