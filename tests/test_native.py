@@ -287,6 +287,44 @@ def test_vertex_forces_sum_the_ring_stresses_and_reject_bad_input(rng):
         _core.VertexForces(mesh.n_vertices, 1, mesh.tets[tet:tet + 1], grads[None, :3], volume[None], np.array([0]), np.array([2]), MU, LAM)
 
 
+def test_residual_estimate_is_the_numpy_residual_and_rejects_bad_input(rng):
+    mesh = meshes.cheese(resolution=4)
+    tet = 7
+    grads, volume = mesh.shape_gradients[tet], mesh.rest_volumes[tet]
+    corners = mesh.tets[tet]
+    forces = _core.VertexForces(4, 1, np.arange(4)[None], grads[None], volume[None], np.array([0]), np.array([2]), MU, LAM)
+    basis = rng.normal(size=(4, 3, 5)) * 0.01 * mesh.size
+    rest = mesh.vertices[corners]
+    mass, jacobi, gravity = 0.3, np.linalg.inv(np.diag([2.0e3, 3.0e3, 4.0e3])), np.array([0.0, 0.0, -9.81])
+    plane = np.array([[0.0, 0.0, 1.0, 1.0]])  # z >= -1: every sample free
+    est = _core.ResidualEstimate(forces, basis, rest, np.array([2]), np.array([mass]), jacobi[None], gravity, plane, np.array([2.0, -1.0]),
+                                 0.01, 2.0)
+    history = [rest[2] + 1e-3 * rng.normal(size=3) for _ in range(2)]
+    est.start(np.stack(history)[:, None, :])
+    q, c = 0.1 * rng.normal(size=5), rng.normal(size=3)
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    rot *= np.linalg.det(rot)
+    value = est.evaluate(q, c, rot)
+    y = rest + basis @ q
+    f = -volume * _core.snh_pk1((y.T @ grads)[None], MU, LAM)[0] @ grads[2]
+    x = c + rot @ y[2]
+    residual = mass * (x - (2.0 * history[1] - history[0])) / 1e-4 - mass * gravity - rot @ f
+    du = jacobi @ residual
+    assert value == pytest.approx(2.0 * du @ du, rel=1e-12)
+    with pytest.raises(ConfigError, match="center and rotation"):
+        est.evaluate(q, c)
+    with pytest.raises(ShapeError, match="q"):
+        est.evaluate(q[:3])
+    with pytest.raises(ShapeError, match="q holds NaN"):
+        est.record(np.full(5, np.nan))
+    with pytest.raises(ShapeError, match="planes"):
+        _core.ResidualEstimate(forces, basis, rest, np.array([2]), np.array([mass]), jacobi[None], gravity, plane[:, :3], np.array([2.0, -1.0]), 0.01, 2.0)
+    with pytest.raises(ConfigError, match="own"):
+        _core.ResidualEstimate(forces, basis, rest, np.array([4]), np.array([mass]), jacobi[None], gravity, plane, np.array([2.0, -1.0]), 0.01, 2.0)
+    with pytest.raises(ConfigError, match="target"):
+        _core.ResidualEstimate(forces, basis, rest, np.array([2]), np.array([mass]), jacobi[None], gravity, plane, np.array([1.0, 2.0, 3.0]), 0.01, 2.0)
+
+
 @pytest.mark.parametrize(
     "changes, error, match",
     [

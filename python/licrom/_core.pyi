@@ -39,6 +39,7 @@ __all__ = [
     "PhysicsWarning",
     "Reconstruction",
     "ReducedCore",
+    "ResidualEstimate",
     "ShapeError",
     "SolverError",
     "VertexForces",
@@ -408,6 +409,54 @@ class Reconstruction:
         """Number of points N."""
     def positions(self, q: _Float64Array) -> _Float64Array:
         """(N, 3) positions in m for reduced coordinates ``q`` (n,)."""
+
+@final
+class ResidualEstimate:
+    """The full model's residual at S sample vertices of a reduced state, with the sample
+    positions of the steps the integrator reads kept from call to call
+    (``rust/core/src/residual_estimate.rs`` has the formulas).
+
+    Args:
+        forces: the ring forces of the samples, over the U near vertices.
+        near_basis: (U, 3, n) basis rows of the near vertices.
+        near_rest: (U, 3) rest term of their positions in m.
+        own: (S,) int64 each sample's index among the near vertices.
+        masses: (S,) lumped masses in kg, > 0.
+        jacobi: (S, 3, 3) inverse Jacobi blocks in m/N.
+        gravity: (3,) gravity in m/s^2.
+        planes: (P, 4) contact planes ``(n, d)``, outside where ``n . x + d >= 0``.
+        target: (L,) the integrator's target weights, newest first (L = 2 or 4).
+        step: the integrator's effective step in s, > 0.
+        total_mass: the body's mass in kg, > 0.
+    """
+
+    def __new__(
+        cls,
+        forces: VertexForces,
+        near_basis: _Float64Array,
+        near_rest: _Float64Array,
+        own: _Int64Array,
+        masses: _Float64Array,
+        jacobi: _Float64Array,
+        gravity: _Float64Array,
+        planes: _Float64Array,
+        target: _Float64Array,
+        step: float,
+        total_mass: float,
+    ) -> Self: ...
+    @property
+    def n_samples(self) -> int:
+        """Number of sample vertices S."""
+    @property
+    def history_length(self) -> int:
+        """States the residual reads before the step (2 or 4)."""
+    def start(self, history: _Float64Array) -> None:
+        """Begins a run from the (L, S, 3) sample positions (m) of the states before it, oldest first."""
+    def record(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> None:
+        """Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state."""
+    def evaluate(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> float:
+        """The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
+        ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes the newest state."""
 
 @final
 class VertexForces:

@@ -34,15 +34,14 @@ cheese (all 32 of its interior vertices) stayed at 3-4 % for true errors of 38-1
 (r = 2..8); with the surface included it follows them (13-19 % at r = 2). Samples
 inside a plane, now or at the start of the step (friction is lagged), feel contact forces
 that are not modelled, and are left out of that frame. The sample's basis rows, one-ring
-shape gradients and volumes are taken once; a frame costs one product with the basis rows of
-the rings' vertices, one native pass over the ring tets (``licrom._core.VertexForces``) and a
-few small numpy calls.
+shape gradients and volumes are taken once; an evaluated step costs one product with the basis
+rows of the rings' vertices and one pass over the ring tets, both in the core
+(``licrom._core.ResidualEstimate``, which also keeps the sample positions of the steps before).
 """
 
 from __future__ import annotations
 
 import warnings
-from collections import deque
 from collections.abc import Callable
 
 import numpy as np
@@ -71,7 +70,9 @@ run, so every tenth step measures it as well as every step, at a tenth of the co
 (0.019 ms of 0.37 ms per step, median of 7 runs of 150 steps; 3-8 % per run on a shared
 2-core machine) and 4 % at r = 20 (one evaluation: under 0.1 ms). On the 1638-tet cheese at
 r = 120 with the model's fitted cubature (slide, stick, new azimuth; 3 runs each): 0.03-0.06 ms
-a step on average against a mean step of 1.3 ms, 2-4 %; an evaluated step carries 0.21 ms of it."""
+a step on average against a mean step of 1.3 ms, 2-4 %. With the residual in the core
+(``licrom._core.ResidualEstimate``), in a run: 0.12-0.18 ms on an evaluated step (0.25-0.26 before)
+and 0.02-0.03 ms on each of the steps before it that keep sample positions (0.04-0.05 before)."""
 
 ERROR_SCALE = 4.0
 """Factor from the Jacobi displacement ratio to the non-rigid error (dimensionless).
@@ -151,9 +152,6 @@ class ErrorMonitor:
         volumes = mesh.rest_volumes[ring]
         self._forces = _core.VertexForces(len(self.near), len(self.vertices), corners, np.ascontiguousarray(grads), volumes, owner,
                                           own_corner, *scene.material.snh_parameters)
-        # Positions of the near vertices (a reconstruction needs at least one mode; without, the rest ones).
-        self._near = _core.Reconstruction(values[self.near], rest[self.near]) if k else None
-        self._near_rest = np.ascontiguousarray(rest[self.near])
         self._sample_basis = np.ascontiguousarray(values[self.vertices].reshape(3 * len(self.vertices), k))
         self._sample_rest = np.ascontiguousarray(rest[self.vertices])
         masses = mesh.vertex_masses(scene.material.density)
@@ -166,12 +164,11 @@ class ErrorMonitor:
         block = volumes[:, None, None] * (mu * np.einsum("tkk->t", gg)[:, None, None] * np.eye(3) + (mu + lam) * gg)
         stiffness = np.zeros((len(self.vertices), 3, 3))
         np.add.at(stiffness, owner, block)
-        self._jacobi = np.linalg.inv(stiffness + (self._m / h**2)[:, None, None] * np.eye(3))
-        self._h2 = h * h
-        self._weight = np.asarray(scene.gravity, dtype=np.float64) * self._m[:, None]
-        planes = scene.plane_array()
-        self._normals, self._offsets = planes[:, :3], planes[:, 3]
-        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=len(self._target))
+        jacobi = np.linalg.inv(stiffness + (self._m / h**2)[:, None, None] * np.eye(3))
+        # The residual in the core: as a dozen numpy calls after each solver step it cost a third of a step.
+        self._residual = _core.ResidualEstimate(self._forces, np.ascontiguousarray(values[self.near]), np.ascontiguousarray(rest[self.near]),
+                                                self._own, self._m, jacobi, np.asarray(scene.gravity, dtype=np.float64),
+                                                np.ascontiguousarray(scene.plane_array()[:, :4]), self._target, h, self._total_mass)
         self._step = 0
         self._evaluations: list[tuple[int, float, float]] = []
 
@@ -195,8 +192,7 @@ class ErrorMonitor:
         (the current state last)."""
         if len(history) != self.history_length:
             raise ConfigError(f"the error estimate needs {self.history_length} states to start from, got {len(history)}")
-        self._history.clear()
-        self._history.extend((1 - len(history) + i, x) for i, x in enumerate(history))
+        self._residual.start(np.stack(history))
         self._step = 0
         self._evaluations = []
 
@@ -215,25 +211,9 @@ class ErrorMonitor:
             return
         q, center, rotation = state()
         if wait:
-            self._history.append((self._step, self.sample_positions(q, center, rotation)))
+            self._residual.record(q, center, rotation)
             return
-        y = self._near_rest if self._near is None else self._near.positions(q)
-        # In the body frame: F(c + R y) = R F(y) and P(R F) = R P(F), so the forces turn with R.
-        force = self.elastic_forces(y)
-        now = y[self._own]
-        if rotation is not None:
-            force, now = force @ rotation.T, center + now @ rotation.T
-        before = self._history[-1][1]
-        predicted = sum(w * x for w, (_, x) in zip(self._target, reversed(self._history)))
-        residual = self._m[:, None] * (now - predicted) / self._h2 - self._weight - force
-        du = np.einsum("sij,sj->si", self._jacobi, residual)
-        # A sample inside a plane now or at the start of the step (friction is lagged) feels contact: left out.
-        free = (np.minimum(now @ self._normals.T, before @ self._normals.T) + self._offsets >= 0.0).all(axis=1)
-        m = self._m * free
-        counted = m.sum()
-        weighted = self._total_mass * float(np.einsum("s,si,si->", m, du, du)) / counted if counted > 0 else 0.0
-        self._evaluations.append((self._step, weighted, deformation(q)))
-        self._history.append((self._step, now))
+        self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), deformation(q)))
 
     def estimate(self, frame_steps: np.ndarray, start_step: int | None) -> np.ndarray:
         """(f,) running estimate at each frame, from the evaluations since the last :meth:`start`.

@@ -41,6 +41,7 @@ pub mod material;
 pub mod real;
 pub mod reconstruction;
 pub mod reduced;
+pub mod residual_estimate;
 mod simd;
 pub mod solver;
 pub mod svd3;

@@ -13,6 +13,7 @@ mod line_search;
 mod material;
 mod reconstruction;
 mod reduced;
+mod residual_estimate;
 mod vertex_forces;
 
 use pyo3::prelude::*;
@@ -43,6 +44,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<reduced::ReducedCore>()?;
     m.add_class::<body_frame::BodyFrameCore>()?;
     m.add_class::<reconstruction::Reconstruction>()?;
+    m.add_class::<residual_estimate::ResidualEstimate>()?;
     m.add_class::<vertex_forces::VertexForces>()?;
     m.add_function(wrap_pyfunction!(batch::step_many, m)?)?;
     m.add_function(wrap_pyfunction!(line_search::line_search, m)?)?;

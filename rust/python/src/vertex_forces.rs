@@ -24,7 +24,7 @@ use crate::errors::CoreResultExt;
 ///     lam: stable Neo-Hookean parameter lambda in Pa.
 #[pyclass(module = "licrom._core", frozen)]
 pub struct VertexForces {
-    inner: CoreVertexForces,
+    pub(crate) inner: CoreVertexForces,
 }
 
 #[pymethods]

@@ -1,0 +1,142 @@
+//! The online error estimate's residual at a vertex sample.
+
+use licrom_core::residual_estimate::{EstimateInputs, Placement, ResidualEstimate as CoreResidualEstimate};
+use nalgebra::{Matrix3, Vector3};
+use pyo3::prelude::*;
+
+use crate::arrays::{read, read_indices, Dim};
+use crate::errors::{error, CoreResultExt, Kind};
+use crate::vertex_forces::VertexForces;
+
+/// The full model's residual at S sample vertices of a reduced state, with the sample
+/// positions of the steps the integrator reads kept from call to call
+/// (``rust/core/src/residual_estimate.rs`` has the formulas).
+///
+/// Args:
+///     forces: the ring forces of the samples, over the U near vertices.
+///     near_basis: (U, 3, n) basis rows of the near vertices.
+///     near_rest: (U, 3) rest term of their positions in m.
+///     own: (S,) int64 each sample's index among the near vertices.
+///     masses: (S,) lumped masses in kg, > 0.
+///     jacobi: (S, 3, 3) inverse Jacobi blocks in m/N.
+///     gravity: (3,) gravity in m/s^2.
+///     planes: (P, 4) contact planes ``(n, d)``, outside where ``n . x + d >= 0``.
+///     target: (L,) the integrator's target weights, newest first (L = 2 or 4).
+///     step: the integrator's effective step in s, > 0.
+///     total_mass: the body's mass in kg, > 0.
+#[pyclass(module = "licrom._core")]
+pub struct ResidualEstimate {
+    inner: CoreResidualEstimate,
+}
+
+/// `(c, R)` from optional (3,) and (3, 3) arrays (both or neither).
+fn placement(
+    py: Python<'_>,
+    center: Option<&Bound<'_, PyAny>>,
+    rotation: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Option<(Vector3<f64>, Matrix3<f64>)>> {
+    match (center, rotation) {
+        (Some(c), Some(r)) => {
+            let c = read(c, "center", &[Dim::Is(3)])?;
+            let r = read(r, "rotation", &[Dim::Is(3), Dim::Is(3)])?;
+            Ok(Some((Vector3::from_column_slice(&c.data), Matrix3::from_row_slice(&r.data))))
+        }
+        (None, None) => Ok(None),
+        _ => Err(error(py, Kind::Config, "center and rotation are given together (body-frame models) or not at all (world frame)")),
+    }
+}
+
+#[pymethods]
+impl ResidualEstimate {
+    #[new]
+    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        forces: PyRef<'_, VertexForces>,
+        near_basis: &Bound<'_, PyAny>,
+        near_rest: &Bound<'_, PyAny>,
+        own: &Bound<'_, PyAny>,
+        masses: &Bound<'_, PyAny>,
+        jacobi: &Bound<'_, PyAny>,
+        gravity: &Bound<'_, PyAny>,
+        planes: &Bound<'_, PyAny>,
+        target: &Bound<'_, PyAny>,
+        step: f64,
+        total_mass: f64,
+    ) -> PyResult<Self> {
+        let u = forces.inner.n_points();
+        let s = forces.inner.n_samples();
+        let near_rest = read(near_rest, "near_rest", &[Dim::Is(u), Dim::Is(3)])?;
+        let near_basis = read(near_basis, "near_basis", &[Dim::Is(u), Dim::Is(3), Dim::Any("n")])?;
+        let own = read_indices(own, "own", &[Dim::Is(s)])?;
+        let masses = read(masses, "masses", &[Dim::Is(s)])?;
+        let jacobi = read(jacobi, "jacobi", &[Dim::Is(s), Dim::Is(3), Dim::Is(3)])?;
+        let gravity = read(gravity, "gravity", &[Dim::Is(3)])?;
+        let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(4)])?;
+        let target = read(target, "target", &[Dim::Any("L")])?;
+        let inputs = EstimateInputs {
+            near_basis: &near_basis.data,
+            near_rest: &near_rest.data,
+            own: &own,
+            masses: &masses.data,
+            jacobi: &jacobi.data,
+            gravity: [gravity.data[0], gravity.data[1], gravity.data[2]],
+            planes: &planes.data,
+            target: &target.data,
+            step,
+            total_mass,
+        };
+        let inner = CoreResidualEstimate::new(&inputs, forces.inner.clone()).py_err(py)?;
+        Ok(Self { inner })
+    }
+
+    /// Number of sample vertices S.
+    #[getter]
+    fn n_samples(&self) -> usize {
+        self.inner.n_samples()
+    }
+
+    /// States the residual reads before the step (2 or 4).
+    #[getter]
+    fn history_length(&self) -> usize {
+        self.inner.history_length()
+    }
+
+    /// Begins a run from the (L, S, 3) sample positions (m) of the states before it, oldest first.
+    fn start(&mut self, py: Python<'_>, history: &Bound<'_, PyAny>) -> PyResult<()> {
+        let history = read(history, "history", &[Dim::Is(self.inner.history_length()), Dim::Is(self.inner.n_samples()), Dim::Is(3)])?;
+        self.inner.start(&history.data).py_err(py)
+    }
+
+    /// Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state.
+    #[pyo3(signature = (q, center=None, rotation=None))]
+    fn record(
+        &mut self,
+        py: Python<'_>,
+        q: &Bound<'_, PyAny>,
+        center: Option<&Bound<'_, PyAny>>,
+        rotation: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<()> {
+        let q = read(q, "q", &[Dim::Any("n")])?;
+        let pose = placement(py, center, rotation)?;
+        let placed: Placement<'_> = pose.as_ref().map(|(c, r)| (c, r));
+        self.inner.record(&q.data, placed).py_err(py)
+    }
+
+    /// The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
+    /// ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes the newest state.
+    #[pyo3(signature = (q, center=None, rotation=None))]
+    fn evaluate(
+        &mut self,
+        py: Python<'_>,
+        q: &Bound<'_, PyAny>,
+        center: Option<&Bound<'_, PyAny>>,
+        rotation: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<f64> {
+        let q = read(q, "q", &[Dim::Any("n")])?;
+        let pose = placement(py, center, rotation)?;
+        let placed: Placement<'_> = pose.as_ref().map(|(c, r)| (c, r));
+        self.inner.evaluate(&q.data, placed).py_err(py)
+    }
+}
