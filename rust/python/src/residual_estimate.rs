@@ -1,6 +1,6 @@
 //! The online error estimate's residual at a vertex sample.
 
-use licrom_core::residual_estimate::{EstimateInputs, Placement, ResidualEstimate as CoreResidualEstimate};
+use licrom_core::residual_estimate::{EstimateInputs, ResidualEstimate as CoreResidualEstimate};
 use nalgebra::{Matrix3, Vector3};
 use pyo3::prelude::*;
 
@@ -29,21 +29,27 @@ pub struct ResidualEstimate {
     inner: CoreResidualEstimate,
 }
 
-/// `(c, R)` from optional (3,) and (3, 3) arrays (both or neither).
-fn placement(
+/// A rigid placement `(c, R)`, owned.
+type Pose = (Vector3<f64>, Matrix3<f64>);
+
+/// `q` and the placement `(c, R)` from optional (3,) and (3, 3) arrays (both or neither).
+fn state(
     py: Python<'_>,
+    q: &Bound<'_, PyAny>,
     center: Option<&Bound<'_, PyAny>>,
     rotation: Option<&Bound<'_, PyAny>>,
-) -> PyResult<Option<(Vector3<f64>, Matrix3<f64>)>> {
-    match (center, rotation) {
+) -> PyResult<(Vec<f64>, Option<Pose>)> {
+    let q = read(q, "q", &[Dim::Any("n")])?.data;
+    let pose = match (center, rotation) {
         (Some(c), Some(r)) => {
             let c = read(c, "center", &[Dim::Is(3)])?;
             let r = read(r, "rotation", &[Dim::Is(3), Dim::Is(3)])?;
-            Ok(Some((Vector3::from_column_slice(&c.data), Matrix3::from_row_slice(&r.data))))
+            Some((Vector3::from_column_slice(&c.data), Matrix3::from_row_slice(&r.data)))
         }
-        (None, None) => Ok(None),
-        _ => Err(error(py, Kind::Config, "center and rotation are given together (body-frame models) or not at all (world frame)")),
-    }
+        (None, None) => None,
+        _ => return Err(error(py, Kind::Config, "center and rotation are given together (body-frame models) or not at all (world frame)")),
+    };
+    Ok((q, pose))
 }
 
 #[pymethods]
@@ -118,10 +124,8 @@ impl ResidualEstimate {
         center: Option<&Bound<'_, PyAny>>,
         rotation: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
-        let q = read(q, "q", &[Dim::Any("n")])?;
-        let pose = placement(py, center, rotation)?;
-        let placed: Placement<'_> = pose.as_ref().map(|(c, r)| (c, r));
-        self.inner.record(&q.data, placed).py_err(py)
+        let (q, pose) = state(py, q, center, rotation)?;
+        self.inner.record(&q, pose.as_ref().map(|(c, r)| (c, r))).py_err(py)
     }
 
     /// The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
@@ -134,9 +138,7 @@ impl ResidualEstimate {
         center: Option<&Bound<'_, PyAny>>,
         rotation: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<f64> {
-        let q = read(q, "q", &[Dim::Any("n")])?;
-        let pose = placement(py, center, rotation)?;
-        let placed: Placement<'_> = pose.as_ref().map(|(c, r)| (c, r));
-        self.inner.evaluate(&q.data, placed).py_err(py)
+        let (q, pose) = state(py, q, center, rotation)?;
+        self.inner.evaluate(&q, pose.as_ref().map(|(c, r)| (c, r))).py_err(py)
     }
 }

@@ -299,11 +299,11 @@ impl ContactModelSteps for ReducedSolver {
         for a in self.stick_dir.iter_mut() {
             *a = -*a;
         }
-        if self.factor_valid && self.chol.rows_worth_update(rows) {
-            self.factor_valid = false;
+        let on_factor = self.factor_valid && self.chol.rows_worth_update(rows);
+        self.factor_valid = false;
+        if on_factor {
             self.chol.solve_with_rows(self.system.switch_rows(&self.ws, rows), rows, &mut self.stick_dir).ok()?;
         } else {
-            self.factor_valid = false;
             self.system.add_switch_rows(&self.ws, rows, &mut self.matrix);
             self.chol.factor_shifted(&self.matrix, 0.0, &self.mass_over_h2).ok()?;
             self.chol.solve_in_place(&mut self.stick_dir);
