@@ -1,6 +1,7 @@
 """The pipeline end to end on a >= 100k-tet mesh, every stage timed (issue 24, part 2).
 
     python experiments/scale_end_to_end.py --device cuda --resolution 42 --runs 20 --work out/scale
+    python experiments/scale_end_to_end.py --device cuda --azimuths 10 --jobs 4 --work out/wide  # 40 runs over a machine's GPUs
     python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
     python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
@@ -10,8 +11,10 @@ The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes 
 on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
 
 1. **generate**: the family's training runs (``--runs`` of its 20: the first ones, azimuth by
-   azimuth) and its held-out runs with the full simulation (``licrom.FullSim(mesh, scene,
-   device=--device)``), each saved with ``Trajectory.save`` (float32, the CLI's default; file size noted);
+   azimuth; ``--azimuths N``: 4 runs at each of N azimuths evenly spaced from 0 deg in place of the
+   family's 5) and its held-out runs with the full simulation (``licrom.FullSim(mesh, scene,
+   device=--device)``; ``--jobs`` runs at once, in processes that take the machine's GPUs in turn),
+   each saved with ``Trajectory.save`` (float32, the CLI's default; file size noted);
 2. **train**: ``licrom.train(run_files, path)`` with its defaults (r chosen from the data, cubature
    fitted and stored); wall time, the training and cubature fit times and the rank choice from
    ``model.metadata``, the peak GPU memory (``torch.cuda.max_memory_allocated``);
@@ -51,6 +54,8 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import BodyFrameSim, ReducedSim, Trajectory
+from licrom.data.dataset import local_devices
+from licrom.executors import run_tasks
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.scene.scene import SolverParams
@@ -300,6 +305,8 @@ def main_study(args) -> dict:
     bfe.CHEESE_RESOLUTION = args.resolution
     t0 = time.perf_counter()
     fam = bfe.cheese_family(args.small)
+    if args.runs is None:
+        args.runs = len(fam.training)
     mesh = fam.mesh
     out["stages"]["mesh"] = {"s": time.perf_counter() - t0, "tets": int(mesh.n_tets), "vertices": int(mesh.n_vertices)}
     log(f"mesh and scenes: {mesh.n_tets} tets, {mesh.n_vertices} vertices in {out['stages']['mesh']['s']:.1f} s")
@@ -309,17 +316,14 @@ def main_study(args) -> dict:
 
     # 1. generate
     t0 = time.perf_counter()
-    train_files, gen = [], []
-    for case in train_cases:
-        p, info = generate(case, mesh, steps, args.device, work / "runs")
-        train_files.append(p)
-        gen.append(info)
-    held_files = []
-    for case in held_cases:
-        p, info = generate(case, mesh, steps, args.device, work / "runs")
-        held_files.append(p)
-        gen.append(info)
-    out["stages"]["generate"] = {"s": time.perf_counter() - t0, "runs": gen, "steps": steps, "dt": fam.cases[0].scene.dt}
+    cases = train_cases + held_cases
+    devices = local_devices(args.device, args.jobs)
+    tasks = [(case, mesh, steps, devices[i % len(devices)], work / "runs") for i, case in enumerate(cases)]
+    generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
+    files, gen = zip(*(generated[i] for i in range(len(cases))))
+    train_files, held_files = list(files[: len(train_cases)]), list(files[len(train_cases):])
+    out["stages"]["generate"] = {"s": time.perf_counter() - t0, "runs": list(gen), "steps": steps, "dt": fam.cases[0].scene.dt,
+                                 "jobs": args.jobs, "devices": devices, "training_azimuths": list(bfe.TRAINING_AZIMUTHS)}
     (work / "scale.json").write_text(json.dumps(out, indent=1))
 
     # 2. train
@@ -479,7 +483,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="cuda", choices=("cuda", "cpu"), help="device of the full runs")
     ap.add_argument("--resolution", type=int, default=42, help="meshes.cheese resolution (42: 120378 tets)")
-    ap.add_argument("--runs", type=int, default=20, help="training runs (of the family's 20)")
+    ap.add_argument("--runs", type=int, default=None, help="training runs (the first of the family's; default: all)")
+    ap.add_argument("--azimuths", type=int, default=None, metavar="N",
+                    help="N training azimuths evenly spaced from 0 deg (4 runs each) in place of the family's 5")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="full runs generated at once, in processes that take the machine's GPUs in turn (licrom.executors)")
     ap.add_argument("--held", type=int, default=4, help="held-out runs (of 4)")
     ap.add_argument("--contact-points", type=int, nargs="*", default=[], metavar="N",
                     help="also run the held-out scenes with farthest-point subsets of N contact points (ContactPoints.subset)")
@@ -500,6 +508,8 @@ def main() -> None:
                     help="also the stored cubature with SolverParams.reduced_tolerance = T m/s (--cubatures)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
+    if args.azimuths is not None:
+        bfe.TRAINING_AZIMUTHS = tuple(360.0 * k / args.azimuths for k in range(args.azimuths))
     if args.section_only:
         res = json.loads((Path(args.work) / "scale.json").read_text())
         bfe.write_section(Path(args.docs), section(res), SECTION_TITLE)
