@@ -44,6 +44,7 @@ import argparse
 import cProfile
 import dataclasses
 import json
+import os
 import platform
 import pstats
 import sys
@@ -56,6 +57,7 @@ import numpy as np
 from licrom import BodyFrameSim, ReducedSim, Trajectory
 from licrom.data.dataset import local_devices
 from licrom.executors import run_tasks
+from licrom.learn.model.config import ModelConfig
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.scene.scene import SolverParams
@@ -298,7 +300,6 @@ def main_study(args) -> dict:
         out["torch_threads"] = torch.get_num_threads()
     except ImportError:
         pass
-    import os
     out["cpus"] = os.cpu_count()
     t_all = time.perf_counter()
 
@@ -328,11 +329,16 @@ def main_study(args) -> dict:
 
     # 2. train
     model_path = work / "model" / "cheese.lcm"
-    cfg = TrainConfig(epochs=1, progress=False) if args.small else TrainConfig(progress=False)
+    # --gpus N trains with DDP, whose launcher starts this script again in N - 1 more processes.
+    gpus = {} if args.gpus is None else {"devices": args.gpus, "join_timeout_s": 900.0}
+    cfg = TrainConfig(epochs=1, progress=False, **gpus) if args.small else TrainConfig(progress=False, **gpus)
+    mcfg = None if args.rank is None else ModelConfig(latent_dim=args.rank)
     _, peak = peak_gpu()
     t0 = time.perf_counter()
-    model = licrom.train([str(p) for p in train_files], model_path, cfg)
+    model = licrom.train([str(p) for p in train_files], model_path, cfg, mcfg)
     wall = time.perf_counter() - t0
+    if os.environ.get("LOCAL_RANK", "0") != "0":
+        sys.exit(0)  # another process of a DDP run: the first one goes on
     md = model.metadata
     rank, cub, sub = md.get("rank", {}), md.get("cubature", {}), md.get("subspace", {})
     out["stages"]["train"] = {"s": wall, "fit_seconds": md.get("fit_seconds"), "cubature": cub, "rank": rank, "subspace": sub,
@@ -486,6 +492,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=None, help="training runs (the first of the family's; default: all)")
     ap.add_argument("--azimuths", type=int, default=None, metavar="N",
                     help="N training azimuths evenly spaced from 0 deg (4 runs each) in place of the family's 5")
+    ap.add_argument("--gpus", type=int, default=None, help="GPUs of the training (TrainConfig.devices; default: licrom.train's)")
+    ap.add_argument("--rank", type=int, default=None, help="r given (ModelConfig.latent_dim) in place of the choice from the data")
     ap.add_argument("--jobs", type=int, default=1,
                     help="full runs generated at once, in processes that take the machine's GPUs in turn (licrom.executors)")
     ap.add_argument("--held", type=int, default=4, help="held-out runs (of 4)")

@@ -360,6 +360,32 @@ def test_nodes_whose_peers_never_join_time_out_naming_what_they_wait_for(trajs, 
     assert not torch.distributed.is_initialized()
 
 
+def test_a_process_age_counts_from_its_start():
+    import subprocess
+    import sys
+    import time
+
+    from licrom.learn.training.run import process_age_s
+
+    before = process_age_s()
+    time.sleep(0.3)
+    assert 0.25 <= process_age_s() - before <= 5.0  # /proc counts in clock ticks (10 ms)
+    # A process that slept 1 s before asking is at least that old, and not older than its whole run.
+    start = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", "import time; time.sleep(1.0); from licrom.learn.training.run import process_age_s; "
+                          "print(process_age_s())"], capture_output=True, text=True, check=True)
+    assert 1.0 <= float(out.stdout) <= time.perf_counter() - start + 0.05
+
+
+def test_one_machine_waits_for_its_processes_to_start_from_the_beginning():
+    from licrom.learn.training.run import JOIN_CATCH_UP, join_timeout_s
+
+    # Lightning starts a machine's other processes at the fit, and they load the runs again: the wait grows with that work.
+    assert join_timeout_s(TrainConfig(join_timeout_s=120.0), 300.0) == 120.0 + JOIN_CATCH_UP * 300.0
+    # A launcher starts every node's processes at once: the timeout stands as given.
+    assert join_timeout_s(TrainConfig(join_timeout_s=120.0, nodes=2), 300.0) == 120.0
+
+
 # --- the POD bound -------------------------------------------------------------------------
 def test_subspace_report_meets_the_pod_bound_on_synthetic_data(coarse_box):
     from licrom.learn.training import subspace_report

@@ -72,7 +72,10 @@ class TrainConfig:
             ``MASTER_PORT``, ``NODE_RANK`` set on each machine) places the processes.
         join_timeout_s: seconds the processes of a run of several (``nodes`` or ``devices``
             > 1) wait for each other to join before a ConfigError naming the address and
-            the processes missing (Lightning would wait 30 minutes).
+            the processes missing (Lightning would wait 30 minutes). On one machine, where the
+            other processes start only when this one reaches the fit and run the command
+            again from its start, twice this process's age is added
+            (:func:`licrom.learn.training.run.join_timeout_s`).
         precision: Lightning precision string (``"32-true"``; ``"bf16-mixed"`` on GPUs).
         checkpoint_dir: Lightning checkpoints; default ``<model>.checkpoints`` beside the model.
         checkpoint_every: epochs between checkpoints (``last.ckpt`` is overwritten).
