@@ -2,6 +2,7 @@
 
     python experiments/friction_lag.py --work out/friction_lag          # ~10 min on 2 cores
     python experiments/friction_lag.py --small --work /tmp/friction_lag  # a smoke test, seconds
+    python experiments/friction_lag.py --passes 0 --drop 0.005 --work out/gentle  # the lag alone, a gentler scene
 
 Section 12 found the full simulation first order in h on the soft cheese's slide, BDF2 as well as
 backward Euler, and named the friction's normal force, lagged from the step's start (``fn`` at
@@ -13,7 +14,9 @@ with the implicit normal force). If the lag were what holds the order down, the 
 converge faster, and BDF2 with it at second order. Rows: final centre of mass distance over the size
 and the non-rigid difference (``licrom.analysis.compare.nonrigid_error``, frames every 10 ms) against
 the same variant at the smallest step; beside them, the two variants against each other at each step.
-Writes ``--work/friction_lag.json``.
+``--passes 0`` runs the lag alone; ``--drop``, ``--youngs-modulus`` and ``--normal-damping`` change the
+scene (the drop height above the plane, E, the contact's ``k_d``), to see which of them the convergence in
+h follows. Writes ``--work/friction_lag.json``.
 """
 
 from __future__ import annotations
@@ -29,9 +32,11 @@ import numpy as np
 from licrom.analysis.compare import nonrigid_error
 from licrom.full import contact
 from licrom.full.device import warp_ready
+from licrom.scene.scene import ContactParams, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from truth_convergence import build_mesh, build_scene
+from body_frame_experiments import _on_plane, incline
+from truth_convergence import build_mesh
 
 FRAME_DT = 0.01  # s
 
@@ -66,16 +71,23 @@ class EndNormalSim(licrom.FullSim):
         return out
 
 
-def run(work: Path, resolution: int, dt: float, duration: float, integrator: str, passes: int) -> tuple[licrom.Trajectory, dict]:
+def build_scene(args: argparse.Namespace, mesh: licrom.Mesh, dt: float, integrator: str) -> licrom.Scene:
+    """Section 12's cheese scene (22 deg az 0, mu 0.3) with ``args``' drop, E and contact damping."""
+    base = licrom.Scene(material=licrom.Material(youngs_modulus=args.youngs_modulus, poisson_ratio=0.3, density=1000.0), dt=dt,
+                        integrator=integrator, solver=SolverParams(on_failure="record"), contact=ContactParams(normal_damping=args.normal_damping))
+    return _on_plane(mesh, base, incline(22.0, 0.0, 0.3), args.drop, (0.15, 0.1, 0.0))
+
+
+def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes: int) -> tuple[licrom.Trajectory, dict]:
     """The run (cached under ``work``): passes 0 is ``licrom.FullSim`` itself (the lag)."""
-    name = f"cheese_r{resolution}_h{dt * 1e3:g}ms_{integrator}_passes{passes}"
+    name = f"cheese_r{args.resolution}_h{dt * 1e3:g}ms_{integrator}_passes{passes}"
     path, meta_path = work / f"{name}.npz", work / f"{name}.json"
     if path.exists() and meta_path.exists():
         return licrom.Trajectory.load(path), json.loads(meta_path.read_text())
-    mesh = build_mesh("cheese", resolution)
-    scene = build_scene("cheese", mesh, dt, integrator)
+    mesh = build_mesh("cheese", args.resolution)
+    scene = build_scene(args, mesh, dt, integrator)
     sim = licrom.FullSim(mesh, scene, device="cpu") if passes == 0 else EndNormalSim(mesh, scene, passes)
-    steps, every = round(duration / dt), max(1, round(FRAME_DT / dt))
+    steps, every = round(args.duration / dt), max(1, round(FRAME_DT / dt))
     t0 = time.perf_counter()
     traj = sim.run(steps, record_every=every)
     meta = {"dt": dt, "integrator": integrator, "passes": passes, "steps": steps, "tets": int(mesh.n_tets),
@@ -94,6 +106,9 @@ def main() -> None:
     ap.add_argument("--time-steps", type=float, nargs="+", default=[0.01, 0.005, 0.0025, 0.001, 0.0005, 0.000125])
     ap.add_argument("--integrators", nargs="+", default=["backward_euler", "bdf2"])
     ap.add_argument("--passes", type=int, default=1, help="solves again per step with the end's normal forces")
+    ap.add_argument("--drop", type=float, default=0.06, help="height above the plane, m")
+    ap.add_argument("--youngs-modulus", type=float, default=2.0e4, help="E, Pa")
+    ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 0.2 s, three steps")
     args = ap.parse_args()
     if args.small:
@@ -101,26 +116,31 @@ def main() -> None:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     finest = min(args.time_steps)
+    variants = sorted({0, args.passes})
     rows = []
     for integrator in args.integrators:
-        refs = {p: run(work, args.resolution, finest, args.duration, integrator, p) for p in (0, args.passes)}
+        refs = {p: run(work, args, finest, integrator, p) for p in variants}
         for dt in sorted(args.time_steps, reverse=True):
-            runs = {p: run(work, args.resolution, dt, args.duration, integrator, p) for p in (0, args.passes)}
+            runs = {p: run(work, args, dt, integrator, p) for p in variants}
             size = runs[0][1]["size"]
             row = {"integrator": integrator, "dt": dt}
             for p, (traj, meta) in runs.items():
                 ref = refs[p][0]
-                key = "lagged" if p == 0 else "end_normal"
-                row[key] = {"com": float(np.linalg.norm(traj.centers_of_mass()[-1] - ref.centers_of_mass()[-1]) / size),
-                            "nonrigid": float(nonrigid_error(ref, traj)), "wall_s": meta["wall_s"], "unconverged": meta["unconverged"]}
-            a, b = runs[0][0], runs[args.passes][0]
-            row["between"] = {"com": float(np.linalg.norm(a.centers_of_mass()[-1] - b.centers_of_mass()[-1]) / size),
-                              "nonrigid": float(nonrigid_error(a, b))}
+                row["lagged" if p == 0 else "end_normal"] = {
+                    "com": float(np.linalg.norm(traj.centers_of_mass()[-1] - ref.centers_of_mass()[-1]) / size),
+                    "nonrigid": float(nonrigid_error(ref, traj)), "wall_s": meta["wall_s"], "unconverged": meta["unconverged"],
+                    "min_det_f": float(np.min(traj.min_det_f)) if traj.min_det_f is not None else None}
+            line = f"{integrator} h = {dt * 1e3:g} ms: lagged COM {row['lagged']['com']:.1%} non-rigid {row['lagged']['nonrigid']:.1%}"
+            if args.passes:
+                a, b = runs[0][0], runs[args.passes][0]
+                row["between"] = {"com": float(np.linalg.norm(a.centers_of_mass()[-1] - b.centers_of_mass()[-1]) / size),
+                                  "nonrigid": float(nonrigid_error(a, b))}
+                line += (f"; end normal COM {row['end_normal']['com']:.1%} non-rigid {row['end_normal']['nonrigid']:.1%}; "
+                         f"between {row['between']['com']:.1%} / {row['between']['nonrigid']:.1%}")
             rows.append(row)
-            print(f"{integrator} h = {dt * 1e3:g} ms: lagged COM {row['lagged']['com']:.1%} non-rigid {row['lagged']['nonrigid']:.1%}; "
-                  f"end normal COM {row['end_normal']['com']:.1%} non-rigid {row['end_normal']['nonrigid']:.1%}; "
-                  f"between {row['between']['com']:.1%} / {row['between']['nonrigid']:.1%}", flush=True)
-            (work / "friction_lag.json").write_text(json.dumps({"resolution": args.resolution, "passes": args.passes,
+            print(line, flush=True)
+            (work / "friction_lag.json").write_text(json.dumps({"resolution": args.resolution, "passes": args.passes, "drop": args.drop,
+                                                                "youngs_modulus": args.youngs_modulus, "normal_damping": args.normal_damping,
                                                                 "duration": args.duration, "rows": rows}, indent=1))
 
 
