@@ -14,7 +14,8 @@ with the implicit normal force). If the lag were what holds the order down, the 
 converge faster, and BDF2 with it at second order. Rows: final centre of mass distance over the size
 and the non-rigid difference (``licrom.analysis.compare.nonrigid_error``, frames every 10 ms) against
 the same variant at the smallest step; beside them, the two variants against each other at each step.
-``--passes 0`` runs the lag alone; ``--drop``, ``--youngs-modulus`` and ``--normal-damping`` change the
+``--noise-floor`` adds, at each step, the same run dropped ``NUDGE`` (0.1 mm) higher against it: how
+far a tiny change of the start moves the outcome at that step. ``--passes 0`` runs the lag alone; ``--drop``, ``--youngs-modulus`` and ``--normal-damping`` change the
 scene (the drop height above the plane, E, the contact's ``k_d``), to see which of them the convergence in
 h follows. Writes ``--work/friction_lag.json``.
 """
@@ -35,7 +36,7 @@ from licrom.full.device import warp_ready
 from licrom.scene.scene import ContactParams, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from body_frame_experiments import _on_plane, incline
+from body_frame_experiments import NUDGE, _on_plane, incline
 from truth_convergence import build_mesh
 
 FRAME_DT = 0.01  # s
@@ -71,21 +72,21 @@ class EndNormalSim(licrom.FullSim):
         return out
 
 
-def build_scene(args: argparse.Namespace, mesh: licrom.Mesh, dt: float, integrator: str) -> licrom.Scene:
-    """Section 12's cheese scene (22 deg az 0, mu 0.3) with ``args``' drop, E and contact damping."""
+def build_scene(args: argparse.Namespace, mesh: licrom.Mesh, dt: float, integrator: str, nudge: float = 0.0) -> licrom.Scene:
+    """Section 12's cheese scene (22 deg az 0, mu 0.3) with ``args``' drop (plus ``nudge``, m), E and contact damping."""
     base = licrom.Scene(material=licrom.Material(youngs_modulus=args.youngs_modulus, poisson_ratio=0.3, density=1000.0), dt=dt,
                         integrator=integrator, solver=SolverParams(on_failure="record"), contact=ContactParams(normal_damping=args.normal_damping))
-    return _on_plane(mesh, base, incline(22.0, 0.0, 0.3), args.drop, (0.15, 0.1, 0.0))
+    return _on_plane(mesh, base, incline(22.0, 0.0, 0.3), args.drop + nudge, (0.15, 0.1, 0.0))
 
 
-def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes: int) -> tuple[licrom.Trajectory, dict]:
-    """The run (cached under ``work``): passes 0 is ``licrom.FullSim`` itself (the lag)."""
-    name = f"cheese_r{args.resolution}_h{dt * 1e3:g}ms_{integrator}_passes{passes}"
+def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes: int, nudge: float = 0.0) -> tuple[licrom.Trajectory, dict]:
+    """The run (cached under ``work``): passes 0 is ``licrom.FullSim`` itself (the lag); dropped ``nudge`` m higher."""
+    name = f"cheese_r{args.resolution}_h{dt * 1e3:g}ms_{integrator}_passes{passes}" + (f"_nudge{nudge:g}" if nudge else "")
     path, meta_path = work / f"{name}.npz", work / f"{name}.json"
     if path.exists() and meta_path.exists():
         return licrom.Trajectory.load(path), json.loads(meta_path.read_text())
     mesh = build_mesh("cheese", args.resolution)
-    scene = build_scene(args, mesh, dt, integrator)
+    scene = build_scene(args, mesh, dt, integrator, nudge)
     sim = licrom.FullSim(mesh, scene, device="cpu") if passes == 0 else EndNormalSim(mesh, scene, passes)
     steps, every = round(args.duration / dt), max(1, round(FRAME_DT / dt))
     t0 = time.perf_counter()
@@ -109,6 +110,7 @@ def main() -> None:
     ap.add_argument("--drop", type=float, default=0.06, help="height above the plane, m")
     ap.add_argument("--youngs-modulus", type=float, default=2.0e4, help="E, Pa")
     ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
+    ap.add_argument("--noise-floor", action="store_true", help="also each step's run dropped NUDGE higher, against the run itself")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 0.2 s, three steps")
     args = ap.parse_args()
     if args.small:
@@ -131,6 +133,12 @@ def main() -> None:
                     "nonrigid": float(nonrigid_error(ref, traj)), "wall_s": meta["wall_s"], "unconverged": meta["unconverged"],
                     "min_det_f": float(np.min(traj.min_det_f)) if traj.min_det_f is not None else None}
             line = f"{integrator} h = {dt * 1e3:g} ms: lagged COM {row['lagged']['com']:.1%} non-rigid {row['lagged']['nonrigid']:.1%}"
+            if args.noise_floor:
+                nudged, _ = run(work, args, dt, integrator, 0, NUDGE)
+                lagged = runs[0][0]
+                row["noise_floor"] = {"com": float(np.linalg.norm(nudged.centers_of_mass()[-1] - lagged.centers_of_mass()[-1]) / size),
+                                      "nonrigid": float(nonrigid_error(lagged, nudged))}
+                line += f" (noise floor {row['noise_floor']['com']:.1%} / {row['noise_floor']['nonrigid']:.1%})"
             if args.passes:
                 a, b = runs[0][0], runs[args.passes][0]
                 row["between"] = {"com": float(np.linalg.norm(a.centers_of_mass()[-1] - b.centers_of_mass()[-1]) / size),
