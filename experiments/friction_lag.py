@@ -15,7 +15,7 @@ converge faster, and BDF2 with it at second order. Rows: final centre of mass di
 and the non-rigid difference (``licrom.analysis.compare.nonrigid_error``, frames every 10 ms) against
 the same variant at the smallest step; beside them, the two variants against each other at each step.
 ``--noise-floor`` adds, at each step, the same run dropped ``NUDGE`` (0.1 mm) higher against it: how
-far a tiny change of the start moves the outcome at that step. ``--passes 0`` runs the lag alone; ``--drop``, ``--youngs-modulus`` and ``--normal-damping`` change the
+far a tiny change of the start moves the outcome at that step. ``--passes 0`` runs the lag alone; ``--friction``, ``--drop``, ``--youngs-modulus`` and ``--normal-damping`` change the
 scene (the drop height above the plane, E, the contact's ``k_d``), to see which of them the convergence in
 h follows. Writes ``--work/friction_lag.json``.
 """
@@ -73,10 +73,10 @@ class EndNormalSim(licrom.FullSim):
 
 
 def build_scene(args: argparse.Namespace, mesh: licrom.Mesh, dt: float, integrator: str, nudge: float = 0.0) -> licrom.Scene:
-    """Section 12's cheese scene (22 deg az 0, mu 0.3) with ``args``' drop (plus ``nudge``, m), E and contact damping."""
+    """Section 12's cheese scene (22 deg az 0) with ``args``' friction, drop (plus ``nudge``, m), E and contact damping."""
     base = licrom.Scene(material=licrom.Material(youngs_modulus=args.youngs_modulus, poisson_ratio=0.3, density=1000.0), dt=dt,
                         integrator=integrator, solver=SolverParams(on_failure="record"), contact=ContactParams(normal_damping=args.normal_damping))
-    return _on_plane(mesh, base, incline(22.0, 0.0, 0.3), args.drop + nudge, (0.15, 0.1, 0.0))
+    return _on_plane(mesh, base, incline(22.0, 0.0, args.friction), args.drop + nudge, (0.15, 0.1, 0.0))
 
 
 def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes: int, nudge: float = 0.0) -> tuple[licrom.Trajectory, dict]:
@@ -107,6 +107,7 @@ def main() -> None:
     ap.add_argument("--time-steps", type=float, nargs="+", default=[0.01, 0.005, 0.0025, 0.001, 0.0005, 0.000125])
     ap.add_argument("--integrators", nargs="+", default=["backward_euler", "bdf2"])
     ap.add_argument("--passes", type=int, default=1, help="solves again per step with the end's normal forces")
+    ap.add_argument("--friction", type=float, default=0.3, help="mu (0.6: the cheese sticks)")
     ap.add_argument("--drop", type=float, default=0.06, help="height above the plane, m")
     ap.add_argument("--youngs-modulus", type=float, default=2.0e4, help="E, Pa")
     ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
