@@ -30,9 +30,11 @@ from pathlib import Path
 
 import licrom
 import numpy as np
+import warp as wp
 from licrom.analysis.compare import nonrigid_error
 from licrom.full import contact
-from licrom.full.device import warp_ready
+from licrom.full.device import MODE_ENERGY, MODE_GRADIENT, Assembly, f64, mat33d, vec3d, warp_ready
+from licrom.full.elastic import Tets, deformation_gradient
 from licrom.scene.scene import ContactParams, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -40,6 +42,72 @@ from body_frame_experiments import NUDGE, _on_plane, incline
 from truth_convergence import build_mesh
 
 FRAME_DT = 0.01  # s
+
+
+@wp.func
+def _damping_block(na: vec3d, nb: vec3d, F: mat33d, FFt: mat33d, c: f64):
+    # d2/dx_a dx_b of (c / 2) |E(F) - E_n|^2 without the (E - E_n) term (Gauss-Newton, positive semi-definite as a
+    # whole): c/2 ((n_a . n_b) F F^T + (F n_b)(F n_a)^T).
+    return f64(0.5) * c * (wp.dot(na, nb) * FFt + wp.outer(F * nb, F * na))
+
+
+@wp.kernel
+def damping_kernel(x: wp.array(dtype=vec3d), x0: wp.array(dtype=vec3d), tets: Tets, eta_over_h: f64, mode: int, out: Assembly):
+    """Kelvin-Voigt dissipation on the Green strain's rate, per tet: ``eta V / (2h) |E(F) - E(F_n)|^2`` (J), its
+    gradient and its Gauss-Newton Hessian; F_n from ``x0`` (the step's start). Rotation invariant: a spin is not damped."""
+    t = wp.tid()
+    ids = tets.ids[t]
+    dmi = tets.dminv[t]
+    F = deformation_gradient(x, ids, dmi)
+    F0 = deformation_gradient(x0, ids, dmi)
+    D = f64(0.5) * (wp.transpose(F) * F - wp.transpose(F0) * F0)
+    c = eta_over_h * tets.vol[t]
+    wp.atomic_add(out.energy, t % out.energy.shape[0], f64(0.5) * c * wp.ddot(D, D))
+    if mode == MODE_ENERGY:
+        return
+    gt = wp.transpose(c * (F * D) * wp.transpose(dmi))
+    wp.atomic_add(out.grad, ids[0], -(gt[0] + gt[1] + gt[2]))
+    wp.atomic_add(out.grad, ids[1], gt[0])
+    wp.atomic_add(out.grad, ids[2], gt[1])
+    wp.atomic_add(out.grad, ids[3], gt[2])
+    if mode == MODE_GRADIENT:
+        return
+    n1 = dmi[0]
+    n2 = dmi[1]
+    n3 = dmi[2]
+    n0 = -(n1 + n2 + n3)
+    FFt = F * wp.transpose(F)
+    wp.atomic_add(out.values, out.slots[t, 0], _damping_block(n0, n0, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 1], _damping_block(n0, n1, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 2], _damping_block(n0, n2, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 3], _damping_block(n0, n3, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 4], _damping_block(n1, n0, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 5], _damping_block(n1, n1, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 6], _damping_block(n1, n2, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 7], _damping_block(n1, n3, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 8], _damping_block(n2, n0, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 9], _damping_block(n2, n1, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 10], _damping_block(n2, n2, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 11], _damping_block(n2, n3, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 12], _damping_block(n3, n0, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 13], _damping_block(n3, n1, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 14], _damping_block(n3, n2, F, FFt, c))
+    wp.atomic_add(out.values, out.slots[t, 15], _damping_block(n3, n3, F, FFt, c))
+
+
+class DampedSim(licrom.FullSim):
+    """The full simulation (backward Euler) with a Kelvin-Voigt material damping of viscosity ``eta`` (Pa s):
+    :func:`damping_kernel` added to the elastic term of every evaluation, F_n from the step's anchor."""
+
+    def __init__(self, mesh: licrom.Mesh, scene: licrom.Scene, eta: float) -> None:
+        super().__init__(mesh, scene, device="cpu")
+        self.eta = eta
+
+    def _launch_evaluate(self, x, mode: int, terms: int) -> None:
+        super()._launch_evaluate(x, mode, terms)
+        if terms & 2:
+            wp.launch(damping_kernel, dim=self.mesh.n_tets, device=self.device,
+                      inputs=[x, self._x_start, self._tets, wp.float64(self.eta / self._h_step), mode, self._out])
 
 
 class EndNormalSim(licrom.FullSim):
@@ -81,13 +149,17 @@ def build_scene(args: argparse.Namespace, mesh: licrom.Mesh, dt: float, integrat
 
 def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes: int, nudge: float = 0.0) -> tuple[licrom.Trajectory, dict]:
     """The run (cached under ``work``): passes 0 is ``licrom.FullSim`` itself (the lag); dropped ``nudge`` m higher."""
-    name = f"cheese_r{args.resolution}_h{dt * 1e3:g}ms_{integrator}_passes{passes}" + (f"_nudge{nudge:g}" if nudge else "")
+    name = (f"cheese_r{args.resolution}_h{dt * 1e3:g}ms_{integrator}_passes{passes}" + (f"_nudge{nudge:g}" if nudge else "")
+            + (f"_eta{args.eta:g}" if args.eta else ""))
     path, meta_path = work / f"{name}.npz", work / f"{name}.json"
     if path.exists() and meta_path.exists():
         return licrom.Trajectory.load(path), json.loads(meta_path.read_text())
     mesh = build_mesh("cheese", args.resolution)
     scene = build_scene(args, mesh, dt, integrator, nudge)
-    sim = licrom.FullSim(mesh, scene, device="cpu") if passes == 0 else EndNormalSim(mesh, scene, passes)
+    if args.eta:
+        sim = DampedSim(mesh, scene, args.eta)
+    else:
+        sim = licrom.FullSim(mesh, scene, device="cpu") if passes == 0 else EndNormalSim(mesh, scene, passes)
     steps, every = round(args.duration / dt), max(1, round(FRAME_DT / dt))
     t0 = time.perf_counter()
     traj = sim.run(steps, record_every=every)
@@ -111,6 +183,7 @@ def main() -> None:
     ap.add_argument("--drop", type=float, default=0.06, help="height above the plane, m")
     ap.add_argument("--youngs-modulus", type=float, default=2.0e4, help="E, Pa")
     ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
+    ap.add_argument("--eta", type=float, default=0.0, help="Kelvin-Voigt viscosity, Pa s (DampedSim; backward Euler, with --passes 0)")
     ap.add_argument("--noise-floor", action="store_true", help="also each step's run dropped NUDGE higher, against the run itself")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 0.2 s, three steps")
     args = ap.parse_args()
