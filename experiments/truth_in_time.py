@@ -1,23 +1,31 @@
-"""Does the lagged normal force of friction keep the truth from converging in time? (issue 24, part 1)
+"""What keeps the truth from converging in time, and what makes it converge (issue 24, part 1).
 
-    python experiments/friction_lag.py --work out/friction_lag          # ~10 min on 2 cores
-    python experiments/friction_lag.py --small --work /tmp/friction_lag  # a smoke test, seconds
-    python experiments/friction_lag.py --passes 0 --drop 0.005 --work out/gentle  # the lag alone, a gentler scene
+    python experiments/truth_in_time.py --work out/friction_lag              # the lag against the end normal, ~10 min
+    python experiments/truth_in_time.py --passes 0 --drop 0.005 --work out/gentle_drop  # a gentler landing
+    python experiments/truth_in_time.py --passes 0 --eta 400 --work out/damped400       # with material damping
+    python experiments/truth_in_time.py --small --work /tmp/truth_in_time    # a smoke test, seconds
 
 Section 12 found the full simulation first order in h on the soft cheese's slide, BDF2 as well as
-backward Euler, and named the friction's normal force, lagged from the step's start (``fn`` at
-``x_n``), as one suspect. Here the same scene (22 deg az 0, mu 0.3, E = 20 kPa, 6 cm drop) runs on
-one mesh at h = 10 ... 0.5 ms against h = 0.125 ms, with the lag (the model of ``licrom.FullSim``) and
-with the normal force taken at the step's end instead: each step is solved, then solved again from its
-start with the normal forces of that solution's end (``--passes`` times; the fixed point is friction
-with the implicit normal force). If the lag were what holds the order down, the second variant would
-converge faster, and BDF2 with it at second order. Rows: final centre of mass distance over the size
-and the non-rigid difference (``licrom.analysis.compare.nonrigid_error``, frames every 10 ms) against
-the same variant at the smallest step; beside them, the two variants against each other at each step.
-``--noise-floor`` adds, at each step, the same run dropped ``NUDGE`` (0.1 mm) higher against it: how
-far a tiny change of the start moves the outcome at that step. ``--passes 0`` runs the lag alone; ``--friction``, ``--drop``, ``--youngs-modulus`` and ``--normal-damping`` change the
-scene (the drop height above the plane, E, the contact's ``k_d``), to see which of them the convergence in
-h follows. Writes ``--work/friction_lag.json``.
+backward Euler, and far from converged at any practical step. Here the same scene (22 deg az 0,
+mu 0.3, E = 20 kPa, 6 cm drop) runs on one mesh at h = 10 ... 0.5 ms against h = 0.125 ms, to
+separate the suspects:
+
+* friction's normal force, lagged from the step's start (``fn`` at ``x_n``), against the normal force
+  at the step's end (:class:`EndNormalSim`: each step solved again from its start with the normal
+  forces of that solution's end, ``--passes`` times; the fixed point is friction with the implicit
+  normal force);
+* the landing (``--drop``), the contact's damping (``--normal-damping``), the friction (``--friction``;
+  0.6 sticks at h = 10 ms) and the stiffness (``--youngs-modulus``);
+* sensitivity to the start (``--noise-floor``: at each step the same run dropped ``NUDGE`` (0.1 mm)
+  higher, against it);
+* material damping, which the contract's physics lacks (``--eta``: :class:`DampedSim`, a
+  Kelvin-Voigt dissipation on the Green strain's rate added to the full simulation's incremental
+  potential; with ``--passes 0``).
+
+Rows: final centre of mass distance over the size and the non-rigid difference
+(``licrom.analysis.compare.nonrigid_error``, frames every 10 ms) against the same variant at the
+smallest step; with ``--passes`` >= 1, the two friction variants against each other. Writes
+``--work/friction_lag.json``.
 """
 
 from __future__ import annotations
@@ -183,7 +191,7 @@ def main() -> None:
     ap.add_argument("--drop", type=float, default=0.06, help="height above the plane, m")
     ap.add_argument("--youngs-modulus", type=float, default=2.0e4, help="E, Pa")
     ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
-    ap.add_argument("--eta", type=float, default=0.0, help="Kelvin-Voigt viscosity, Pa s (DampedSim; backward Euler, with --passes 0)")
+    ap.add_argument("--eta", type=float, default=0.0, help="Kelvin-Voigt viscosity, Pa s (DampedSim, with --passes 0)")
     ap.add_argument("--noise-floor", action="store_true", help="also each step's run dropped NUDGE higher, against the run itself")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 0.2 s, three steps")
     args = ap.parse_args()
