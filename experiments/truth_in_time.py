@@ -20,7 +20,8 @@ separate the suspects:
   higher, against it);
 * material damping, which the contract's physics lacks (``--eta``: :class:`DampedSim`, a
   Kelvin-Voigt dissipation on the Green strain's rate added to the full simulation's incremental
-  potential; with ``--passes 0``).
+  potential; with ``--passes 0``), and with it the mesh (``--mesh-resolutions``: only a mesh study at
+  ``--mesh-step``, each mesh against the finest as section 12 measures it).
 
 Rows: final centre of mass distance over the size and the non-rigid difference
 (``licrom.analysis.compare.nonrigid_error``, frames every 10 ms) against the same variant at the
@@ -39,7 +40,7 @@ from pathlib import Path
 import licrom
 import numpy as np
 import warp as wp
-from licrom.analysis.compare import nonrigid_error
+from licrom.analysis.compare import first_contact_frame, nonrigid_error
 from licrom.full import contact
 from licrom.full.device import MODE_ENERGY, MODE_GRADIENT, Assembly, f64, mat33d, vec3d, warp_ready
 from licrom.full.elastic import Tets, deformation_gradient
@@ -47,7 +48,7 @@ from licrom.scene.scene import ContactParams, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from body_frame_experiments import NUDGE, _on_plane, incline
-from truth_convergence import build_mesh
+from truth_convergence import build_mesh, sampled_nonrigid, sampled_positions
 
 FRAME_DT = 0.01  # s
 
@@ -179,6 +180,26 @@ def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes
     return traj, meta
 
 
+def mesh_study(work: Path, args: argparse.Namespace, dt: float, integrator: str) -> list[dict]:
+    """Each of ``args.mesh_resolutions`` at step ``dt`` against the finest, as section 12's mesh tables measure it:
+    at the coarsest mesh's vertices (its lumped masses), each run interpolated in its own mesh's tets."""
+    runs = []
+    for r in args.mesh_resolutions:
+        runs.append(run(work, argparse.Namespace(**{**vars(args), "resolution": r}), dt, integrator, 0))
+    coarse = build_mesh("cheese", min(args.mesh_resolutions))
+    points, weights = coarse.vertices, coarse.vertex_masses(1000.0)
+    ref = runs[-1][0]
+    ref_s, ref_com, start = sampled_positions(ref, points), ref.centers_of_mass()[-1], first_contact_frame(ref) or 0
+    rows = []
+    for traj, meta in runs:
+        row = {**meta, "com": float(np.linalg.norm(traj.centers_of_mass()[-1] - ref_com) / ref.mesh.size),
+               "nonrigid": sampled_nonrigid(ref_s, sampled_positions(traj, points), weights, start)}
+        rows.append(row)
+        print(f"{integrator} h = {dt * 1e3:g} ms, {meta['tets']} tets: COM {row['com']:.1%} non-rigid {row['nonrigid']:.1%} "
+              f"against {ref.mesh.n_tets} tets ({meta['wall_s']:.0f} s)", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", default="out/friction_lag")
@@ -193,12 +214,21 @@ def main() -> None:
     ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
     ap.add_argument("--eta", type=float, default=0.0, help="Kelvin-Voigt viscosity, Pa s (DampedSim, with --passes 0)")
     ap.add_argument("--noise-floor", action="store_true", help="also each step's run dropped NUDGE higher, against the run itself")
+    ap.add_argument("--mesh-resolutions", type=int, nargs="+", metavar="R",
+                    help="only a mesh study: these meshes.cheese resolutions at the step --mesh-step, against the finest")
+    ap.add_argument("--mesh-step", type=float, default=0.0005, help="h of the mesh study, s")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 0.2 s, three steps")
     args = ap.parse_args()
     if args.small:
         args.resolution, args.duration, args.time_steps = 4, 0.2, [0.01, 0.005, 0.0025]
+        args.mesh_step = 0.005 if args.mesh_resolutions else args.mesh_step
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
+    if args.mesh_resolutions:
+        rows = mesh_study(work, args, args.mesh_step, args.integrators[0])
+        (work / "mesh.json").write_text(json.dumps({"eta": args.eta, "dt": args.mesh_step, "integrator": args.integrators[0],
+                                                    "duration": args.duration, "rows": rows}, indent=1))
+        return
     finest = min(args.time_steps)
     variants = sorted({0, args.passes})
     rows = []
