@@ -166,7 +166,8 @@ JOIN_CATCH_UP = 2.0
 """On one machine Lightning starts the other processes of a multi-GPU run when this one reaches the fit, and
 each runs the command or script again from its start (loading the runs and choosing r included, all of them
 at once). So a one-machine run waits ``TrainConfig.join_timeout_s`` plus this many times this process's age
-for them: with the 120 s alone, 40 runs of a 120k-tet mesh on 4 GPUs never joined (docs/scaling.md)."""
+for them: with the 120 s alone, the processes of a training on 40 runs of a 120k-tet mesh on 4 GPUs had not
+joined in time (docs/scaling.md)."""
 
 
 def process_age_s() -> float:
