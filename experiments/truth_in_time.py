@@ -43,7 +43,7 @@ import warp as wp
 from licrom.analysis.compare import first_contact_frame, nonrigid_error
 from licrom.full import contact
 from licrom.full.device import MODE_ENERGY, MODE_GRADIENT, Assembly, f64, mat33d, vec3d, warp_ready
-from licrom.full.elastic import Tets, deformation_gradient
+from licrom.full.elastic import Tets, add_tet_gradient, deformation_gradient
 from licrom.scene.scene import ContactParams, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -74,11 +74,7 @@ def damping_kernel(x: wp.array(dtype=vec3d), x0: wp.array(dtype=vec3d), tets: Te
     wp.atomic_add(out.energy, t % out.energy.shape[0], f64(0.5) * c * wp.ddot(D, D))
     if mode == MODE_ENERGY:
         return
-    gt = wp.transpose(c * (F * D) * wp.transpose(dmi))
-    wp.atomic_add(out.grad, ids[0], -(gt[0] + gt[1] + gt[2]))
-    wp.atomic_add(out.grad, ids[1], gt[0])
-    wp.atomic_add(out.grad, ids[2], gt[1])
-    wp.atomic_add(out.grad, ids[3], gt[2])
+    add_tet_gradient(out, ids, c * (F * D) * wp.transpose(dmi))
     if mode == MODE_GRADIENT:
         return
     n1 = dmi[0]

@@ -8,7 +8,7 @@ import warp as wp
 
 from .device import MODE_ENERGY, MODE_GRADIENT, MODE_HESSIAN, Assembly, f64, mat33d, vec3d
 
-__all__ = ['Tets', 'deformation_gradient', 'tet_kernel']
+__all__ = ['Tets', 'add_tet_gradient', 'deformation_gradient', 'tet_kernel']
 
 
 @wp.struct
@@ -25,6 +25,16 @@ def deformation_gradient(x: wp.array(dtype=vec3d), ids: wp.vec4i, dmi: mat33d):
     """``F = Ds Dm^-1`` of the tet with corners ``ids``."""
     x0 = x[ids[0]]
     return wp.matrix_from_cols(x[ids[1]] - x0, x[ids[2]] - x0, x[ids[3]] - x0) * dmi
+
+
+@wp.func
+def add_tet_gradient(out: Assembly, ids: wp.vec4i, g: mat33d):
+    """Adds a tet's gradient to its corners: ``g``'s columns at corners 1..3, minus their sum at corner 0."""
+    gt = wp.transpose(g)
+    wp.atomic_add(out.grad, ids[0], -(gt[0] + gt[1] + gt[2]))
+    wp.atomic_add(out.grad, ids[1], gt[0])
+    wp.atomic_add(out.grad, ids[2], gt[1])
+    wp.atomic_add(out.grad, ids[3], gt[2])
 
 
 @wp.func
@@ -83,12 +93,7 @@ def tet_kernel(x: wp.array(dtype=vec3d), tets: Tets, mu: f64, lam: f64, alpha: f
     ft = wp.transpose(F)
     cof = wp.matrix_from_cols(wp.cross(ft[1], ft[2]), wp.cross(ft[2], ft[0]), wp.cross(ft[0], ft[1]))
     P = psi2 * F + psi3 * cof
-    g = v * P * wp.transpose(dmi)  # columns: gradient at vertices 1..3
-    gt = wp.transpose(g)
-    wp.atomic_add(out.grad, ids[0], -(gt[0] + gt[1] + gt[2]))
-    wp.atomic_add(out.grad, ids[1], gt[0])
-    wp.atomic_add(out.grad, ids[2], gt[1])
-    wp.atomic_add(out.grad, ids[3], gt[2])
+    add_tet_gradient(out, ids, v * P * wp.transpose(dmi))
     if mode == MODE_GRADIENT:
         return
     # Exact Hessian, assembled directly per vertex pair (a, b) with shape gradients n_a:
