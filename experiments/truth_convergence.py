@@ -77,31 +77,33 @@ def build_mesh(family: str, resolution: int) -> licrom.Mesh:
     return meshes.sphere(radius=0.05, resolution=resolution)
 
 
-def build_scene(family: str, mesh: licrom.Mesh, dt: float, integrator: str = BE) -> Scene:
-    """The held-out scene of ``body_frame_experiments`` on ``mesh`` with time step ``dt`` and ``integrator``."""
+def build_scene(family: str, mesh: licrom.Mesh, dt: float, integrator: str = BE, viscosity: float = 0.0) -> Scene:
+    """The held-out scene of ``body_frame_experiments`` on ``mesh`` with time step ``dt``, ``integrator`` and the
+    material's Kelvin-Voigt ``viscosity`` (Pa s)."""
     # Unconverged steps (a 100-Newton-iteration cap met at a residual a few times the tolerance on fine meshes)
     # are recorded and counted rather than stopping the run.
-    base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=dt,
+    base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0, viscosity=viscosity), dt=dt,
                  integrator=integrator, solver=SolverParams(on_failure="record"))
     if family == "cheese":
         return _on_plane(mesh, base, incline(22.0, 0.0, 0.3), 0.06, (0.15, 0.1, 0.0))
     return _on_plane(mesh, base, incline(25.0, 0.0, 0.3), 0.1, velocity=(0.5, 0.0, -1.0))
 
 
-def run_name(family: str, resolution: int, dt: float, record_every: int, integrator: str = BE) -> str:
-    return f"{family}_r{resolution}_h{dt * 1e3:g}ms_every{record_every}" + ("" if integrator == BE else f"_{integrator}")
+def run_name(family: str, resolution: int, dt: float, record_every: int, integrator: str = BE, viscosity: float = 0.0) -> str:
+    return (f"{family}_r{resolution}_h{dt * 1e3:g}ms_every{record_every}" + ("" if integrator == BE else f"_{integrator}")
+            + (f"_eta{viscosity:g}" if viscosity else ""))
 
 
 def full_run(work: Path, family: str, resolution: int, dt: float, duration: float, frame_dt: float,
-             integrator: str = BE) -> tuple[Trajectory, dict]:
+             integrator: str = BE, viscosity: float = 0.0) -> tuple[Trajectory, dict]:
     """The full run (cached under ``work/runs``) and its timing: frames every ``frame_dt``."""
     steps, every = round(duration / dt), max(1, round(frame_dt / dt))
-    name = run_name(family, resolution, dt, every, integrator)
+    name = run_name(family, resolution, dt, every, integrator, viscosity)
     path, meta_path = work / "runs" / f"{name}.npz", work / "runs" / f"{name}.json"
     if path.exists() and meta_path.exists():
         return Trajectory.load(path), json.loads(meta_path.read_text())
     mesh = build_mesh(family, resolution)
-    sim = licrom.FullSim(mesh, build_scene(family, mesh, dt, integrator))
+    sim = licrom.FullSim(mesh, build_scene(family, mesh, dt, integrator, viscosity))
     t0 = time.perf_counter()
     traj = sim.run(steps, record_every=every)
     wall = time.perf_counter() - t0
@@ -139,13 +141,14 @@ def sampled_nonrigid(ref: tuple[np.ndarray, np.ndarray], other: tuple[np.ndarray
     return math.sqrt(num / den) if den > 0 else float("inf")
 
 
-def mesh_study(work: Path, family: str, spec: dict, resolutions: tuple[int, ...], duration: float, dt: float | None = None) -> list[dict]:
+def mesh_study(work: Path, family: str, spec: dict, resolutions: tuple[int, ...], duration: float, dt: float | None = None,
+               viscosity: float = 0.0) -> list[dict]:
     """Against the finest mesh at time step ``dt`` (default the family's, every step a frame; otherwise frames every 10 ms)."""
     frame_dt = spec["dt"] if dt is None or dt == spec["dt"] else max(dt, FRAME_DT)
     dt = spec["dt"] if dt is None else dt
     coarse = build_mesh(family, resolutions[0])
     points, weights = coarse.vertices, coarse.vertex_masses(1000.0)  # common material points, the coarsest mesh's masses
-    runs = [full_run(work, family, r, dt, duration, frame_dt) for r in resolutions]
+    runs = [full_run(work, family, r, dt, duration, frame_dt, viscosity=viscosity) for r in resolutions]
     ref, _ = runs[-1]
     size = ref.mesh.size
     start = first_contact_frame(ref) or 0
@@ -161,17 +164,17 @@ def mesh_study(work: Path, family: str, spec: dict, resolutions: tuple[int, ...]
 
 
 def time_study(work: Path, family: str, resolution: int, duration: float, dts: tuple[float, ...], frame_dt: float,
-               integrator: str = BE, reference: str | None = None) -> Iterator[list[dict]]:
+               integrator: str = BE, reference: str | None = None, viscosity: float = 0.0) -> Iterator[list[dict]]:
     """Rows of ``dts`` with ``integrator`` against the smallest step with ``reference`` (default the same run).
 
     Yields the rows measured so far after each run (the reference first), so that a long study keeps its results.
     """
     reference = reference or integrator
-    ref, ref_meta = full_run(work, family, resolution, min(dts), duration, frame_dt, reference)
+    ref, ref_meta = full_run(work, family, resolution, min(dts), duration, frame_dt, reference, viscosity)
     size, ref_com = ref.mesh.size, ref.centers_of_mass()[-1]
     rows = []
     for dt in dts:
-        traj, meta = (ref, ref_meta) if dt == min(dts) and reference == integrator else full_run(work, family, resolution, dt, duration, frame_dt, integrator)
+        traj, meta = (ref, ref_meta) if dt == min(dts) and reference == integrator else full_run(work, family, resolution, dt, duration, frame_dt, integrator, viscosity)
         rows.append({**meta, "com": float(np.linalg.norm(traj.centers_of_mass()[-1] - ref_com) / size),
                      "nonrigid": float(nonrigid_error(ref, traj)), "start_frame": int(first_contact_frame(ref) or 0)})
         yield rows + ([] if reference == integrator else [{**ref_meta, "com": 0.0, "nonrigid": 0.0, "start_frame": rows[-1]["start_frame"]}])
@@ -287,6 +290,7 @@ def main() -> None:
     p.add_argument("--time-steps", type=float, nargs="+", default=list(TIME_STEPS), help="s, largest first")
     p.add_argument("--integrator", choices=INTEGRATORS, default=BE, help="of the time-step study's runs")
     p.add_argument("--reference-integrator", choices=INTEGRATORS, help="of its reference at the smallest step (default: --integrator)")
+    p.add_argument("--viscosity", type=float, default=0.0, help="Pa s: the material's Kelvin-Voigt damping (a family of its own in the results)")
     p.add_argument("--small", action="store_true", help="tiny meshes, 0.2 s (a smoke test on the CPU)")
     p.add_argument("--section-only", type=Path, nargs="+", metavar="RESULTS_JSON",
                    help="write the section from these results (families merged) and stop")
@@ -305,21 +309,22 @@ def main() -> None:
     for family in a.families:
         spec = FAMILIES[family]
         duration = 0.2 if a.small else spec["duration"]
-        fam = results["families"].setdefault(family, {"label": spec["label"]})
+        label = spec["label"] if not a.viscosity else spec["label"].replace(")", f", viscosity {a.viscosity:g} Pa s)")
+        fam = results["families"].setdefault(family + (f"_eta{a.viscosity:g}" if a.viscosity else ""), {"label": label})
         if "mesh" in a.studies:
             res = tuple(a.resolutions or (spec["small_resolutions"] if a.small else spec["resolutions"]))
             dt = a.mesh_time_step
             if dt is None or dt == spec["dt"]:
-                fam["mesh"] = mesh_study(a.work, family, spec, res, duration)
+                fam["mesh"] = mesh_study(a.work, family, spec, res, duration, viscosity=a.viscosity)
             else:
-                fam.setdefault("mesh_h", {})[f"{dt:g}"] = mesh_study(a.work, family, spec, res, duration, dt)
+                fam.setdefault("mesh_h", {})[f"{dt:g}"] = mesh_study(a.work, family, spec, res, duration, dt, a.viscosity)
             results_path.parent.mkdir(parents=True, exist_ok=True)
             results_path.write_text(json.dumps(results, indent=1))
         if "time" in a.studies:
             dts = tuple(a.time_steps[:2] if a.small else a.time_steps)
             key = "time" if a.integrator == BE else f"time_{a.integrator}"
             for r in a.time_resolutions or [spec["small_time_resolution"] if a.small else spec["time_resolution"]]:
-                for rows in time_study(a.work, family, r, duration, dts, max(dts), a.integrator, a.reference_integrator):
+                for rows in time_study(a.work, family, r, duration, dts, max(dts), a.integrator, a.reference_integrator, a.viscosity):
                     fam.setdefault(key, {})[str(r)] = rows
                     results_path.parent.mkdir(parents=True, exist_ok=True)
                     results_path.write_text(json.dumps(results, indent=1))

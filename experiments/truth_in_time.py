@@ -18,9 +18,8 @@ separate the suspects:
   0.6 sticks at h = 10 ms) and the stiffness (``--youngs-modulus``);
 * sensitivity to the start (``--noise-floor``: at each step the same run dropped ``NUDGE`` (0.1 mm)
   higher, against it);
-* material damping, which the contract's physics lacks (``--eta``: :class:`DampedSim`, a
-  Kelvin-Voigt dissipation on the Green strain's rate added to the full simulation's incremental
-  potential; with ``--passes 0``), and with it the mesh (``--mesh-resolutions``: only a mesh study at
+* material damping (``--eta``: ``licrom.Material.viscosity``, a Kelvin-Voigt dissipation on the Green
+  strain's rate, :mod:`licrom.full.damping`; with ``--passes 0``), and with it the mesh (``--mesh-resolutions``: only a mesh study at
   ``--mesh-step``, each mesh against the finest as section 12 measures it).
 
 Rows: final centre of mass distance over the size and the non-rigid difference
@@ -39,11 +38,9 @@ from pathlib import Path
 
 import licrom
 import numpy as np
-import warp as wp
 from licrom.analysis.compare import first_contact_frame, nonrigid_error
 from licrom.full import contact
-from licrom.full.device import MODE_ENERGY, MODE_GRADIENT, Assembly, f64, mat33d, vec3d, warp_ready
-from licrom.full.elastic import Tets, add_tet_gradient, deformation_gradient
+from licrom.full.device import warp_ready
 from licrom.scene.scene import ContactParams, SolverParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -51,68 +48,6 @@ from body_frame_experiments import NUDGE, _on_plane, incline
 from truth_convergence import build_mesh, sampled_nonrigid, sampled_positions
 
 FRAME_DT = 0.01  # s
-
-
-@wp.func
-def _damping_block(na: vec3d, nb: vec3d, F: mat33d, FFt: mat33d, c: f64):
-    # d2/dx_a dx_b of (c / 2) |E(F) - E_n|^2 without the (E - E_n) term (Gauss-Newton, positive semi-definite as a
-    # whole): c/2 ((n_a . n_b) F F^T + (F n_b)(F n_a)^T).
-    return f64(0.5) * c * (wp.dot(na, nb) * FFt + wp.outer(F * nb, F * na))
-
-
-@wp.kernel
-def damping_kernel(x: wp.array(dtype=vec3d), x0: wp.array(dtype=vec3d), tets: Tets, eta_over_h: f64, mode: int, out: Assembly):
-    """Kelvin-Voigt dissipation on the Green strain's rate, per tet: ``eta V / (2h) |E(F) - E(F_n)|^2`` (J), its
-    gradient and its Gauss-Newton Hessian; F_n from ``x0`` (the step's start). Rotation invariant: a spin is not damped."""
-    t = wp.tid()
-    ids = tets.ids[t]
-    dmi = tets.dminv[t]
-    F = deformation_gradient(x, ids, dmi)
-    F0 = deformation_gradient(x0, ids, dmi)
-    D = f64(0.5) * (wp.transpose(F) * F - wp.transpose(F0) * F0)
-    c = eta_over_h * tets.vol[t]
-    wp.atomic_add(out.energy, t % out.energy.shape[0], f64(0.5) * c * wp.ddot(D, D))
-    if mode == MODE_ENERGY:
-        return
-    add_tet_gradient(out, ids, c * (F * D) * wp.transpose(dmi))
-    if mode == MODE_GRADIENT:
-        return
-    n1 = dmi[0]
-    n2 = dmi[1]
-    n3 = dmi[2]
-    n0 = -(n1 + n2 + n3)
-    FFt = F * wp.transpose(F)
-    wp.atomic_add(out.values, out.slots[t, 0], _damping_block(n0, n0, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 1], _damping_block(n0, n1, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 2], _damping_block(n0, n2, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 3], _damping_block(n0, n3, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 4], _damping_block(n1, n0, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 5], _damping_block(n1, n1, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 6], _damping_block(n1, n2, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 7], _damping_block(n1, n3, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 8], _damping_block(n2, n0, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 9], _damping_block(n2, n1, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 10], _damping_block(n2, n2, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 11], _damping_block(n2, n3, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 12], _damping_block(n3, n0, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 13], _damping_block(n3, n1, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 14], _damping_block(n3, n2, F, FFt, c))
-    wp.atomic_add(out.values, out.slots[t, 15], _damping_block(n3, n3, F, FFt, c))
-
-
-class DampedSim(licrom.FullSim):
-    """The full simulation (backward Euler) with a Kelvin-Voigt material damping of viscosity ``eta`` (Pa s):
-    :func:`damping_kernel` added to the elastic term of every evaluation, F_n from the step's anchor."""
-
-    def __init__(self, mesh: licrom.Mesh, scene: licrom.Scene, eta: float) -> None:
-        super().__init__(mesh, scene, device="cpu")
-        self.eta = eta
-
-    def _launch_evaluate(self, x, mode: int, terms: int) -> None:
-        super()._launch_evaluate(x, mode, terms)
-        if terms & 2:
-            wp.launch(damping_kernel, dim=self.mesh.n_tets, device=self.device,
-                      inputs=[x, self._x_start, self._tets, wp.float64(self.eta / self._h_step), mode, self._out])
 
 
 class EndNormalSim(licrom.FullSim):
@@ -147,7 +82,7 @@ class EndNormalSim(licrom.FullSim):
 
 def build_scene(args: argparse.Namespace, mesh: licrom.Mesh, dt: float, integrator: str, nudge: float = 0.0) -> licrom.Scene:
     """Section 12's cheese scene (22 deg az 0) with ``args``' friction, drop (plus ``nudge``, m), E and contact damping."""
-    base = licrom.Scene(material=licrom.Material(youngs_modulus=args.youngs_modulus, poisson_ratio=0.3, density=1000.0), dt=dt,
+    base = licrom.Scene(material=licrom.Material(youngs_modulus=args.youngs_modulus, poisson_ratio=0.3, density=1000.0, viscosity=args.eta), dt=dt,
                         integrator=integrator, solver=SolverParams(on_failure="record"), contact=ContactParams(normal_damping=args.normal_damping))
     return _on_plane(mesh, base, incline(22.0, 0.0, args.friction), args.drop + nudge, (0.15, 0.1, 0.0))
 
@@ -161,10 +96,7 @@ def run(work: Path, args: argparse.Namespace, dt: float, integrator: str, passes
         return licrom.Trajectory.load(path), json.loads(meta_path.read_text())
     mesh = build_mesh("cheese", args.resolution)
     scene = build_scene(args, mesh, dt, integrator, nudge)
-    if args.eta:
-        sim = DampedSim(mesh, scene, args.eta)
-    else:
-        sim = licrom.FullSim(mesh, scene, device="cpu") if passes == 0 else EndNormalSim(mesh, scene, passes)
+    sim = licrom.FullSim(mesh, scene, device="cpu") if passes == 0 else EndNormalSim(mesh, scene, passes)
     steps, every = round(args.duration / dt), max(1, round(FRAME_DT / dt))
     t0 = time.perf_counter()
     traj = sim.run(steps, record_every=every)
@@ -208,7 +140,7 @@ def main() -> None:
     ap.add_argument("--drop", type=float, default=0.06, help="height above the plane, m")
     ap.add_argument("--youngs-modulus", type=float, default=2.0e4, help="E, Pa")
     ap.add_argument("--normal-damping", type=float, default=0.0, help="the contact's k_d, N s/m^3")
-    ap.add_argument("--eta", type=float, default=0.0, help="Kelvin-Voigt viscosity, Pa s (DampedSim, with --passes 0)")
+    ap.add_argument("--eta", type=float, default=0.0, help="Kelvin-Voigt viscosity (Material.viscosity), Pa s, with --passes 0")
     ap.add_argument("--noise-floor", action="store_true", help="also each step's run dropped NUDGE higher, against the run itself")
     ap.add_argument("--mesh-resolutions", type=int, nargs="+", metavar="R",
                     help="only a mesh study: these meshes.cheese resolutions at the step --mesh-step, against the finest")

@@ -112,6 +112,36 @@ def test_elastic_energy_survives_inverted_tets(rng):
     assert np.linalg.eigvalsh(Hp).min() > -1e-9 * np.abs(Hp).max()
 
 
+def test_material_damping_matches_finite_differences_and_the_homogeneous_stretch(rng):
+    """Kelvin-Voigt viscosity: eta V/(2h) |E(F) - E(F_a)|^2 per tet, anchored at the step's start (the rest shape here)."""
+    eta, dt = 400.0, 0.01
+    mesh = meshes.box(L, resolution=2)
+    sim = FullSim(mesh, Scene(material=Material(1e5, 0.3, viscosity=eta), planes=(), dt=dt))
+    x = mesh.vertices + 0.01 * rng.standard_normal(mesh.vertices.shape)
+    g, H = _fd_check(sim, x, "viscosity", 1e-7, 1e-6, 1e-6)
+    # Newton's Hessian is the Gauss-Newton part: positive semi-definite.
+    Hp = sim.hessian(x, "viscosity").toarray()
+    assert np.linalg.eigvalsh(Hp).min() > -1e-9 * np.abs(Hp).max()
+    assert np.abs(Hp - H).max() > 1e-6 * np.abs(H).max()  # away from the anchor the exact one differs
+    # Internal forces: no net force or torque, at any positions.
+    f = g.reshape(-1, 3)
+    assert np.abs(f.sum(axis=0)).max() < 1e-10 * np.abs(f).max()
+    assert np.abs(np.cross(x, f).sum(axis=0)).max() < 1e-10 * np.abs(np.cross(x, f)).max()
+    # A rigid motion of the anchor is not damped.
+    R = InitialState(rotation=(0.3, -0.5, 0.9)).rotation_matrix()
+    xr = mesh.vertices @ R.T + np.array([0.1, 0.2, 0.3])
+    assert abs(sim.energy(xr, "viscosity")) < 1e-20
+    assert np.abs(sim.gradient(xr, "viscosity")).max() < 1e-12 * np.abs(g).max()
+    # A homogeneous stretch F = diag(1 + s, 1, 1): E_11 = ((1 + s)^2 - 1)/2, energy eta V/(2h) E_11^2.
+    s = 0.05
+    stretched = mesh.vertices * np.array([1.0 + s, 1.0, 1.0])
+    e11 = ((1.0 + s) ** 2 - 1.0) / 2.0
+    assert sim.energy(stretched, "viscosity") == pytest.approx(eta * L**3 / (2.0 * dt) * e11**2, rel=1e-12)
+    # Without viscosity the term is absent.
+    plain = FullSim(mesh, Scene(material=Material(1e5, 0.3), planes=(), dt=dt))
+    assert plain.energy(x, "viscosity") == 0.0 and plain.energy(x) == pytest.approx(sim.energy(x) - sim.energy(x, "viscosity"), rel=1e-12)
+
+
 def _contact_state(rng, mu=0.5, kd=3e4):
     """A box sunk 2 mm into the ground (normal force on its bottom), evaluated at a moved position."""
     mesh = meshes.box(L, resolution=2)

@@ -20,7 +20,8 @@ resolution = 12                  # procedural shapes: cells along the longest si
 size = [0.2, 0.12, 0.1]          # box, cheese: edge lengths, m
 radius = 0.05                    # sphere: radius, m
 
-[material]                       # youngs_modulus (Pa, > 0), poisson_ratio (-1, 0.5), density (kg/m^3, > 0)
+[material]                       # youngs_modulus (Pa, > 0), poisson_ratio (-1, 0.5), density (kg/m^3, > 0),
+                                 # viscosity (Kelvin-Voigt damping, Pa s, >= 0; default 0)
 [contact]                        # normal_stiffness (N/m^3), normal_damping (N s/m^3), friction_stiffness (N s/m^3)
 [solver]                         # tolerance, reduced_tolerance (m/s), max_iterations, on_failure ("raise" | "record")
 [time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1),
@@ -364,7 +365,7 @@ class SceneFile:
         return replace(self, **changes)
 
     def overridden(self, *, mesh: str | None = None, resolution: int | None = None, youngs_modulus: float | None = None,
-                   poisson_ratio: float | None = None, density: float | None = None, frictions: tuple[float, ...] | None = None,
+                   poisson_ratio: float | None = None, density: float | None = None, viscosity: float | None = None, frictions: tuple[float, ...] | None = None,
                    slopes: tuple[float, ...] | None = None, dt: float | None = None, steps: int | None = None,
                    record_every: int | None = None) -> SceneFile:
         """A copy with the given values replaced (None keeps the file's); the values are checked.
@@ -385,6 +386,7 @@ class SceneFile:
             youngs_modulus=m.youngs_modulus if youngs_modulus is None else _number(youngs_modulus, "youngs_modulus", 0.0, lo_open=True, unit="Pa"),
             poisson_ratio=m.poisson_ratio if poisson_ratio is None else _number(poisson_ratio, "poisson_ratio", -1.0, 0.5, True, True),
             density=m.density if density is None else _number(density, "density", 0.0, lo_open=True, unit="kg/m^3"),
+            viscosity=m.viscosity if viscosity is None else _number(viscosity, "viscosity", 0.0, unit="Pa s"),
         )
         if frictions is not None:
             frictions = tuple(check_friction(v, f"friction {v!r}") for v in frictions) or None
@@ -462,7 +464,8 @@ class SceneFile:
         lines = [
             f"scene {self.name} ({self.source}): {self.description}".rstrip(": "),
             f"object     {self.object.describe()}",
-            f"material   E {m.youngs_modulus:g} Pa, nu {m.poisson_ratio:g}, density {m.density:g} kg/m^3",
+            f"material   E {m.youngs_modulus:g} Pa, nu {m.poisson_ratio:g}, density {m.density:g} kg/m^3"
+            + (f", viscosity {m.viscosity:g} Pa s" if m.viscosity else ""),
             f"time       dt {self.scene.dt:g} s x {self.steps} steps (record every {self.record_every}), {self.scene.integrator}",
         ]
         for i, p in enumerate(self.scene.planes):
@@ -589,7 +592,8 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
 
     positive = {"lo": 0.0, "lo_open": True}
     material = _number_table(top, "material", Material, youngs_modulus={**positive, "unit": "Pa"},
-                             poisson_ratio={"lo": -1.0, "hi": 0.5, "lo_open": True, "hi_open": True}, density={**positive, "unit": "kg/m^3"})
+                             poisson_ratio={"lo": -1.0, "hi": 0.5, "lo_open": True, "hi_open": True}, density={**positive, "unit": "kg/m^3"},
+                             viscosity={"lo": 0.0, "unit": "Pa s"})
     contact = _number_table(top, "contact", ContactParams, normal_stiffness={**positive, "unit": "N/m^3"},
                             normal_damping={"lo": 0.0, "unit": "N s/m^3"}, friction_stiffness={**positive, "unit": "N s/m^3"})
     st = top.table("solver")

@@ -93,7 +93,7 @@ def warp_ready() -> Any:
     return wp
 
 
-KERNEL_MODULES = ("elastic", "contact", "inertia", "pcg", "validity")
+KERNEL_MODULES = ("elastic", "damping", "contact", "inertia", "pcg", "validity")
 """The modules of :mod:`licrom.full` that hold warp kernels."""
 
 

@@ -20,7 +20,7 @@ from ..records.trajectory import Trajectory
 from ..scene.scene import Scene
 from ..stepping import ThreadGuard, check_field, exclusive, record_run
 from ..validity import check_start, penetration, tet_determinants, warn_frames, with_steps
-from . import contact, elastic, inertia, pcg, validity
+from . import contact, damping, elastic, inertia, pcg, validity
 from .device import (
     MODE_ENERGY,
     MODE_FORCES,
@@ -37,8 +37,10 @@ __all__ = ["ENERGY_TERMS", "FullSim", "StepStats"]
 
 _log = logging.getLogger("licrom.full")
 
-ENERGY_TERMS = ("inertia", "elastic", "penalty", "damping", "friction")
-"""Terms of the incremental potential, for :meth:`FullSim.energy` and friends."""
+ENERGY_TERMS = ("inertia", "elastic", "penalty", "damping", "friction", "viscosity")
+"""Terms of the incremental potential, for :meth:`FullSim.energy` and friends: ``damping`` is the contact's
+normal damping, ``viscosity`` the material's Kelvin-Voigt damping (:mod:`licrom.full.damping`)."""
+_ALL_TERMS = (1 << len(ENERGY_TERMS)) - 1
 
 # Energies and dot products are reduced through this many partial sums: one on the CPU
 # (sequential, deterministic), many on a GPU (spreads the atomic additions).
@@ -318,10 +320,10 @@ class FullSim:
                 inputs=[self._x_now, self._contacts],
             )
 
-    def _evaluate(self, x: Any, mode: int, terms: int = 0b11111) -> None:
+    def _evaluate(self, x: Any, mode: int, terms: int = _ALL_TERMS) -> None:
         """Accumulate the energy partials (and gradient / Hessian for mode >= 1 / 2) at ``x``.
 
-        ``terms`` bits: 1 inertia, 2 elastic, 4 penalty, 8 damping, 16 friction.
+        ``terms`` bits: 1 inertia, 2 elastic, 4 penalty, 8 damping, 16 friction, 32 viscosity.
 
         On the CPU the evaluation (three memsets, up to three launches) is recorded once per
         (point array, mode, terms, effective step) as a warp graph and replayed, which skips the
@@ -357,7 +359,12 @@ class FullSim:
                 elastic.tet_kernel, dim=self.mesh.n_tets, device=dev,
                 inputs=[x, self._tets, wp.float64(self._mu), wp.float64(self._lam), wp.float64(self._alpha), mode, self._out],
             )
-        contact_terms = terms >> 2
+        if terms & 32 and self.scene.material.viscosity > 0.0:
+            wp.launch(
+                damping.damping_kernel, dim=self.mesh.n_tets, device=dev,
+                inputs=[x, self._x_start, self._tets, wp.float64(self.scene.material.viscosity / self._h_step), mode, self._out],
+            )
+        contact_terms = (terms >> 2) & 0b111
         if contact_terms and len(self._contact_idx) and self._n_planes:
             self._launch_contact(x, mode, contact_terms)
 
