@@ -95,12 +95,14 @@ class Family:
         mesh: the tet mesh.
         steps: time steps per run (h = ``cases[0].scene.dt``).
         cases: training and held-out runs.
+        record_every: steps between recorded frames.
     """
 
     name: str
     mesh: licrom.Mesh
     steps: int
     cases: tuple[Case, ...]
+    record_every: int = 1
 
     @property
     def training(self) -> list[Case]:
@@ -109,6 +111,16 @@ class Family:
     @property
     def held_out(self) -> list[Case]:
         return [c for c in self.cases if c.held_out]
+
+
+def with_physics(fam: Family, dt: float, integrator: str, viscosity: float, frame_dt: float = 0.01) -> Family:
+    """``fam`` with every scene's time step ``dt`` (s), ``integrator`` and material viscosity (Pa s), for the same
+    simulated time, recording a frame every ``frame_dt`` (s): the family at a converged truth (section 12)."""
+    steps = round(fam.steps * fam.cases[0].scene.dt / dt)
+    cases = tuple(dataclasses.replace(c, scene=c.scene.replace(dt=dt, integrator=integrator,
+                                                               material=dataclasses.replace(c.scene.material, viscosity=viscosity)))
+                  for c in fam.cases)
+    return dataclasses.replace(fam, steps=steps, cases=cases, record_every=max(1, round(frame_dt / dt)))
 
 
 def incline(slope_deg: float, azimuth_deg: float, friction: float) -> Plane:

@@ -200,7 +200,8 @@ def section(results: dict) -> str:
            "`experiments/truth_convergence.py` (issue 24, part 1). The held-out scenes of section 10 built with the same "
            "placement code on finer meshes of the same object: the soft cheese that slides (22 deg az 0, mu 0.3, "
            "E = 20 kPa, 1.5 s) and the soft ball that bounces and rolls (25 deg, mu 0.3, 1 s). Backward Euler, full "
-           "simulation (warp) on the GPU. Each study is measured against its finest member at matching frame times: "
+           "simulation (warp) on the GPU; the families marked with a viscosity have the material's Kelvin-Voigt damping "
+           "(`licrom.Material.viscosity`, `licrom.full.damping`), the others none. Each study is measured against its finest member at matching frame times: "
            "final centre of mass distance over the object's size, and the non-rigid difference (each frame's best "
            "rigid fit removed, from the finest run's first contact). Across meshes the displacements are compared at "
            "common material points, the coarsest mesh's vertices (weighted by its lumped masses), each run "
@@ -238,15 +239,18 @@ def section(results: dict) -> str:
                     out.append(f"| {1e3 * r['dt']:g}{other} | {r['steps']} | {_pct(r['com'])} | {_pct(r['nonrigid'])} | "
                                f"{_ms(r['step_ms'])} ({_ms(r['median_step_ms'])}) | {r['newton_its']:.1f} | {r['unconverged']} | {r['wall_s']:.1f} |")
                 out.append("")
+        if not rows and fam.get("mesh_h"):  # only studies at other steps: the smallest step's
+            rows = fam["mesh_h"][min(fam["mesh_h"], key=float)]
         m = choose(rows, "mesh") if rows else None
         choices.append((family, m, rows, [(integrator, fam[key]) for key, integrator in _time_keys(fam)] or [(BE, {})]))
     out += ["### Choice", "",
             f"Targets: final centre of mass within {_pct(COM_TARGET)} of the size and non-rigid deformation within "
             f"{_pct(NONRIGID_TARGET)} of the finest. Smallest mesh and largest step that meet both, measured:", ""]
     for family, m, rows, studies in choices:
-        ms = (f"resolution {m['resolution']} ({m['n_tets']} tets)" if m and m is not rows[-1] else
+        at = f" at h = {1e3 * rows[0]['dt']:g} ms" if rows else ""
+        ms = (f"resolution {m['resolution']} ({m['n_tets']} tets){at}" if m and m is not rows[-1] else
               f"only the finest measured ({rows[-1]['n_tets']} tets)" if m else
-              "none short of the finest" if rows else "not measured")
+              f"none short of the finest{at}" if rows else "not measured")
         steps = []
         for integrator, times in studies:
             trows = times[max(times, key=int)] if times else []
@@ -300,7 +304,10 @@ def main() -> None:
         for path in a.section_only:
             r = json.loads(path.read_text())
             merged["machine"] = r.get("machine", "?")
-            merged["families"].update(r["families"])
+            for family, studies in r["families"].items():  # one family's studies may come from several files
+                fam = merged["families"].setdefault(family, {})
+                for key, value in studies.items():
+                    fam[key] = {**fam.get(key, {}), **value} if isinstance(value, dict) and key != "label" else value
         write_section(a.docs, section(merged), SECTION_TITLE)
         return
     results_path = a.work / "results.json"

@@ -122,6 +122,9 @@ class ReducedCore:
             (the ``"mesh"`` strain). All three or none; they must reproduce
             ``cubature_jacobians``. The energy and gradient then go through the vertices
             where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
+        viscosity: Kelvin-Voigt viscosity eta in Pa s, >= 0 (default 0: no material damping):
+            ``w_k eta/(2h') |E(F_k) - E(F_k at the step's anchor)|^2`` added at each cubature
+            point, E the Green strain (``rust/core/src/reduced/elastic.rs``).
 
     K, C and P may be zero.
 
@@ -154,6 +157,7 @@ class ReducedCore:
         cubature_tet_vertices: _Int64Array | None = None,
         cubature_shape_gradients: _Float64Array | None = None,
         integrator: str = "backward_euler",
+        viscosity: float = 0.0,
     ) -> Self: ...
     @property
     def n_dofs(self) -> int:
@@ -256,6 +260,9 @@ class BodyFrameCore:
             (the ``"mesh"`` strain). All three or none; they must reproduce
             ``cubature_jacobians``. The energy and gradient then go through the vertices
             where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
+        viscosity: Kelvin-Voigt viscosity eta in Pa s, >= 0 (default 0: no material damping):
+            ``w_k eta/(2h') |E(F_k) - E(F_k at the step's anchor)|^2`` added at each cubature
+            point, E the Green strain (``rust/core/src/reduced/elastic.rs``).
 
     n, K, C and P may be zero (n = 0: a rigid body).
 
@@ -288,6 +295,7 @@ class BodyFrameCore:
         cubature_tet_vertices: _Int64Array | None = None,
         cubature_shape_gradients: _Float64Array | None = None,
         integrator: str = "backward_euler",
+        viscosity: float = 0.0,
     ) -> Self: ...
     @property
     def n_dofs(self) -> int:
@@ -428,6 +436,8 @@ class ResidualEstimate:
         target: (L,) the integrator's target weights, newest first (L = 2 or 4).
         step: the integrator's effective step in s, > 0.
         total_mass: the body's mass in kg, > 0.
+        viscosity: the material's Kelvin-Voigt viscosity in Pa s, >= 0 (default 0): the force of its
+            damping joins the elastic one, its anchor from the recorded states before the step.
     """
 
     def __new__(
@@ -443,6 +453,7 @@ class ResidualEstimate:
         target: _Float64Array,
         step: float,
         total_mass: float,
+        viscosity: float = 0.0,
     ) -> Self: ...
     @property
     def n_samples(self) -> int:

@@ -1,10 +1,13 @@
 """Kelvin-Voigt material damping per tet: energy, gradient and Hessian of its term in the incremental potential.
 
 The dissipation potential is ``eta/2 |dE/dt|^2`` per unit volume on the rate of the Green strain
-``E(F) = (F^T F - I)/2``, read, like friction, from the step's anchor: ``dE/dt = (E(F) - E(F_a))/h'``. Its
-term in the incremental potential (whose gradient is the viscous force) is, per tet,
+``E(F) = (F^T F - I)/2``, read with the integrator's own formula, ``dE/dt = (E(F) - E_a)/h'``: the anchor
+strain is ``E_a = E(F_n)`` for backward Euler and ``(4 E(F_n) - E(F_{n-1}))/3`` for BDF2 (``h' = 2h/3``), so
+``3 E_{n+1} - 4 E_n + E_{n-1} = 2h dE/dt``. Strains, not positions, are extrapolated: the anchor is the same
+in every frame, and the body-frame model computes it from its modal coordinates alone. The term in the
+incremental potential (whose gradient is the viscous force) is, per tet,
 
-``eta V / (2 h') |D|^2``,  ``D = E(F) - E(F_a) = (F^T F - F_a^T F_a)/2``,
+``eta V / (2 h') |D|^2``,  ``D = E(F) - E_a = (F^T F - C_a)/2``,  ``C_a = 2 E_a + I``,
 
 with gradient ``c F D`` in F (``c = eta V / h'``). Rotation invariant: a rigid motion, a spin included, is
 not damped. The Hessian is ``c (dD/dF)^T (dD/dF) + c D : d2D/dF2``; the first part (Gauss-Newton) is
@@ -20,7 +23,22 @@ import warp as wp
 from .device import MODE_ENERGY, MODE_GRADIENT, MODE_RAW_HESSIAN, Assembly, f64, mat33d, vec3d
 from .elastic import Tets, add_tet_gradient, deformation_gradient
 
-__all__ = ["damping_kernel"]
+__all__ = ["anchor_kernel", "damping_kernel"]
+
+
+@wp.kernel
+def anchor_kernel(x_now: wp.array(dtype=vec3d), x_prev: wp.array(dtype=vec3d), tets: Tets, history: f64, c_anchor: wp.array(dtype=mat33d)):
+    """``C_a = (1 + w) F_n^T F_n - w F_{n-1}^T F_{n-1}`` of every tet at the start of a step (``w`` the
+    integrator's history weight: 0 for backward Euler, 1/3 for BDF2)."""
+    t = wp.tid()
+    ids = tets.ids[t]
+    dmi = tets.dminv[t]
+    Fn = deformation_gradient(x_now, ids, dmi)
+    c = wp.transpose(Fn) * Fn
+    if history != f64(0.0):
+        Fp = deformation_gradient(x_prev, ids, dmi)
+        c = (f64(1.0) + history) * c - history * (wp.transpose(Fp) * Fp)
+    c_anchor[t] = c
 
 
 @wp.func
@@ -34,14 +52,14 @@ def _block(na: vec3d, nb: vec3d, F: mat33d, FFt: mat33d, D: mat33d, c: f64, exac
 
 
 @wp.kernel
-def damping_kernel(x: wp.array(dtype=vec3d), x_anchor: wp.array(dtype=vec3d), tets: Tets, eta_over_h: f64, mode: int, out: Assembly):
-    """The damping term of every tet at ``x`` against the anchor ``x_anchor``; ``eta_over_h`` is ``eta / h'`` (Pa)."""
+def damping_kernel(x: wp.array(dtype=vec3d), c_anchor: wp.array(dtype=mat33d), tets: Tets, eta_over_h: f64, mode: int, out: Assembly):
+    """The damping term of every tet at ``x`` against its anchor ``C_a`` (:func:`anchor_kernel`); ``eta_over_h``
+    is ``eta / h'`` (Pa)."""
     t = wp.tid()
     ids = tets.ids[t]
     dmi = tets.dminv[t]
     F = deformation_gradient(x, ids, dmi)
-    Fa = deformation_gradient(x_anchor, ids, dmi)
-    D = f64(0.5) * (wp.transpose(F) * F - wp.transpose(Fa) * Fa)
+    D = f64(0.5) * (wp.transpose(F) * F - c_anchor[t])
     c = eta_over_h * tets.vol[t]
     wp.atomic_add(out.energy, t % out.energy.shape[0], f64(0.5) * c * wp.ddot(D, D))
     if mode == MODE_ENERGY:

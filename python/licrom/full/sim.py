@@ -164,6 +164,8 @@ class FullSim:
         self._x_start = vec()  # the step's anchor x_a: x_n for backward Euler, (4 x_n - x_{n-1}) / 3 for BDF2
         self._x_now = vec()  # x_n during a step
         self._x_prev = vec()  # x_{n-1} (BDF2's history; after set_state that of a free fall)
+        # C_a = 2 E_a + I per tet: the material damping's anchor strain (licrom.full.damping), set each step.
+        self._strain_anchor = wp.zeros(mesh.n_tets if scene.material.viscosity > 0.0 else 0, dtype=wp.mat33d, device=dev)
         self._x_tilde = vec()
         self._x_trial = vec()
         self._grad = vec()
@@ -314,6 +316,9 @@ class FullSim:
                     wp.vec3d(*self.scene.gravity), wp.float64(1.0 if self._have_prev else 0.0),
                     wp.float64(h * h / self._h if history else h), self._x_now, self._x_start, self._x_tilde, self._x],
         )
+        if self.scene.material.viscosity > 0.0:
+            wp.launch(damping.anchor_kernel, dim=self.mesh.n_tets, device=dev,
+                      inputs=[self._x_now, self._x_prev, self._tets, wp.float64(1.0 / 3.0 if history else 0.0), self._strain_anchor])
         if len(self._contact_idx) and self._n_planes:
             wp.launch(
                 contact.lagged_normal_kernel, dim=(len(self._contact_idx), self._n_planes), device=dev,
@@ -362,7 +367,7 @@ class FullSim:
         if terms & 32 and self.scene.material.viscosity > 0.0:
             wp.launch(
                 damping.damping_kernel, dim=self.mesh.n_tets, device=dev,
-                inputs=[x, self._x_start, self._tets, wp.float64(self.scene.material.viscosity / self._h_step), mode, self._out],
+                inputs=[x, self._strain_anchor, self._tets, wp.float64(self.scene.material.viscosity / self._h_step), mode, self._out],
             )
         contact_terms = (terms >> 2) & 0b111
         if contact_terms and len(self._contact_idx) and self._n_planes:

@@ -204,6 +204,7 @@ def native_inputs(sim: ReducedSim, strain: str, contact_rest: np.ndarray) -> dic
         "tolerance": scene.solver.reduced_tolerance,
         "max_iterations": scene.solver.max_iterations,
         "integrator": scene.integrator,
+        "viscosity": scene.material.viscosity,
         **vertex_strain_form(sim.mesh, sim.cubature.tets, strain, sim._values),
     }
 

@@ -168,7 +168,8 @@ class ErrorMonitor:
         # The residual in the core: as a dozen numpy calls after each solver step it cost a third of a step.
         self._residual = _core.ResidualEstimate(self._forces, np.ascontiguousarray(values[self.near]), np.ascontiguousarray(rest[self.near]),
                                                 self._own, self._m, jacobi, np.asarray(scene.gravity, dtype=np.float64),
-                                                np.ascontiguousarray(scene.plane_array()[:, :4]), self._target, h, self._total_mass)
+                                                np.ascontiguousarray(scene.plane_array()[:, :4]), self._target, h, self._total_mass,
+                                                scene.material.viscosity)
         self._step = 0
         self._evaluations: list[tuple[int, float, float]] = []
 

@@ -6,7 +6,9 @@
 //! effective step h), with `f_s` the elastic force of its one ring
 //! ([`VertexForces`]) and g gravity:
 //!
-//! `r_s = m_s (x_s - sum_i w_i x_s^i) / h^2 - m_s g - f_s`,
+//! `r_s = m_s (x_s - sum_i w_i x_s^i) / h^2 - m_s g - f_s`
+//! (`f_s` with the material damping's force where the material has one: its
+//! anchor from the states' q, kept from the steps before),
 //! `du_s = J_s r_s` (`J_s` the inverse of the sample's own 3 x 3 block of the
 //! step's Hessian: one Jacobi sweep),
 //!
@@ -51,6 +53,8 @@ pub struct EstimateInputs<'a> {
     pub step: f64,
     /// The body's mass M, kg (> 0).
     pub total_mass: f64,
+    /// The material's Kelvin-Voigt viscosity eta, Pa s (>= 0).
+    pub viscosity: f64,
 }
 
 /// A rigid placement `x = c + R y` (body-frame models) or none (world frame).
@@ -77,6 +81,14 @@ pub struct ResidualEstimate {
     total_mass: f64,
     /// Sample positions (s x 3 each) of the last `target.len()` states, newest first.
     history: Vec<Vec<f64>>,
+    /// The material damping's `kappa = eta/h'` (0 without), its history weight
+    /// w, the q of the last two states (newest first) and how many are known.
+    kappa: f64,
+    weight: f64,
+    q_history: [Vec<f64>; 2],
+    q_known: usize,
+    near_now: Vec<f64>,
+    near_previous: Vec<f64>,
     near: Vec<f64>,
     samples: Vec<f64>,
     force: Vec<f64>,
@@ -97,7 +109,8 @@ impl ResidualEstimate {
     /// From the inputs and the ring forces of the samples (its points the near
     /// vertices, its samples these), after checking shapes, indices and values.
     pub fn new(inputs: &EstimateInputs<'_>, forces: VertexForces) -> Result<Self> {
-        let EstimateInputs { near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass } = *inputs;
+        let EstimateInputs { near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass, viscosity } = *inputs;
+        crate::error::check_non_negative("viscosity", viscosity)?;
         let (u, s) = (forces.n_points(), forces.n_samples());
         if near_rest.len() != 3 * u {
             return Err(LicromError::shape("near_rest", format!("({u}, 3)"), format!("{} values", near_rest.len())));
@@ -148,6 +161,13 @@ impl ResidualEstimate {
             h2: step * step,
             total_mass,
             history: vec![vec![0.0; 3 * s]; target.len()],
+            kappa: viscosity / step,
+            // BDF2's target has four weights: its strain anchor (4 E_n - E_{n-1})/3.
+            weight: if target.len() == 4 { 1.0 / 3.0 } else { 0.0 },
+            q_history: [vec![0.0; n], vec![0.0; n]],
+            q_known: 0,
+            near_now: vec![0.0; 3 * u],
+            near_previous: vec![0.0; 3 * u],
             near: vec![0.0; 3 * u],
             samples: vec![0.0; 3 * s],
             force: vec![0.0; 3 * s],
@@ -175,7 +195,17 @@ impl ResidualEstimate {
         for (kept, given) in self.history.iter_mut().zip(positions.chunks_exact(3 * s).rev()) {
             kept.copy_from_slice(given);
         }
+        self.q_known = 0;
         Ok(())
+    }
+
+    /// `q` becomes the newest state's q of the damping's history.
+    fn push_q(&mut self, q: &[f64]) {
+        if self.kappa > 0.0 {
+            self.q_history.swap(0, 1);
+            self.q_history[0].copy_from_slice(q);
+            self.q_known = (self.q_known + 1).min(2);
+        }
     }
 
     /// Keeps the sample positions at `q` (and `placement`) as the newest state.
@@ -188,6 +218,7 @@ impl ResidualEstimate {
         }
         check_output("the sample positions", "q", &self.samples)?;
         self.push_samples();
+        self.push_q(q);
         Ok(())
     }
 
@@ -204,7 +235,22 @@ impl ResidualEstimate {
     pub fn evaluate(&mut self, q: &[f64], placement: Placement<'_>) -> Result<f64> {
         self.check_state(q, placement)?;
         body_positions(&self.near_points, &self.near_rest, q, &mut self.near)?;
-        self.forces.forces(&self.near, &mut self.force)?;
+        // The damping's anchor needs the states before the step (1, or 2 for BDF2); until they are
+        // recorded (a run's first steps, where the stride is shorter than the history) it is left out.
+        let needed = if self.weight != 0.0 { 2 } else { 1 };
+        if self.kappa > 0.0 && self.q_known >= needed {
+            // C is rotation invariant: the body-frame positions give the anchor of any placement.
+            body_positions(&self.near_points, &self.near_rest, &self.q_history[0], &mut self.near_now)?;
+            let previous = if needed == 2 {
+                body_positions(&self.near_points, &self.near_rest, &self.q_history[1], &mut self.near_previous)?;
+                Some((&self.near_previous[..], self.weight))
+            } else {
+                None
+            };
+            self.forces.damped_forces(&self.near, self.kappa, &self.near_now, previous, &mut self.force)?;
+        } else {
+            self.forces.forces(&self.near, &mut self.force)?;
+        }
         let (mut sum, mut counted) = (0.0, 0.0);
         for (s, &v) in self.own.iter().enumerate() {
             let x = placed(Vector3::from_column_slice(&self.near[3 * v..3 * v + 3]), placement);
@@ -227,6 +273,7 @@ impl ResidualEstimate {
             self.samples[3 * s..3 * s + 3].copy_from_slice(x.as_slice());
         }
         self.push_samples();
+        self.push_q(q);
         let value = if counted > 0.0 { self.total_mass * sum / counted } else { 0.0 };
         check_output("the residual", "q", &[value])?;
         Ok(value)
@@ -260,6 +307,10 @@ mod tests {
     /// One tet (0, 0, 0), x, y, z with its corner 3 as the sample, one mode
     /// moving the sample along x; masses 2 kg, Jacobi blocks a I.
     fn one_tet(planes: &[f64]) -> ResidualEstimate {
+        one_tet_damped(planes, 0.0)
+    }
+
+    fn one_tet_damped(planes: &[f64], viscosity: f64) -> ResidualEstimate {
         let points = [Vector3::zeros(), Vector3::x(), Vector3::y(), Vector3::z()];
         let (grads, volumes) = tet_shape_gradients(&points, &[[0, 1, 2, 3]]);
         let rings = RingInputs { corners: &[0, 1, 2, 3], gradients: &grads, volumes: &volumes, owners: &[0], own_corners: &[3] };
@@ -279,8 +330,26 @@ mod tests {
             target: &[2.0, -1.0],
             step: 0.01,
             total_mass: 5.0,
+            viscosity,
         };
         ResidualEstimate::new(&inputs, forces).unwrap()
+    }
+
+    /// The material damping enters once the state before the step is recorded (a run's first
+    /// evaluation without it leaves it out): the sample moved 1 cm along x from there.
+    #[test]
+    fn the_damping_force_enters_once_the_previous_state_is_known() {
+        let value = |viscosity: f64, record: bool| {
+            let mut est = one_tet_damped(&[], viscosity);
+            est.start(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]).unwrap();
+            if record {
+                est.record(&[0.0], None).unwrap();
+            }
+            est.evaluate(&[0.01], None).unwrap()
+        };
+        assert_eq!(value(400.0, false), value(0.0, false));
+        assert_eq!(value(0.0, true), value(0.0, false));
+        assert!(value(400.0, true) != value(0.0, true));
     }
 
     #[test]

@@ -32,6 +32,8 @@ pub struct BlockScene {
     pub mu: f64,
     /// SNH volume parameter, Pa.
     pub lam: f64,
+    /// Kelvin-Voigt viscosity, Pa s (0: no material damping).
+    pub viscosity: f64,
     /// Time step, s.
     pub dt: f64,
     /// Time integrator.
@@ -82,6 +84,7 @@ impl Default for BlockScene {
             density: 1000.0,
             mu: 5.13e4,
             lam: 8.97e4,
+            viscosity: 0.0,
             dt: 0.01,
             integrator: Integrator::BackwardEuler,
             friction: 0.5,
@@ -128,6 +131,8 @@ pub struct SampledTerms {
     pub planes: Vec<Plane>,
     /// Material.
     pub material: StableNeoHookean,
+    /// Kelvin-Voigt viscosity, Pa s.
+    pub viscosity: f64,
 }
 
 impl SampledTerms {
@@ -144,6 +149,7 @@ impl SampledTerms {
             contact_areas: vec![faces * l * l / c.max(1) as f64; c],
             planes: vec![Plane::new(Vector3::new(slope.sin(), 0.0, slope.cos()), 0.0, scene.friction)?],
             material: StableNeoHookean::new(scene.mu, scene.lam)?,
+            viscosity: scene.viscosity,
         })
     }
 
@@ -154,6 +160,7 @@ impl SampledTerms {
             cubature_weights: &self.cubature_weights,
             vertex_strain: None,
             material: self.material,
+            viscosity: self.viscosity,
         }
     }
 

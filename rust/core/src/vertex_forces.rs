@@ -8,7 +8,11 @@
 //! `F_t = sum_a y_a g_{t,a}^T`, `f_v = -sum_t V_t P(F_t) g_{t,v}`,
 //!
 //! with `P = dPsi/dF` ([`StableNeoHookean::pk1`]) and `g_{t,v}` the gradient of
-//! v's own corner in t. The online error estimate of a reduced run
+//! v's own corner in t. With a material damping
+//! ([`VertexForces::damped_forces`]) each ring tet adds the Kelvin-Voigt force
+//! `-V_t kappa (F_t D_t) g_{t,v}`, `D_t = (F_t^T F_t - C_t)/2`, `kappa = eta/h'` and
+//! the anchor `C_t = (1 + w) C(F_t^n) - w C(F_t^{n-1})` (as in
+//! `rust/core/src/reduced/elastic.rs`). The online error estimate of a reduced run
 //! (`python/licrom/reduced/error_estimate.py`) takes it every few steps at the
 //! reconstructed positions: a few hundred tets, where a sparse product, a
 //! batch of stresses and another sparse product from Python cost five times
@@ -33,6 +37,10 @@ pub struct RingInputs<'a> {
     /// Which corner (0-3) of its tet that sample is, T.
     pub own_corners: &'a [usize],
 }
+
+/// The damping's `kappa` (Pa) and the points' positions at the step's start
+/// and, with the history weight w, the step before.
+type Damping<'a> = (f64, &'a [f64], Option<(&'a [f64], f64)>);
 
 /// The one-ring tets of a sample of vertices, in the numbering of the points
 /// whose positions [`VertexForces::forces`] takes.
@@ -101,18 +109,49 @@ impl VertexForces {
     /// The force on each sample (n_samples x 3, N) into `out`, from the
     /// positions of the points (n_points x 3, m).
     pub fn forces(&self, positions: &[f64], out: &mut [f64]) -> Result<()> {
-        if positions.len() != 3 * self.n_points {
-            return Err(LicromError::shape("positions", format!("({}, 3)", self.n_points), format!("{} values", positions.len())));
+        self.accumulate(positions, None, out)
+    }
+
+    /// [`Self::forces`] plus the material damping's, `kappa = eta/h'` (Pa), its
+    /// anchor from the points' positions at the step's start `now` and, with the
+    /// integrator's history weight w, the step before (all n_points x 3, m).
+    pub fn damped_forces(&self, positions: &[f64], kappa: f64, now: &[f64], previous: Option<(&[f64], f64)>, out: &mut [f64]) -> Result<()> {
+        for (name, values) in std::iter::once(("anchor positions", now)).chain(previous.map(|(p, _)| ("previous positions", p))) {
+            self.check_positions(name, values)?;
         }
+        self.accumulate(positions, Some((kappa, now, previous)), out)
+    }
+
+    fn check_positions(&self, name: &str, positions: &[f64]) -> Result<()> {
+        if positions.len() != 3 * self.n_points {
+            return Err(LicromError::shape(name, format!("({}, 3)", self.n_points), format!("{} values", positions.len())));
+        }
+        check_finite(name, positions)
+    }
+
+    fn accumulate(&self, positions: &[f64], damping: Option<Damping<'_>>, out: &mut [f64]) -> Result<()> {
+        self.check_positions("positions", positions)?;
         if out.len() != 3 * self.n_samples {
             return Err(LicromError::shape("out", format!("({}, 3)", self.n_samples), format!("{} values", out.len())));
         }
-        check_finite("positions", positions)?;
         out.fill(0.0);
-        let y = |p: usize| Vector3::new(positions[3 * p], positions[3 * p + 1], positions[3 * p + 2]);
+        let at = |x: &[f64], p: usize| Vector3::new(x[3 * p], x[3 * p + 1], x[3 * p + 2]);
         for (((corners, g), &volume), &(sample, own)) in self.corners.iter().zip(&self.gradients).zip(&self.volumes).zip(&self.owner) {
-            let f: Matrix3<f64> = (0..4).map(|a| y(corners[a]) * g[a].transpose()).sum();
-            let force = self.material.pk1(&f) * g[own] * -volume;
+            let deformation = |x: &[f64]| -> Matrix3<f64> { (0..4).map(|a| at(x, corners[a]) * g[a].transpose()).sum() };
+            let f = deformation(positions);
+            let mut stress = self.material.pk1(&f);
+            if let Some((kappa, now, previous)) = damping {
+                let cauchy_green = |x: &[f64]| {
+                    let fa = deformation(x);
+                    fa.transpose() * fa
+                };
+                let anchor = match previous {
+                    Some((prev, w)) => (1.0 + w) * cauchy_green(now) - w * cauchy_green(prev),
+                    None => cauchy_green(now),
+                };
+                stress += kappa * f * (0.5 * (f.transpose() * f - anchor));
+            }
+            let force = stress * g[own] * -volume;
             for i in 0..3 {
                 out[3 * sample + i] += force[i];
             }
@@ -170,6 +209,51 @@ mod tests {
         let expected: Vec<f64> = [1usize, 4].iter().flat_map(|&v| fd[3 * v..3 * v + 3].iter().map(|g| -g)).collect();
         assert!(expected.iter().any(|f| f.abs() > 1e2), "the deformed tets push back: {expected:?}");
         assert!(rel_err(&out, &expected, 1.0) < 1e-6, "{out:?} vs {expected:?}");
+    }
+
+    /// With a material damping the force is minus the gradient of the ring's elastic energy plus
+    /// `V kappa/2 |D|^2` per tet, against the anchor of two earlier states (BDF2's weight 1/3).
+    #[test]
+    fn damped_forces_add_minus_the_damping_gradient_by_finite_differences() {
+        let (rest, tets, grads, vols) = two_tets();
+        let material = StableNeoHookean::new(3.0e4, 5.0e4).unwrap();
+        let rings = RingInputs { corners: &tets, gradients: &grads, volumes: &vols, owners: &[0, 0], own_corners: &[1, 3] };
+        let forces = VertexForces::new(5, 1, &rings, material).unwrap();
+        let mut rng = Rng::new(6);
+        let mut near = |scale: f64| -> Vec<f64> { rest.iter().zip(rng.vec(15, scale)).map(|(x, d)| x + d).collect() };
+        let (y, now, previous) = (near(0.1), near(0.05), near(0.05));
+        let (kappa, w) = (4.0e4, 1.0 / 3.0);
+        let deformation = |x: &[f64], t: usize| -> Matrix3<f64> {
+            (0..4)
+                .map(|a| {
+                    let p = tets[4 * t + a];
+                    Vector3::from_column_slice(&x[3 * p..3 * p + 3])
+                        * Vector3::from_column_slice(&grads[12 * t + 3 * a..12 * t + 3 * a + 3]).transpose()
+                })
+                .sum()
+        };
+        let cg = |x: &[f64], t: usize| {
+            let f = deformation(x, t);
+            f.transpose() * f
+        };
+        let damping = |x: &[f64]| -> f64 {
+            (0..2)
+                .map(|t| {
+                    let c = deformation(x, t).transpose() * deformation(x, t);
+                    let d = 0.5 * (c - ((1.0 + w) * cg(&now, t) - w * cg(&previous, t)));
+                    vols[t] * 0.5 * kappa * d.norm_squared()
+                })
+                .sum()
+        };
+        let (mut plain, mut damped) = (vec![0.0; 3], vec![0.0; 3]);
+        forces.forces(&y, &mut plain).unwrap();
+        forces.damped_forces(&y, kappa, &now, Some((&previous, w)), &mut damped).unwrap();
+        let fd = fd_gradient(damping, &y, 1e-7);
+        let expected: Vec<f64> = plain.iter().zip(&fd[3..6]).map(|(f, g)| f - g).collect();
+        assert!(fd[3..6].iter().any(|g| g.abs() > 1e2), "the damping pushes back: {fd:?}");
+        assert!(rel_err(&damped, &expected, 1.0) < 1e-6, "{damped:?} vs {expected:?}");
+        let err = forces.damped_forces(&y, kappa, &now[..6], None, &mut damped).unwrap_err().to_string();
+        assert!(err.contains("anchor positions"), "{err}");
     }
 
     #[test]

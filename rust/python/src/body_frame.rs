@@ -57,6 +57,9 @@ use crate::reduced::stats_dict;
 ///         (the ``"mesh"`` strain). All three or none; they must reproduce
 ///         ``cubature_jacobians``. The energy and gradient then go through the vertices
 ///         where that is cheaper (``3 V_used < 9 K``), the Hessian through ``G_k``.
+///     viscosity: Kelvin-Voigt viscosity eta in Pa s, >= 0 (default 0: no material damping):
+///         ``w_k eta/(2h') |E(F_k) - E(F_k at the step's anchor)|^2`` added at each cubature
+///         point, E the Green strain (``rust/core/src/reduced/elastic.rs``).
 ///
 /// n, K, C and P may be zero (n = 0: a rigid body).
 ///
@@ -103,7 +106,7 @@ impl BodyFrameCore {
         total_mass, inertia_moments, mode_moments, mode_products, gravity, cubature_jacobians, cubature_weights,
         mu, lam, contact_basis, contact_rest, contact_areas, planes, normal_stiffness, normal_damping,
         friction_stiffness, dt, tolerance, max_iterations, cubature_vertex_basis = None, cubature_tet_vertices = None,
-        cubature_shape_gradients = None, integrator = "backward_euler"
+        cubature_shape_gradients = None, integrator = "backward_euler", viscosity = 0.0
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -131,6 +134,7 @@ impl BodyFrameCore {
         cubature_tet_vertices: Option<&Bound<'_, PyAny>>,
         cubature_shape_gradients: Option<&Bound<'_, PyAny>>,
         integrator: &str,
+        viscosity: f64,
     ) -> PyResult<Self> {
         let integrator: Integrator = integrator.parse().py_err(py)?;
         let max_iterations = count(max_iterations, "max_iterations")?;
@@ -140,7 +144,7 @@ impl BodyFrameCore {
         let q = read(mode_products, "mode_products", &[Dim::Is(n), Dim::Is(n), Dim::Is(3), Dim::Is(3)])?;
         let g = read(gravity, "gravity", &[Dim::Is(3)])?;
         let vertex = VertexArgs { basis: cubature_vertex_basis, tets: cubature_tet_vertices, grads: cubature_shape_gradients };
-        let elastic = ElasticArrays::read(py, cubature_jacobians, cubature_weights, vertex, (mu, lam), n)?;
+        let elastic = ElasticArrays::read(py, cubature_jacobians, cubature_weights, vertex, (mu, lam, viscosity), n)?;
         let stiffness = (normal_stiffness, normal_damping, friction_stiffness);
         let contact = ContactArrays::read(py, [contact_basis, contact_rest, contact_areas, planes], stiffness, n)?;
         let inputs = BodyFrameInputs {

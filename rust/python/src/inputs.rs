@@ -14,12 +14,13 @@ use crate::errors::{error, CoreResultExt, Kind};
 
 /// The elastic term's arguments for n reduced coordinates: `cubature_jacobians`
 /// K x 9 x n, `cubature_weights` K, the vertex form ([`VertexForm`]) and the
-/// material `(mu, lam)`.
+/// material `(mu, lam, viscosity)`.
 pub(crate) struct ElasticArrays {
     jacobians: Array,
     weights: Array,
     vertex_form: Option<VertexForm>,
     material: StableNeoHookean,
+    viscosity: f64,
 }
 
 /// The arguments of the cubature's vertex form.
@@ -35,7 +36,7 @@ impl ElasticArrays {
         jacobians: &Bound<'_, PyAny>,
         weights: &Bound<'_, PyAny>,
         vertex: VertexArgs<'_, '_>,
-        (mu, lam): (f64, f64),
+        (mu, lam, viscosity): (f64, f64, f64),
         n: usize,
     ) -> PyResult<Self> {
         let material = StableNeoHookean::new(mu, lam).py_err(py)?;
@@ -43,7 +44,7 @@ impl ElasticArrays {
         let k = weights.shape[0];
         let jacobians = read(jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
         let vertex_form = VertexForm::read(vertex, k, n)?;
-        Ok(Self { jacobians, weights, vertex_form, material })
+        Ok(Self { jacobians, weights, vertex_form, material, viscosity })
     }
 
     pub(crate) fn inputs(&self) -> ElasticInputs<'_> {
@@ -52,6 +53,7 @@ impl ElasticArrays {
             cubature_weights: &self.weights.data,
             vertex_strain: self.vertex_form.as_ref().map(VertexForm::inputs),
             material: self.material,
+            viscosity: self.viscosity,
         }
     }
 }

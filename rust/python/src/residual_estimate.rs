@@ -24,6 +24,8 @@ use crate::vertex_forces::VertexForces;
 ///     target: (L,) the integrator's target weights, newest first (L = 2 or 4).
 ///     step: the integrator's effective step in s, > 0.
 ///     total_mass: the body's mass in kg, > 0.
+///     viscosity: the material's Kelvin-Voigt viscosity in Pa s, >= 0 (default 0): the force of its
+///         damping joins the elastic one, its anchor from the recorded states before the step.
 #[pyclass(module = "licrom._core")]
 pub struct ResidualEstimate {
     inner: CoreResidualEstimate,
@@ -55,7 +57,7 @@ fn state(
 #[pymethods]
 impl ResidualEstimate {
     #[new]
-    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass))]
+    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass, viscosity = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -70,6 +72,7 @@ impl ResidualEstimate {
         target: &Bound<'_, PyAny>,
         step: f64,
         total_mass: f64,
+        viscosity: f64,
     ) -> PyResult<Self> {
         let u = forces.inner.n_points();
         let s = forces.inner.n_samples();
@@ -92,6 +95,7 @@ impl ResidualEstimate {
             target: &target.data,
             step,
             total_mass,
+            viscosity,
         };
         let inner = CoreResidualEstimate::new(&inputs, forces.inner.clone()).py_err(py)?;
         Ok(Self { inner })

@@ -53,7 +53,7 @@ use crate::contact_points::ContactInputs;
 use crate::dense::offset_rows_dot;
 use crate::error::{check_finite, check_positive, Result};
 use crate::integrator::Integrator;
-use crate::reduced::{ElasticInputs, ElasticModel, ElasticTerm, ElasticWorkspace};
+use crate::reduced::{ElasticInputs, ElasticModel, ElasticTerm, ElasticWorkspace, StrainAnchor};
 use crate::simd::{dispatch, Madd, WithMadd};
 use crate::validity::Validity;
 use contact::{BodyContactHessian, BodyContacts, ContactOut, ContactRows, ContactStart, ContactTerms};
@@ -134,6 +134,8 @@ impl Pose {
 pub struct BodyStart {
     inertia: InertiaTarget,
     contact: ContactStart,
+    /// The material damping's anchor strain, from `q_n` and `q_{n-1}` alone ([`StrainAnchor`]).
+    strain: StrainAnchor,
 }
 
 /// Which Hessian [`BodyFrameSystem::hessian`] assembles.
@@ -207,7 +209,7 @@ impl BodyFrameSystem {
         check_positive("dt", inp.dt)?;
         let h = inp.integrator.effective_step(inp.dt);
         let contacts = BodyContacts::new(n, &inp.contact, h)?;
-        let elastic = if n == 0 { None } else { Some(ElasticTerm::new(&inp.elastic, n)?) };
+        let elastic = if n == 0 { None } else { Some(ElasticTerm::new(&inp.elastic, n, h)?) };
         Ok(Self {
             n,
             h,
@@ -263,7 +265,11 @@ impl BodyFrameSystem {
 
     /// Zeroed start-of-step buffers.
     pub fn step_start(&self) -> BodyStart {
-        BodyStart { inertia: InertiaTarget::new(self.n), contact: self.contacts.start() }
+        BodyStart {
+            inertia: InertiaTarget::new(self.n),
+            contact: self.contacts.start(),
+            strain: self.elastic.as_ref().map(ElasticTerm::strain_anchor).unwrap_or_default(),
+        }
     }
 
     /// Buffers for the evaluations.
@@ -290,6 +296,9 @@ impl BodyFrameSystem {
         start.inertia.begin(&self.moments, history, self.integrator, &self.gravity, self.h);
         let w = self.integrator.history();
         self.contacts.begin(history[0], (w != 0.0).then(|| (history[1], w)), &mut start.contact);
+        if let Some(elastic) = &self.elastic {
+            elastic.set_anchor(&history[0].q, (w != 0.0).then(|| (&history[1].q[..], w)), &mut start.strain);
+        }
     }
 
     /// The step's energy at `pose` (J, without the step's constant); with
@@ -313,7 +322,7 @@ impl BodyFrameSystem {
         if let (Some(elastic), Some(ews)) = (&self.elastic, ws.elastic.as_mut()) {
             let grad = with_gradient.then_some(&mut ws.grad[6..]);
             let ews = (with_gradient && model.is_none()).then_some(ews);
-            let (modal, elastic_energy) = dispatch(ModalKernel { sys: self, elastic, q: &pose.q, model, grad, ws: ews });
+            let (modal, elastic_energy) = dispatch(ModalKernel { sys: self, elastic, q: &pose.q, strain: &start.strain, model, grad, ws: ews });
             e += modal;
             ws.elastic_energy = elastic_energy;
         }
@@ -345,6 +354,7 @@ impl BodyFrameSystem {
         &self,
         elastic: &ElasticTerm,
         q: &[f64],
+        strain: &StrainAnchor,
         model: Option<&ElasticModel<'_>>,
         mut grad: Option<&mut [f64]>,
         ws: Option<&mut ElasticWorkspace>,
@@ -361,13 +371,13 @@ impl BodyFrameSystem {
             Some(m) => m.evaluate::<M>(q, grad),
             None => match ws {
                 Some(ws) => {
-                    let e = elastic.evaluate_impl::<M>(q, Some(&mut *ws));
+                    let e = elastic.evaluate_impl::<M>(q, Some(strain), Some(&mut *ws));
                     for (g, e) in grad.into_iter().flatten().zip(ws.gradient()) {
                         *g += e;
                     }
                     e
                 }
-                None => elastic.evaluate_impl::<M>(q, None),
+                None => elastic.evaluate_impl::<M>(q, Some(strain), None),
             },
         };
         (0.5 * inertia * inv_h2 + elastic_energy, elastic_energy)
@@ -530,6 +540,7 @@ struct ModalKernel<'a> {
     sys: &'a BodyFrameSystem,
     elastic: &'a ElasticTerm,
     q: &'a [f64],
+    strain: &'a StrainAnchor,
     model: Option<&'a ElasticModel<'a>>,
     grad: Option<&'a mut [f64]>,
     ws: Option<&'a mut ElasticWorkspace>,
@@ -539,6 +550,6 @@ impl WithMadd for ModalKernel<'_> {
     type Output = (f64, f64);
     #[inline(always)]
     fn run<M: Madd>(self) -> (f64, f64) {
-        self.sys.modal_impl::<M>(self.elastic, self.q, self.model, self.grad, self.ws)
+        self.sys.modal_impl::<M>(self.elastic, self.q, self.strain, self.model, self.grad, self.ws)
     }
 }

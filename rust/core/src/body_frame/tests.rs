@@ -9,6 +9,7 @@ use super::synthetic::{body_block, BodyBlock};
 use super::*;
 use crate::contact::Plane;
 use crate::contact_points::ContactInputs;
+use crate::integrator::Integrator;
 use crate::synthetic::BlockScene;
 use crate::testing::{check_pushed_out, fd_gradient, fd_jacobian, rel_err, Rng};
 use crate::LicromError;
@@ -220,6 +221,47 @@ fn inertia_and_elastic_derivatives_match_finite_differences() {
         sys.begin_step(&[&cur, &prev], &mut start);
         check_derivatives(&sys, &start, &random_pose(&mut rng, b.n, 0.05), &format!("{cubature} cubature points"));
     }
+}
+
+/// The material damping in the body frame: a function of q alone (any c and R of the pose or of its
+/// history give the same term), zero where q stays put, its gradient against finite differences.
+#[test]
+fn material_damping_depends_on_q_alone_and_matches_finite_differences() {
+    let mut rng = Rng::new(5);
+    let scene =
+        BlockScene { learned_modes: 3, cubature_points: 9, contact_points: 0, integrator: Integrator::Bdf2, viscosity: 400.0, ..Default::default() };
+    let b = body_block(&scene, true).unwrap();
+    let plain = body_block(&BlockScene { viscosity: 0.0, ..scene }, true).unwrap();
+    let (sys, sys_plain) = (BodyFrameSystem::new(&b.inputs()).unwrap(), BodyFrameSystem::new(&plain.inputs()).unwrap());
+    let damping = |history: &[Pose], pose: &Pose| {
+        let history: Vec<&Pose> = history.iter().collect();
+        let (mut start, mut start_plain) = (sys.step_start(), sys_plain.step_start());
+        sys.begin_step(&history, &mut start);
+        sys_plain.begin_step(&history, &mut start_plain);
+        sys.energy(&start, pose) - sys_plain.energy(&start_plain, pose)
+    };
+    // A history that only moves rigidly: no strain rate at its q.
+    let q_still = rng.vec(b.n, 0.02);
+    let still: Vec<Pose> = (0..4).map(|_| Pose { q: q_still.clone(), ..random_pose(&mut rng, b.n, 0.0) }).collect();
+    let at_rest = Pose { q: q_still.clone(), ..random_pose(&mut rng, b.n, 0.0) };
+    assert!(damping(&still, &at_rest).abs() < 1e-12, "no strain rate: {}", damping(&still, &at_rest));
+    // A deforming history: the same term for any c and R of the poses.
+    let history: Vec<Pose> = (0..4).map(|_| random_pose(&mut rng, b.n, 0.02)).collect();
+    let pose = random_pose(&mut rng, b.n, 0.05);
+    let moved_history: Vec<Pose> = history.iter().map(|p| Pose { q: p.q.clone(), ..random_pose(&mut rng, b.n, 0.0) }).collect();
+    let turned = Pose { q: pose.q.clone(), ..random_pose(&mut rng, b.n, 0.0) };
+    let d = damping(&history, &pose);
+    assert!(d > 0.0 && (damping(&moved_history, &turned) - d).abs() < 1e-9 * d, "{d} vs {} moved", damping(&moved_history, &turned));
+    let history: Vec<&Pose> = history.iter().collect();
+    let mut start = sys.step_start();
+    sys.begin_step(&history, &mut start);
+    let mut ws = sys.workspace();
+    sys.evaluate(&start, &pose, true, &mut ws);
+    let fd = fd_gradient(|x| sys.energy(&start, &moved(&pose, x)), &vec![0.0; 6 + b.n], 1e-7);
+    assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-6, "gradient vs FD {}", rel_err(&ws.grad, &fd, 1e-6));
+    let mut hess = vec![0.0; (6 + b.n) * (6 + b.n)];
+    sys.hessian(&start, &pose, BodyHessian::GaussNewton, &mut ws, &mut hess);
+    assert!(crate::cholesky::Cholesky::factor(&hess, 6 + b.n).is_ok(), "Gauss-Newton Hessian not positive definite");
 }
 
 /// A block with contact points on its bottom face over a level plane, whose

@@ -10,12 +10,24 @@
 //! the exact elastic Hessian is `B^T B - N^T N`). The rows are written eight at
 //! a time (one per lane) into a column-major stack of cache size and multiplied
 //! chunk by chunk by faer's blocked symmetric kernels.
+//!
+//! **Material damping.** With a viscosity eta the term adds, per point, the
+//! Kelvin-Voigt dissipation of the Green strain's rate, read with the
+//! integrator's formula (as `python/licrom/full/damping.py` does per tet):
+//! `w_k eta/(2h') |D_k|^2`, `D_k = (F_k^T F_k - C_k)/2`, with the anchor
+//! `C_k = (1 + w) C(q_n) - w C(q_{n-1})` (`C = F^T F`, w the integrator's history
+//! weight: `E_a = E_n` for backward Euler, `(4 E_n - E_{n-1})/3` for BDF2;
+//! [`StrainAnchor`]). Its stress is `kappa F D` (`kappa = eta/h'`) and
+//! its Hessian's Gauss-Newton part `w kappa (dD/dF)^T (dD/dF)` adds six square-root
+//! rows per point (`sqrt(w kappa) dD_ii/dF`, `sqrt(2 w kappa) dD_ij/dF`, i < j).
+//! Rotation invariant, so the body frame's term is a function of q alone. An
+//! evaluation without an anchor is the elastic energy alone.
 
 use crate::validity::{lowest_dets, Validity};
 use faer::Accum;
 
 use crate::dense::{mirror_lower, offset_rows_dot, syrk_columns};
-use crate::error::{check_finite, LicromError, Result};
+use crate::error::{check_finite, check_non_negative, LicromError, Result};
 use crate::material::StableNeoHookean;
 use crate::real::{Lanes, Real, LANES};
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
@@ -35,6 +47,8 @@ pub struct ElasticInputs<'a> {
     pub vertex_strain: Option<VertexStrainInputs<'a>>,
     /// Material of the solid.
     pub material: StableNeoHookean,
+    /// Kelvin-Voigt viscosity eta, Pa s, >= 0 (0: no material damping).
+    pub viscosity: f64,
 }
 
 /// Validated, owned elastic term over n reduced coordinates.
@@ -49,7 +63,22 @@ pub struct ElasticTerm {
     /// energy and gradient (the Hessian always uses the Jacobians).
     pub(super) vertices: Option<VertexLayout>,
     material: StableNeoHookean,
+    /// `eta / h'`, Pa: the damping's weight (0 without damping).
+    kappa: f64,
 }
+
+/// The anchor's right Cauchy-Green tensors `C_k` (`F_k^T F_k` extrapolated as the
+/// integrator extrapolates), per cubature point of positive weight (six components, packed by lanes as the
+/// points are): what the material damping measures the strain's rate against.
+/// Empty for a term without damping.
+#[derive(Debug, Clone, Default)]
+pub struct StrainAnchor {
+    c: Vec<F8>,
+}
+
+/// The symmetric components `(i, j)` of the damping's six square-root rows, in
+/// the order `StrainAnchor` stores `C`.
+const SYM: [(usize, usize); 6] = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)];
 
 /// Preallocated buffers of the elastic term's evaluations.
 #[derive(Debug, Clone)]
@@ -88,10 +117,12 @@ impl ElasticWorkspace {
 }
 
 impl ElasticTerm {
-    /// Validates and packs the inputs for n reduced coordinates: consistent
-    /// sizes, finite values, non-negative weights, a vertex form that
-    /// reproduces the Jacobians.
-    pub fn new(inp: &ElasticInputs<'_>, n: usize) -> Result<Self> {
+    /// Validates and packs the inputs for n reduced coordinates and a step's
+    /// effective length `effective_step` h' (s): consistent sizes, finite values,
+    /// non-negative weights and viscosity, a vertex form that reproduces the
+    /// Jacobians.
+    pub fn new(inp: &ElasticInputs<'_>, n: usize, effective_step: f64) -> Result<Self> {
+        check_non_negative("viscosity", inp.viscosity)?;
         let k = inp.cubature_weights.len();
         if inp.cubature_jacobians.len() != k * 9 * n {
             return Err(LicromError::shape("cubature_jacobians", format!("({k}, 9, {n})"), format!("{} values", inp.cubature_jacobians.len())));
@@ -114,7 +145,45 @@ impl ElasticTerm {
             cubature: CubatureLayout::new(inp.cubature_jacobians, inp.cubature_weights, &kept, n),
             vertices,
             material: inp.material,
+            kappa: inp.viscosity / effective_step,
         })
+    }
+
+    /// Whether the term has a material damping (it then needs a [`StrainAnchor`]).
+    pub fn damped(&self) -> bool {
+        self.kappa > 0.0
+    }
+
+    /// A zeroed anchor of the right size (empty without damping).
+    pub fn strain_anchor(&self) -> StrainAnchor {
+        StrainAnchor { c: vec![[0.0; LANES]; if self.damped() { 6 * self.cubature.groups() } else { 0 }] }
+    }
+
+    /// Sets `anchor` from the state `q` and, with a history weight w, the
+    /// previous one: `C = (1 + w) C(q) - w C(q_prev)` (nothing without damping).
+    pub fn set_anchor(&self, q: &[f64], previous: Option<(&[f64], f64)>, anchor: &mut StrainAnchor) {
+        if self.damped() {
+            dispatch(AnchorKernel { term: self, q, previous, anchor });
+        }
+    }
+
+    #[inline(always)]
+    fn set_anchor_impl<M: Madd>(&self, q: &[f64], previous: Option<(&[f64], f64)>, anchor: &mut StrainAnchor) {
+        let cub = &self.cubature;
+        let group_len = cub.group_len();
+        let terms = std::iter::once((q, 1.0, false)).chain(previous.map(|(p, w)| [(q, w, true), (p, -w, true)]).into_iter().flatten());
+        for (at, weight, add) in terms {
+            let f0 = cub.constant_deformation(at);
+            for (group, c) in cub.packed.chunks_exact(group_len).zip(anchor.c.chunks_exact_mut(6)) {
+                let f = cub.group_deformation::<M>(group, at, &f0);
+                for (out, &(i, j)) in c.iter_mut().zip(&SYM) {
+                    for l in 0..LANES {
+                        let v = weight * (f[i][l] * f[j][l] + f[3 + i][l] * f[3 + j][l] + f[6 + i][l] * f[6 + j][l]);
+                        out[l] = if add { out[l] + v } else { v };
+                    }
+                }
+            }
+        }
     }
 
     /// Number of cubature points K.
@@ -126,9 +195,10 @@ impl ElasticTerm {
     pub fn workspace(&self) -> ElasticWorkspace {
         let n = self.n;
         // Chunks of rows of about 256 KiB: they stay in cache between being
-        // written and being multiplied.
-        let chunk = (256 * 1024 / (9 * LANES * 8 * n)).clamp(1, self.cubature.groups().max(1));
-        let row_stride = 9 * LANES * chunk;
+        // written and being multiplied. Per point: nine eigenmodes, and the damping's six rows.
+        let per_point = if self.damped() { 15 } else { 9 };
+        let chunk = (256 * 1024 / (per_point * LANES * 8 * n)).clamp(1, self.cubature.groups().max(1));
+        let row_stride = per_point * LANES * chunk;
         let vertices = self.vertices.as_ref().map_or(0, |v| 3 * v.n_vertices(n));
         ElasticWorkspace {
             gradient: vec![0.0; n],
@@ -143,10 +213,62 @@ impl ElasticTerm {
         }
     }
 
-    /// The elastic energy at `q` (J) and, with `ws`, its gradient and the
-    /// smallest `det F` into `ws`.
-    pub fn evaluate(&self, q: &[f64], ws: Option<&mut ElasticWorkspace>) -> f64 {
-        dispatch(ElasticKernel { term: self, q, ws })
+    /// The elastic energy at `q` (J), plus the damping's against `anchor`
+    /// where given, and, with `ws`, its gradient and the smallest `det F` into `ws`.
+    pub fn evaluate(&self, q: &[f64], anchor: Option<&StrainAnchor>, ws: Option<&mut ElasticWorkspace>) -> f64 {
+        dispatch(ElasticKernel { term: self, q, anchor, ws })
+    }
+
+    /// The anchor's six components of group `g`, where the term is damped and `anchor` given.
+    #[inline(always)]
+    fn anchor_of<'a>(&self, anchor: Option<&'a StrainAnchor>, g: usize) -> Option<&'a [F8]> {
+        anchor.filter(|_| self.damped()).map(|a| &a.c[6 * g..6 * g + 6])
+    }
+
+    /// Adds the damping's energy density and stress (both per unit weight) at
+    /// the lanes' `f` against their anchor `c` to `psi` and `p`.
+    #[inline(always)]
+    fn add_damping(&self, f: &[F8; 9], c: &[F8], psi: &mut F8, p: &mut [F8; 9]) {
+        let k = self.kappa;
+        for l in 0..LANES {
+            let mut d = [[0.0; 3]; 3];
+            for (&(i, j), cij) in SYM.iter().zip(c) {
+                let v = 0.5 * (f[i][l] * f[j][l] + f[3 + i][l] * f[3 + j][l] + f[6 + i][l] * f[6 + j][l] - cij[l]);
+                d[i][j] = v;
+                d[j][i] = v;
+            }
+            let dd: f64 = d.iter().flatten().map(|v| v * v).sum();
+            psi[l] += 0.5 * k * dd;
+            for a in 0..3 {
+                for b in 0..3 {
+                    p[3 * a + b][l] += k * (f[3 * a][l] * d[0][b] + f[3 * a + 1][l] * d[1][b] + f[3 * a + 2][l] * d[2][b]);
+                }
+            }
+        }
+    }
+
+    /// The damping's six square-root rows' coefficients (in vec F, row-major) at
+    /// the lanes' `f` with weights `weights`, into `coef[..6]`.
+    #[inline(always)]
+    fn damping_rows(&self, f: &[F8; 9], weights: &[f64], coef: &mut [[F8; 9]; 9]) {
+        for (row, &(i, j)) in coef.iter_mut().zip(&SYM) {
+            for l in 0..LANES {
+                let s = (if i == j { 1.0 } else { 2.0 } * weights[l] * self.kappa).sqrt();
+                // dD_ij/dF_ab = (delta_bi F_aj + F_ai delta_bj)/2.
+                for a in 0..3 {
+                    for b in 0..3 {
+                        let mut v = 0.0;
+                        if b == i {
+                            v += f[3 * a + j][l];
+                        }
+                        if b == j {
+                            v += f[3 * a + i][l];
+                        }
+                        row[3 * a + b][l] = 0.5 * s * v;
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -219,17 +341,17 @@ impl ElasticTerm {
     /// `ws`: through the vertices where the term has their form, else through
     /// the Jacobians.
     #[inline(always)]
-    pub(crate) fn evaluate_impl<M: Madd>(&self, q: &[f64], ws: Option<&mut ElasticWorkspace>) -> f64 {
+    pub(crate) fn evaluate_impl<M: Madd>(&self, q: &[f64], anchor: Option<&StrainAnchor>, ws: Option<&mut ElasticWorkspace>) -> f64 {
         match &self.vertices {
-            Some(vertices) => self.elastic_vertices::<M>(vertices, q, ws),
-            None => self.elastic_points::<M>(q, ws),
+            Some(vertices) => self.elastic_vertices::<M>(vertices, q, anchor, ws),
+            None => self.elastic_points::<M>(q, anchor, ws),
         }
     }
 
     /// [`Self::evaluate_impl`] through the Jacobians, eight points at a time;
     /// the gradient into `ws.gradient`.
     #[inline(always)]
-    fn elastic_points<M: Madd>(&self, q: &[f64], ws: Option<&mut ElasticWorkspace>) -> f64 {
+    fn elastic_points<M: Madd>(&self, q: &[f64], anchor: Option<&StrainAnchor>, ws: Option<&mut ElasticWorkspace>) -> f64 {
         let (lane_grad, grad, min_det): (&mut [F8], &mut [f64], _) = match ws {
             Some(ws) => (&mut ws.lane_grad[..], &mut ws.gradient[..], Some(&mut ws.min_det)),
             None => (&mut [][..], &mut [][..], None),
@@ -250,7 +372,10 @@ impl ElasticTerm {
             if with_gradient {
                 lowest_dets(&f, weights, &mut low);
             }
-            let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            let (mut psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            if let Some(c) = self.anchor_of(anchor, g) {
+                self.add_damping(&f, c, &mut psi, &mut p);
+            }
             for l in 0..LANES {
                 elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
             }
@@ -291,7 +416,13 @@ impl ElasticTerm {
     /// stresses (into `ws.gradient`). Without `ws` the `u_v` are formed per
     /// point, by the same products, so the energy is the same to the last bit.
     #[inline(always)]
-    fn elastic_vertices<M: Madd>(&self, vertices: &VertexLayout, q: &[f64], mut ws: Option<&mut ElasticWorkspace>) -> f64 {
+    fn elastic_vertices<M: Madd>(
+        &self,
+        vertices: &VertexLayout,
+        q: &[f64],
+        anchor: Option<&StrainAnchor>,
+        mut ws: Option<&mut ElasticWorkspace>,
+    ) -> f64 {
         let n = self.n;
         if let Some(ws) = ws.as_deref_mut() {
             for (v, u) in ws.vertex_u.chunks_exact_mut(3).enumerate() {
@@ -329,7 +460,10 @@ impl ElasticTerm {
             if track {
                 lowest_dets(&f, weights, &mut low);
             }
-            let (psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            let (mut psi, mut p) = self.material.energy_stress_lanes::<M>(&f, true);
+            if let Some(c) = self.anchor_of(anchor, g) {
+                self.add_damping(&f, c, &mut psi, &mut p);
+            }
             for l in 0..LANES {
                 elastic[l] = M::madd(weights[l], psi[l], elastic[l]);
             }
@@ -366,8 +500,8 @@ impl ElasticTerm {
     }
 
     /// Elastic part of the Hessian at `q`: the PSD projection (negative
-    /// eigenvalues of every point's SNH Hessian clamped to zero) into
-    /// `projected`, and what the clamping removed (PSD) into `clamped` when
+    /// eigenvalues of every point's SNH Hessian clamped to zero), plus the
+    /// damping's Gauss-Newton part where the term is damped, into `projected`, and what the clamping removed (PSD) into `clamped` when
     /// given, both n x n full symmetric. Returns whether anything was clamped.
     pub fn hessian(&self, q: &[f64], ws: &mut ElasticWorkspace, projected: &mut [f64], mut clamped: Option<&mut [f64]>) -> bool {
         let n = self.n;
@@ -408,6 +542,7 @@ impl ElasticTerm {
         let mut vectors = [[Lanes::splat(0.0); 9]; 9];
         let mut pos_coef = [[[0.0; LANES]; 9]; 9];
         let mut neg_coef = [[[0.0; LANES]; 9]; 9];
+        let mut damp_coef = [[[0.0; LANES]; 9]; 9];
         let packed = &cub.packed[range.start * group_len..range.end * group_len];
         let packed_weights = &cub.weights[range.start * LANES..range.end * LANES];
         for (g, weights) in packed_weights.chunks_exact(LANES).enumerate() {
@@ -465,6 +600,18 @@ impl ElasticTerm {
             }
             positive += n_pos * LANES;
             negative += n_neg * LANES;
+            if self.damped() {
+                self.damping_rows(&f, weights, &mut damp_coef);
+                let counts = [(6, positive), (0, 0)];
+                for (g, &c) in group.chunks_exact(9 * LANES).zip(&cub.var_cols) {
+                    let gs = std::array::from_fn(|a| widened_at(g, a * LANES));
+                    write_rows::<M>(c * stride, &gs, [&damp_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
+                }
+                for (c, v) in &cub.const_cols {
+                    write_rows::<M>(*c * stride, &v.map(|x| [x; LANES]), [&damp_coef, &neg_coef], counts, [&mut ws.rows, &mut ws.clamped_rows]);
+                }
+                positive += 6 * LANES;
+            }
         }
         (positive, negative)
     }
@@ -496,6 +643,7 @@ impl WithMadd for ElasticRowsKernel<'_> {
 struct ElasticKernel<'a> {
     term: &'a ElasticTerm,
     q: &'a [f64],
+    anchor: Option<&'a StrainAnchor>,
     ws: Option<&'a mut ElasticWorkspace>,
 }
 
@@ -503,6 +651,21 @@ impl WithMadd for ElasticKernel<'_> {
     type Output = f64;
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
-        self.term.evaluate_impl::<M>(self.q, self.ws)
+        self.term.evaluate_impl::<M>(self.q, self.anchor, self.ws)
+    }
+}
+
+struct AnchorKernel<'a> {
+    term: &'a ElasticTerm,
+    q: &'a [f64],
+    previous: Option<(&'a [f64], f64)>,
+    anchor: &'a mut StrainAnchor,
+}
+
+impl WithMadd for AnchorKernel<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<M: Madd>(self) {
+        self.term.set_anchor_impl::<M>(self.q, self.previous, self.anchor)
     }
 }

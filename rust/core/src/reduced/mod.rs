@@ -33,7 +33,7 @@ mod workspace;
 mod tests;
 
 pub use contact::ContactHessian;
-pub use elastic::{ElasticInputs, ElasticModel, ElasticTerm, ElasticWorkspace};
+pub use elastic::{ElasticInputs, ElasticModel, ElasticTerm, ElasticWorkspace, StrainAnchor};
 pub use workspace::Workspace;
 
 use crate::contact_points::{ContactInputs, ContactPoints};
@@ -84,12 +84,14 @@ pub struct ReducedSystem {
 }
 
 /// Quantities fixed at the start of a step: the anchor `q_a`, the inertial
-/// target `qt = q_a + h' qdot_a` ([`crate::integrator`]), the contact points'
-/// anchor positions and lagged normal forces.
+/// target `qt = q_a + h' qdot_a` ([`crate::integrator`]), the anchor strain
+/// of the material damping ([`StrainAnchor`]), the contact points' anchor positions and
+/// lagged normal forces.
 #[derive(Debug, Clone)]
 pub struct StepStart {
     q: Vec<f64>,
     qtilde: Vec<f64>,
+    strain: StrainAnchor,
     x_prev: Vec<f64>,
     normal_force: Vec<f64>,
     /// `-f . qt`: the part of E that does not depend on q, left out of
@@ -131,7 +133,7 @@ impl ReducedSystem {
         check_finite("mass", inp.mass)?;
         check_finite("gravity_force", inp.gravity_force)?;
         check_positive("dt", inp.dt)?;
-        let elastic = ElasticTerm::new(&inp.elastic, n)?;
+        let elastic = ElasticTerm::new(&inp.elastic, n, inp.integrator.effective_step(inp.dt))?;
         let points = ContactPoints::new(&inp.contact, n, inp.integrator.effective_step(inp.dt))?;
         let c = &inp.contact;
         Ok(Self {
@@ -207,6 +209,7 @@ impl ReducedSystem {
         StepStart {
             q: vec![0.0; self.n],
             qtilde: vec![0.0; self.n],
+            strain: self.elastic.strain_anchor(),
             x_prev: vec![0.0; 3 * c],
             normal_force: vec![0.0; c * self.points.planes().len()],
             offset: 0.0,
@@ -237,6 +240,7 @@ impl ReducedSystem {
             *t = qa + h * *t;
         }
         start.offset = -dot::<M>(&self.gravity, &start.qtilde);
+        self.elastic.set_anchor(q, previous.filter(|_| w != 0.0).map(|(q_prev, _)| (q_prev, w)), &mut start.strain);
         self.begin_contacts::<M>(q, start);
     }
 
@@ -286,31 +290,32 @@ impl ReducedSystem {
         let mut e = 0.5 * inertia * inv_h2 - work;
         let elastic_energy = match (model, ws.as_deref_mut()) {
             (Some(m), ws) => m.evaluate::<M>(q, ws.map(|ws| &mut ws.grad[..])),
-            (None, ws) => self.elastic_impl::<M>(q, ws),
+            (None, ws) => self.elastic_impl::<M>(q, Some(&start.strain), ws),
         };
         e += elastic_energy;
         (e + self.contact_energy_impl::<M>(start, q, ws), elastic_energy)
     }
 
-    /// The elastic energy `sum_k w_k Psi(F_k(q))` alone (J) and, with
-    /// `with_gradient`, its gradient into `ws.grad`.
+    /// The elastic energy `sum_k w_k Psi(F_k(q))` alone (J), without the
+    /// material damping, and, with `with_gradient`, its gradient into `ws.grad`.
     pub fn elastic(&self, q: &[f64], with_gradient: bool, ws: &mut Workspace) -> f64 {
         if !with_gradient {
-            return self.elastic.evaluate(q, None);
+            return self.elastic.evaluate(q, None, None);
         }
-        let e = self.elastic.evaluate(q, Some(&mut ws.elastic));
+        let e = self.elastic.evaluate(q, None, Some(&mut ws.elastic));
         ws.grad.copy_from_slice(ws.elastic.gradient());
         e
     }
 
-    /// Elastic energy and, with `ws`, its gradient added to `ws.grad` (and
-    /// kept in `ws`) and the smallest `det F` into `ws.validity`.
+    /// Elastic energy (with the damping's against `strain`) and, with `ws`, its
+    /// gradient added to `ws.grad` (and kept in `ws`) and the smallest `det F`
+    /// into `ws.validity`.
     #[inline(always)]
-    fn elastic_impl<M: Madd>(&self, q: &[f64], ws: Option<&mut Workspace>) -> f64 {
+    fn elastic_impl<M: Madd>(&self, q: &[f64], strain: Option<&StrainAnchor>, ws: Option<&mut Workspace>) -> f64 {
         let Some(ws) = ws else {
-            return self.elastic.evaluate_impl::<M>(q, None);
+            return self.elastic.evaluate_impl::<M>(q, strain, None);
         };
-        let e = self.elastic.evaluate_impl::<M>(q, Some(&mut ws.elastic));
+        let e = self.elastic.evaluate_impl::<M>(q, strain, Some(&mut ws.elastic));
         ws.validity.min_det = ws.elastic.min_det();
         for (g, e) in ws.grad.iter_mut().zip(ws.elastic.gradient()) {
             *g += e;

@@ -399,3 +399,77 @@ fn vertex_form_that_does_not_reproduce_the_jacobians_is_rejected() {
     let err = inputs(&vertex_basis[..10], &tet_vertices).unwrap_err().to_string();
     assert!(err.contains("cubature_vertex_basis"), "{err}");
 }
+
+/// The material damping `sum_k w_k kappa/2 |D_k|^2` (`kappa = eta/h`, `D = (F^T F - C_a)/2`): its energy
+/// against a naive sum, its gradient against finite differences, its Hessian rows against finite
+/// differences at the anchor (where the Gauss-Newton part is the whole Hessian), and the vertex form
+/// against the Jacobians.
+#[test]
+fn material_damping_matches_a_naive_sum_and_finite_differences() {
+    let eta = 400.0;
+    let damped_scene =
+        BlockScene { learned_modes: 3, cubature_points: 7, contact_points: 9, normal_damping: 5.0e3, seed: 3, viscosity: eta, ..Default::default() };
+    let model = damped_scene.build().unwrap();
+    let plain_model = BlockScene { viscosity: 0.0, ..damped_scene }.build().unwrap();
+    let sys = ReducedSystem::new(&model.inputs()).unwrap();
+    let plain = ReducedSystem::new(&plain_model.inputs()).unwrap();
+    assert!(sys.elastic.damped() && !plain.elastic.damped());
+    let (start, q0, qdot) = sliding_start(&model, &sys);
+    let (plain_start, _, _) = sliding_start(&plain_model, &plain);
+    let n = sys.n_dofs();
+    let h = model.scene.dt;
+    let mut rng = Rng::new(12);
+    let q: Vec<f64> = (0..n).map(|i| q0[i] + h * qdot[i] + 0.02 * rng.uniform()).collect();
+    // Energy: the difference is the naive sum over the points (Jacobians as stored, in f32).
+    let stored: Vec<f64> = model.terms.cubature_jacobians.iter().map(|&v| f64::from(v as f32)).collect();
+    let naive: f64 = stored
+        .chunks_exact(9 * n)
+        .zip(&model.terms.cubature_weights)
+        .map(|(g, w)| {
+            let (f, fa) = (deformation_gradient(g, &q), deformation_gradient(g, &q0));
+            let d = 0.5 * (f.transpose() * f - fa.transpose() * fa);
+            w * eta / h * 0.5 * d.norm_squared()
+        })
+        .sum();
+    let diff = sys.energy(&start, &q) - plain.energy(&plain_start, &q);
+    assert!(naive > 0.0 && (diff - naive).abs() < 1e-10 * naive, "damping energy {diff} vs naive {naive}");
+    // Gradient of the whole E against finite differences.
+    let mut ws = sys.workspace();
+    sys.assemble(&start, &q, Hessian::Projected, &mut ws);
+    let fd = fd_gradient(|x| sys.energy(&start, x), &q, 1e-8);
+    assert!(rel_err(&ws.grad, &fd, 1e-6) < 1e-5, "gradient vs FD: {}", rel_err(&ws.grad, &fd, 1e-6));
+    // At the anchor the damping's Hessian is its Gauss-Newton part: the assembled difference against FD of the gradients' difference.
+    let at = q0.clone();
+    let (mut wd, mut wp) = (sys.workspace(), plain.workspace());
+    sys.assemble(&start, &at, Hessian::Projected, &mut wd);
+    plain.assemble(&plain_start, &at, Hessian::Projected, &mut wp);
+    let hess_diff: Vec<f64> = wd.hess.iter().zip(&wp.hess).map(|(a, b)| a - b).collect();
+    let fd_h: Vec<f64> = fd_jacobian(
+        |x| {
+            let (mut a, mut b) = (sys.workspace(), plain.workspace());
+            sys.assemble(&start, x, Hessian::None, &mut a);
+            plain.assemble(&plain_start, x, Hessian::None, &mut b);
+            a.grad.iter().zip(&b.grad).map(|(u, v)| u - v).collect()
+        },
+        &at,
+        1e-7,
+    )
+    .into_iter()
+    .flatten()
+    .collect();
+    let scale = hess_diff.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    assert!(scale > 0.0 && rel_err(&hess_diff, &fd_h, 1e-6) < 1e-5, "damping Hessian vs FD: {}", rel_err(&hess_diff, &fd_h, 1e-6));
+    // The elastic energy alone leaves the damping out.
+    assert_eq!(sys.elastic(&q, false, &mut sys.workspace()), plain.elastic(&q, false, &mut plain.workspace()));
+}
+
+#[test]
+fn negative_or_nonfinite_viscosity_is_rejected() {
+    for eta in [-1.0, f64::NAN, f64::INFINITY] {
+        let model = small_block(2, 5, 4);
+        let inputs = model.inputs();
+        let elastic = ElasticInputs { viscosity: eta, ..inputs.elastic };
+        let err = ReducedSystem::new(&ReducedInputs { elastic, ..inputs }).unwrap_err().to_string();
+        assert!(err.contains("viscosity"), "{err}");
+    }
+}
