@@ -178,6 +178,16 @@ fn newton_pieces(c: &mut Criterion) {
         })
     });
     group.bench_function("gradient_and_projected_hessian", |b| b.iter(|| sys.assemble(&start, black_box(&trial), Hessian::Projected, &mut ws)));
+    // The same with a material damping (Kelvin-Voigt, 400 Pa s): its stress per point, and six more Hessian rows.
+    let damped = BlockScene { learned_modes: 20, cubature_points: 1000, contact_points: 1000, viscosity: 400.0, ..Default::default() }
+        .build()
+        .expect("valid synthetic scene");
+    let sys = ReducedSystem::new(&damped.inputs()).expect("valid system");
+    let mut start = sys.step_start();
+    sys.begin_step(&q, &qdot, None, &mut start);
+    let mut ws = sys.workspace();
+    group.bench_function("energy_and_gradient_damped", |b| b.iter(|| black_box(sys.evaluate(&start, black_box(&trial), true, &mut ws))));
+    group.bench_function("elastic_hessian_projected_damped", |b| b.iter(|| sys.elastic_hessian(black_box(&trial), &mut ws, &mut hess, None)));
     group.finish();
 }
 

@@ -98,6 +98,7 @@ def test_initial_state_is_rigid():
         (lambda: Material(youngs_modulus=-1.0), r"youngs_modulus .* must be > 0"),
         (lambda: Material(poisson_ratio=0.5), r"poisson_ratio must be in \(-1, 0.5\)"),
         (lambda: Material(density=float("nan")), "must be finite"),
+        (lambda: Material(viscosity=-1.0), r"viscosity \(Pa s\) must be >= 0"),
         (lambda: Plane(normal=(0, 0, 0)), "non-zero vector"),
         (lambda: Plane(friction=-0.1), "friction must be >= 0"),
         (lambda: ContactParams(normal_stiffness=0), "normal_stiffness .* must be > 0"),
@@ -117,6 +118,13 @@ def test_a_scene_saved_before_the_reduced_tolerance_loads_with_its_default():
     del d["solver"]["reduced_tolerance"]
     back = Scene.from_json(json.dumps(d))
     assert back.solver.tolerance == 1e-7 and back.solver.reduced_tolerance == SolverParams().reduced_tolerance
+
+
+def test_a_scene_saved_before_the_viscosity_loads_undamped():
+    d = Scene(material=Material(viscosity=400.0)).to_dict()
+    assert Scene.from_json(json.dumps(d)).material.viscosity == 400.0
+    del d["material"]["viscosity"]
+    assert Scene.from_json(json.dumps(d)).material.viscosity == 0.0
 
 
 def test_unknown_scene_version():

@@ -57,6 +57,7 @@ def test_defaults_of_a_minimal_file(tmp_path):
     (MINIMAL + "[material]\npoisson_ratio = 0.5", r"material.poisson_ratio must be a number in \(-1, 0.5\), got 0.5"),
     (MINIMAL + "[material]\ndensity = true", "material.density must be a number > 0"),
     (MINIMAL + "[material]\nyoungs_modulus = 'soft'", "material.youngs_modulus must be a number > 0 \\(Pa\\)"),
+    (MINIMAL + "[material]\nviscosity = -400.0", r"material.viscosity must be a number >= 0 \(Pa s\)"),
     (MINIMAL + "[contact]\nnormal_damping = -1.0", "contact.normal_damping must be a number >= 0"),
     (MINIMAL + "[solver]\non_failure = 'ignore'", "solver.on_failure must be one of 'raise', 'record'"),
     (MINIMAL + "[solver]\nreduced_tolerance = -1e-4", "solver.reduced_tolerance"),
@@ -157,11 +158,12 @@ def test_demo_scene_file_is_the_old_demo_config():
 
 
 def test_overrides_replace_and_check_values():
-    s = load_scene("cheese").overridden(mesh="box:3", youngs_modulus=2e5, poisson_ratio=0.4, density=500.0, frictions=(0.2,),
-                                        slopes=(15.0,), dt=0.005, steps=7, record_every=7)
+    s = load_scene("cheese").overridden(mesh="box:3", youngs_modulus=2e5, poisson_ratio=0.4, density=500.0, viscosity=400.0,
+                                        frictions=(0.2,), slopes=(15.0,), dt=0.005, steps=7, record_every=7)
     assert s.object.mesh == "box" and s.object.resolution == 3
     m = s.scene.material
-    assert (m.youngs_modulus, m.poisson_ratio, m.density, s.scene.dt, s.steps, s.record_every) == (2e5, 0.4, 500.0, 0.005, 7, 7)
+    assert (m.youngs_modulus, m.poisson_ratio, m.density, m.viscosity, s.scene.dt, s.steps, s.record_every) == (2e5, 0.4, 500.0, 400.0, 0.005, 7, 7)
+    assert "viscosity 400 Pa s" in s.summary()
     assert s.n_runs == 1 and s.dataset_spec().scenes()[0].planes[0] == Plane.incline(15.0, 0.2)
     with pytest.raises(ConfigError, match=r"slope 95 must be a number in \[0, 90\)"):
         load_scene("cheese").overridden(slopes=(95,))
@@ -178,9 +180,10 @@ def test_cli_generate_takes_a_scene_file_and_flags(tmp_path, capsys):
 
     scene = _write(tmp_path, MINIMAL + "[sweep]\nfrictions = [0.1, 0.9]\nslopes = [20.0]\n[time]\nsteps = 2\n")
     out = tmp_path / "data"
-    assert main(["generate", str(out), "--scene", str(scene), "--density", "800", "--slope", "25", "-q"]) == 0
+    assert main(["generate", str(out), "--scene", str(scene), "--density", "800", "--viscosity", "50", "--slope", "25", "-q"]) == 0
     assert "2 trajectories x 2 steps" in capsys.readouterr().out
     m = json.loads((out / MANIFEST_NAME).read_text())
+    assert m["base_scene"]["material"]["viscosity"] == 50.0
     assert m["base_scene"]["material"]["density"] == 800.0 and [t["slope_deg"][0] for t in m["trajectories"]] == pytest.approx([25.0, 25.0])
     bad = _write(tmp_path, MINIMAL + "[[planes]]\nfriction = -1.0", "bad.toml")
     assert main(["generate", str(out), "--scene", str(bad)]) == 2

@@ -195,6 +195,8 @@ def scene_command(source, output, mesh_file) -> None:
 @click.option("--youngs-modulus", "-E", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Young's modulus in Pa.")
 @click.option("--poisson-ratio", type=click.FloatRange(-1, 0.5, min_open=True, max_open=True), default=None, show_default="the scene's", help="Poisson ratio in (-1, 0.5).")
 @click.option("--density", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Density in kg/m^3.")
+@click.option("--viscosity", type=click.FloatRange(min=0), default=None, show_default="the scene's",
+              help="Material damping: Kelvin-Voigt viscosity in Pa s (0: none).")
 @click.option("--friction", "--mu", type=FRICTION, multiple=True, show_default="the scene's", help="Friction sweep: Coulomb coefficient (repeatable).")
 @click.option("--slope", type=SLOPE, multiple=True, show_default="the scene's", help="Slope sweep: first plane's incline in degrees, [0, 90) (repeatable).")
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Time step in s.")
@@ -207,7 +209,7 @@ def scene_command(source, output, mesh_file) -> None:
 @click.option("--ray-timeout", type=click.FloatRange(min=0, min_open=True), default=None,
               show_default="LICROM_RAY_TIMEOUT, else 30", help="Seconds to wait for the Ray cluster at RAY_ADDRESS to answer.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modulus, poisson_ratio, density, friction, slope,
+def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modulus, poisson_ratio, density, viscosity, friction, slope,
                      dt, steps, record_every, device, executor, jobs, ray_timeout, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
@@ -225,7 +227,7 @@ def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modu
     where = f"{n_jobs} process{'es' if n_jobs > 1 else ''}" if executor == "local" else "Ray"
     scene = load_scene(scene_source).overridden(
         mesh=mesh_source, resolution=resolution, youngs_modulus=youngs_modulus, poisson_ratio=poisson_ratio, density=density,
-        frictions=friction or None, slopes=slope or None, dt=dt, steps=steps, record_every=record_every,
+        viscosity=viscosity, frictions=friction or None, slopes=slope or None, dt=dt, steps=steps, record_every=record_every,
     )
     spec = scene.dataset_spec()
     click.echo(f"scene {spec.name} ({scene.source}): {spec.description}".rstrip(": "))
