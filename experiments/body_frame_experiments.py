@@ -229,15 +229,16 @@ def _close(a, b) -> bool:
     return a == b
 
 
-def full_run(work: Path, name: str, mesh: licrom.Mesh, scene: Scene, steps: int) -> Trajectory:
-    """The full-space run, from the cache when it holds this scene and step count."""
+def full_run(work: Path, name: str, mesh: licrom.Mesh, scene: Scene, steps: int, record_every: int = 1) -> Trajectory:
+    """The full-space run (a frame every ``record_every`` steps), from the cache when it holds this scene and step count."""
     path = work / "full" / f"{name}.npz"
     if path.exists():
         traj = Trajectory.load(path)
-        if _close(traj.scene.to_dict(), scene.to_dict()) and traj.n_frames == steps + 1 and traj.rest_positions.shape == mesh.vertices.shape:
+        if (_close(traj.scene.to_dict(), scene.to_dict()) and traj.n_frames == steps // record_every + 1
+                and traj.rest_positions.shape == mesh.vertices.shape):
             return traj
     t0 = time.perf_counter()
-    traj = licrom.FullSim(mesh, scene).run(steps)  # looked up here: warp loads only when a run is not cached
+    traj = licrom.FullSim(mesh, scene).run(steps, record_every=record_every)  # looked up here: warp loads only when a run is not cached
     traj.save(path, precision="float64")
     print(f"  full {name}: {mesh.n_tets} tets, {steps} steps in {time.perf_counter() - t0:.1f} s "
           f"({traj.iterations.mean():.1f} Newton its/step)", flush=True)

@@ -50,7 +50,7 @@ from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
 from licrom.analysis.compare import first_contact_frame
 from licrom.learn.training import TrainConfig
-from licrom.scene.scene import SolverParams
+from licrom.scene.scene import INTEGRATORS, SolverParams
 from licrom.subspace.body_basis import BodyFrameBasis
 from truth_convergence import sampled_nonrigid, sampled_positions
 
@@ -72,8 +72,9 @@ def cheese(resolution: int) -> bfe.Family:
 
 def truths(cache: Path, fam: bfe.Family, cases: list[bfe.Case], steps: int) -> dict[str, tuple[Trajectory, Trajectory]]:
     """Each case's full run and its noise-floor run (dropped 0.1 mm higher) on the family's mesh, cached under ``cache``."""
-    return {c.name: (bfe.full_run(cache, c.name, fam.mesh, c.scene, steps),
-                     bfe.full_run(cache, c.name + "_nudged", fam.mesh, bfe.nudged(c.scene), steps)) for c in cases}
+    every = fam.record_every
+    return {c.name: (bfe.full_run(cache, c.name, fam.mesh, c.scene, steps, every),
+                     bfe.full_run(cache, c.name + "_nudged", fam.mesh, bfe.nudged(c.scene), steps, every)) for c in cases}
 
 
 def difference(ref: Samples, other: Samples, weights: np.ndarray, start: int, size: float) -> dict:
@@ -82,14 +83,15 @@ def difference(ref: Samples, other: Samples, weights: np.ndarray, start: int, si
     return {"nonrigid": sampled_nonrigid(ref, other, weights, start), "com": float(np.linalg.norm(com[1] - com[0]) / size)}
 
 
-def reduced_run(model: Model, case: bfe.Case, steps: int, mesh=None) -> tuple[Trajectory, dict]:
-    """``ReducedSim(model, scene=case.scene, mesh=mesh)`` run for ``steps``, with its setup time and cubature size."""
+def reduced_run(model: Model, case: bfe.Case, steps: int, mesh=None, record_every: int = 1) -> tuple[Trajectory, dict]:
+    """``ReducedSim(model, scene=case.scene, mesh=mesh)`` run for ``steps`` (a frame every ``record_every``), with its
+    setup time and cubature size."""
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the error estimate's AccuracyWarning: its value is recorded
         sim = ReducedSim(model, scene=case.scene, mesh=mesh)
         setup = time.perf_counter() - t0
-        traj = sim.run(steps)
+        traj = sim.run(steps, record_every=record_every)
     est = traj.error_estimate
     return traj, {"setup_s": setup, "cubature": sim.cubature.count, "estimate": float(est[-1]) if len(est) else float("nan")}
 
@@ -99,12 +101,13 @@ def slides(traj: Trajectory) -> bool:
     return bfe.run_metrics(traj, traj)["slides"]
 
 
-def own_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]], cases: list[bfe.Case], steps: int) -> list[dict]:
+def own_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]], cases: list[bfe.Case], steps: int,
+                  record_every: int = 1) -> list[dict]:
     """(d): the model on its training mesh against that mesh's full runs (``train``: full and noise-floor runs by case)."""
     rows = []
     for case in cases:
         full, nudged = train[case.name]
-        reduced, info = reduced_run(model, case, steps)
+        reduced, info = reduced_run(model, case, steps, record_every=record_every)
         rows.append({"name": case.name, "kind": case.kind, "tets": full.mesh.n_tets, "floor": bfe.run_metrics(full, nudged),
                      "model": bfe.run_metrics(full, reduced), **info})
         print(f"training mesh {case.name}: non-rigid {bfe._pct(rows[-1]['model']['nonrigid_error'])}, "
@@ -126,7 +129,7 @@ def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]
     rows = []
     for case in cases:
         full, nudged = own_truths[case.name]
-        reduced, info = reduced_run(model, case, steps, mesh=mesh)
+        reduced, info = reduced_run(model, case, steps, mesh=mesh, record_every=fam.record_every)
         start, size = first_contact_frame(full) or 0, mesh.size
         own, red = sampled_positions(full, mesh.vertices), sampled_positions(reduced, mesh.vertices)
         trained = sampled_positions(train[case.name][0], mesh.vertices)
@@ -176,10 +179,16 @@ def _ratio(x: float) -> str:
 def report(result: dict) -> str:
     """The section's tables and summary lines from the measured ``result``."""
     model, train = result["model"], result["training_mesh"]
-    out = [f"Model: `{model['path']}` (section 11's `licrom train` defaults model: r = {model['r']}, trained on the "
-           f"{model['tets']}-tet cheese, {model['cubature']} fitted cubature tets). Held-out scenes of section 10, {result['steps']} steps of "
-           f"h = {1e3 * result['dt']:g} ms (backward Euler), built with the same placement code on each mesh. Full runs: warp on this machine's CPU "
-           "(2 shared cores); those of the training mesh and of the 864-tet mesh are the cached runs of sections 10-11.",
+    damped = bool(result.get("viscosity"))
+    physics = (f"{result.get('integrator', 'backward_euler')}, material viscosity {result['viscosity']:g} Pa s: section 12's converged truth"
+               if damped else "backward Euler")
+    where = ("Full runs: warp on the GPU of the machine named above." if damped else
+             "Full runs: warp on this machine's CPU (2 shared cores); those of the training mesh and of the 864-tet mesh are the "
+             "cached runs of sections 10-11.")
+    out = [f"Model: `{model['path']}` ({'`licrom train` defaults' if damped else 'section 11' + chr(39) + 's `licrom train` defaults model'}: "
+           f"r = {model['r']}, trained on the {model['tets']}-tet cheese, {model['cubature']} fitted cubature tets). Held-out scenes of "
+           f"section 10, {result['steps']} steps of h = {1e3 * result['dt']:g} ms ({physics}), built with the same placement code on "
+           f"each mesh. {where}",
            "", "Measured at the other mesh M's vertices, weighted by M's lumped masses: the training mesh's full run is interpolated "
            "there (barycentric, containing tet of its own mesh). Non-rigid: each frame's best rigid fit removed, from M's first "
            "contact; COM: final centre of mass, distance over M's size. (a) the model on M (`ReducedSim(model, scene=scene, "
@@ -254,6 +263,10 @@ def main() -> None:
     ap.add_argument("--record-unconverged", action="store_true",
                     help="full runs record unconverged steps instead of stopping (SolverParams(on_failure='record'), as at 100k tets)")
     ap.add_argument("--truths-only", action="store_true", help="run and cache the full runs of every mesh, then stop (no model needed)")
+    ap.add_argument("--time-step", type=float, default=None, help="h of every run, s (default the family's 10 ms; frames every 10 ms)")
+    ap.add_argument("--integrator", choices=INTEGRATORS, default=None, help="of every run (default the family's backward Euler)")
+    ap.add_argument("--viscosity", type=float, default=0.0, help="the material's Kelvin-Voigt viscosity, Pa s (section 12: 400 converges the truth)")
+    ap.add_argument("--section", default=SECTION_TITLE, help="title of the docs section written")
     args = ap.parse_args()
     t_start = time.perf_counter()
     work = args.work / "small" if args.small else args.work
@@ -266,6 +279,9 @@ def main() -> None:
 
     def family(resolution: int) -> bfe.Family:
         fam = cheese(resolution)
+        if args.time_step or args.viscosity or args.integrator:
+            base = fam.cases[0].scene
+            fam = bfe.with_physics(fam, args.time_step or base.dt, args.integrator or base.integrator, args.viscosity)
         if not args.record_unconverged:
             return fam
         record = SolverParams(on_failure="record")
@@ -285,9 +301,10 @@ def main() -> None:
         raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} cheese {train_fam.mesh.n_tets}: "
                          "pass its --training-resolution")
     train = truths(cache(train_res), train_fam, cases, steps)
-    result = {"steps": steps, "dt": cases[0].scene.dt,
+    result = {"steps": steps, "dt": cases[0].scene.dt, "integrator": cases[0].scene.integrator,
+              "viscosity": cases[0].scene.material.viscosity,
               "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
-              "training_mesh": own_mesh_rows(model, train, cases, steps), "other_meshes": []}
+              "training_mesh": own_mesh_rows(model, train, cases, steps, train_fam.record_every), "other_meshes": []}
     names = {c.name for c in cases}
     full_runs = {train_fam.mesh.n_tets: {k: v[0] for k, v in train.items()}}
     for res in resolutions:
@@ -304,9 +321,9 @@ def main() -> None:
         tmp.write_text(json.dumps(result, indent=1, default=float))
     if args.small:
         return
-    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\n`python experiments/cross_mesh.py` (issue 24, part 4) on "
+    bfe.write_section(args.docs, f"{args.section}\n\n`python experiments/cross_mesh.py` (issue 24, part 4) on "
                       f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {result['wall_s']:.0f} s "
-                      "(full runs read from the cache where present).\n\n" + text + "\n", SECTION_TITLE)
+                      "(full runs read from the cache where present).\n\n" + text + "\n", args.section)
 
 
 if __name__ == "__main__":
