@@ -14,7 +14,11 @@ size of the training frames). The cheese is also run with the naive and the full
 Each reduced run's online error estimate (``Trajectory.error_estimate``) stands beside its true non-rigid
 error, with Spearman's rho over all runs and the runs the ``AccuracyWarning`` threshold flags.
 
-Writes ``--work/defaults.json`` and section 11 of ``docs/results.md`` (``--small``: neither under --docs).
+``--converged`` runs every family at a converged truth (section 12): the material's Kelvin-Voigt viscosity
+400 Pa s and BDF2 at ``CONVERGED_STEPS`` (1 ms; the ball 0.5 ms), frames every 10 ms; the models are then
+trained on such runs, and the section written is 17.
+
+Writes ``--work/defaults.json`` and section 11 (17) of ``docs/results.md`` (``--small``: neither under --docs).
 """
 
 from __future__ import annotations
@@ -39,16 +43,26 @@ from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.subspace.basis import RUN_BALANCE
 
 SECTION_TITLE = "## 11. At defaults: what `licrom train` and `ReducedSim(model)` give"
+CONVERGED_TITLE = "## 17. At defaults, against a converged truth"
+CONVERGED_VISCOSITY = 400.0  # Pa s
+CONVERGED_STEPS = {"cheese": 0.001, "box": 0.001, "sphere": 0.0005}  # s, BDF2: within 2 % / 5 % of h -> 0 (section 12)
+CONVERGED = False  # set by --converged
 
 
-def reduced_run(model: Model, case: bfe.Case, full, steps: int, **options) -> dict:
+def family(name: str, small: bool) -> bfe.Family:
+    """The family ``name`` of ``body_frame_experiments``, at a converged truth with ``--converged``."""
+    fam = bfe.FAMILIES[name](small)
+    return bfe.with_physics(fam, CONVERGED_STEPS[name], "bdf2", CONVERGED_VISCOSITY) if CONVERGED else fam
+
+
+def reduced_run(model: Model, case: bfe.Case, full, steps: int, record_every: int = 1, **options) -> dict:
     """``ReducedSim(model, scene=case.scene, **options)`` against the full run: metrics, error estimate, setup time."""
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the estimate's AccuracyWarning is reported in the table
         sim = ReducedSim(model, scene=case.scene, **options)
         setup = time.perf_counter() - t0
-        reduced = sim.run(steps)
+        reduced = sim.run(steps, record_every=record_every)
     metrics = bfe.run_metrics(full, reduced)
     est = reduced.error_estimate
     return {**metrics, "estimate": float(est[-1]) if len(est) else float("nan"), "cubature": sim.cubature.count,
@@ -56,8 +70,9 @@ def reduced_run(model: Model, case: bfe.Case, full, steps: int, **options) -> di
 
 
 def family_rows(name: str, model: Model, work: Path, small: bool) -> list[dict]:
-    fam = bfe.FAMILIES[name](small)
-    train = [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps) for c in fam.training]
+    fam = family(name, small)
+    every = fam.record_every
+    train = [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, every) for c in fam.training]
     setting = bfe.Setting(fam, train, work / "models", 1)
     r = model.n_learned
     cases = list(fam.held_out)
@@ -67,15 +82,15 @@ def family_rows(name: str, model: Model, work: Path, small: bool) -> list[dict]:
         cases.append(bfe.Case(f"{first.name}_E10k", f"softer (E = 10 kPa): {first.kind}", True, soft))
     rows = []
     for case in cases:
-        full = bfe.full_run(work, case.name, fam.mesh, case.scene, fam.steps)
-        floor = bfe.run_metrics(full, bfe.full_run(work, case.name + "_nudged", fam.mesh, bfe.nudged(case.scene), fam.steps))
+        full = bfe.full_run(work, case.name, fam.mesh, case.scene, fam.steps, every)
+        floor = bfe.run_metrics(full, bfe.full_run(work, case.name + "_nudged", fam.mesh, bfe.nudged(case.scene), fam.steps, every))
         chaotic = max(floor["nonrigid_error"], floor["com_error"]) > bfe.CHAOTIC_FLOOR
         bounds = {"learned": bfe.body_projection_error(full, setting.body_basis(model).values(fam.mesh.vertices)),
                   "pod": bfe.body_projection_error(full, setting.body_basis(setting.body_pod(r, RUN_BALANCE)).values(fam.mesh.vertices))}
-        runs = {"default": reduced_run(model, case, full, fam.steps)}
+        runs = {"default": reduced_run(model, case, full, fam.steps, every)}
         if name == "cheese":
             for label in ("naive", "full"):
-                runs[label] = reduced_run(model, case, full, fam.steps, cubature=label)
+                runs[label] = reduced_run(model, case, full, fam.steps, every, cubature=label)
         own = bfe.run_metrics(full, full)
         rows.append({"family": name, "name": case.name, "kind": case.kind, "tets": fam.mesh.n_tets, "r": r, "slides": own["slides"],
                      "noise_floor": floor, "chaotic": chaotic, "bounds": bounds, "runs": runs})
@@ -90,7 +105,7 @@ def transfer_rows(model: Model, work: Path, small: bool) -> list[dict]:
     saved = bfe.CHEESE_RESOLUTION
     bfe.CHEESE_RESOLUTION = 8
     try:
-        fam = bfe.FAMILIES["cheese"](small)
+        fam = family("cheese", small)
     finally:
         bfe.CHEESE_RESOLUTION = saved
     rows = []
@@ -98,8 +113,8 @@ def transfer_rows(model: Model, work: Path, small: bool) -> list[dict]:
     refit = model.cubature_for(fam.mesh)
     refit_s = time.perf_counter() - t0
     for case in fam.held_out:
-        full = bfe.full_run(work / "other_mesh", case.name, fam.mesh, case.scene, fam.steps)
-        runs = {"default": reduced_run(model, case, full, fam.steps, mesh=fam.mesh)}
+        full = bfe.full_run(work / "other_mesh", case.name, fam.mesh, case.scene, fam.steps, fam.record_every)
+        runs = {"default": reduced_run(model, case, full, fam.steps, fam.record_every, mesh=fam.mesh)}
         runs["default"]["refit_s"] = refit_s
         rows.append({"family": "cheese, another mesh", "name": case.name, "kind": case.kind, "tets": fam.mesh.n_tets, "r": model.n_learned,
                      "runs": runs})
@@ -188,18 +203,31 @@ def main() -> None:
     ap.add_argument("--cheese-resolution", type=int, default=10)
     ap.add_argument("--train-here", action="store_true", help="train missing models here with licrom.train defaults (slow on a CPU)")
     ap.add_argument("--small", action="store_true", help="tiny meshes, few steps, 1 epoch: a smoke test that writes nothing under --docs")
+    ap.add_argument("--converged", action="store_true", help="every family at a converged truth (viscosity, BDF2, CONVERGED_STEPS)")
+    ap.add_argument("--runs-only", action="store_true", help="only the full runs (training and held-out), cached under --work")
     args = ap.parse_args()
+    global CONVERGED
+    CONVERGED = args.converged
+    title = CONVERGED_TITLE if args.converged else SECTION_TITLE
     bfe.CHEESE_RESOLUTION = args.cheese_resolution
     work = args.work / "small" if args.small else args.work
     t_start = time.perf_counter()
+    if args.runs_only:
+        for name in args.families:
+            fam = family(name, args.small)
+            for c in fam.cases:
+                bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every)
+                if c.held_out:
+                    bfe.full_run(work, c.name + "_nudged", fam.mesh, bfe.nudged(c.scene), fam.steps, fam.record_every)
+        return
     rows, models = [], {}
     for name in args.families:
         path = args.models / f"{name}.lcm"
         if not path.exists():
             if not (args.train_here or args.small):
                 raise SystemExit(f"no model {path}: train it with `licrom train` (see the module docstring) or pass --train-here")
-            fam = bfe.FAMILIES[name](args.small)
-            runs = [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps) for c in fam.training]
+            fam = family(name, args.small)
+            runs = [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every) for c in fam.training]
             import licrom
 
             licrom.train(runs, path, TrainConfig(epochs=1, progress=False) if args.small else TrainConfig())
@@ -208,7 +236,7 @@ def main() -> None:
     timing = None
     if "cheese" in models and not args.small:
         rows += transfer_rows(models["cheese"], args.other_mesh_work, args.small)
-        fam = bfe.FAMILIES["cheese"](False)
+        fam = family("cheese", False)
         timing = speed(models["cheese"], fam.held_out[0], fam.mesh)
     wall = time.perf_counter() - t_start
     text = report(rows, models)
@@ -222,9 +250,9 @@ def main() -> None:
         tmp.write_text(json.dumps({"rows": rows, "speed": timing, "wall_s": wall}, indent=1, default=float))
     if args.small:
         return
-    bfe.write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python experiments/defaults_experiments.py` on "
+    bfe.write_section(args.docs, f"{title}\n\nMeasured by `python experiments/defaults_experiments.py{' --converged' if args.converged else ''}` on "
                       f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {wall:.0f} s (full runs cached).\n\n"
-                      + text + "\n", SECTION_TITLE)
+                      + text + "\n", title)
 
 
 if __name__ == "__main__":

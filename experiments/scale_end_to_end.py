@@ -329,9 +329,16 @@ def main_study(args) -> dict:
     # 1. generate
     t0 = time.perf_counter()
     cases = train_cases + held_cases
-    devices = local_devices(args.device, args.jobs)
-    tasks = [(case, mesh, steps, devices[i % len(devices)], work / "runs", fam.record_every) for i, case in enumerate(cases)]
-    generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
+    if os.environ.get("LOCAL_RANK", "0") != "0":
+        # Another process of a DDP training, started again by its launcher once the first reached the fit: the runs
+        # are on disk. (A pool of --jobs processes here hung three such processes of a 4-GPU training for 19 minutes.)
+        devices = [args.device]
+        generated = {i: (work / "runs" / f"{case.name}.npz", json.loads((work / "runs" / f"{case.name}.json").read_text()))
+                     for i, case in enumerate(cases)}
+    else:
+        devices = local_devices(args.device, args.jobs)
+        tasks = [(case, mesh, steps, devices[i % len(devices)], work / "runs", fam.record_every) for i, case in enumerate(cases)]
+        generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
     files, gen = zip(*(generated[i] for i in range(len(cases))))
     train_files, held_files = list(files[: len(train_cases)]), list(files[len(train_cases):])
     out["stages"]["generate"] = {"s": time.perf_counter() - t0, "runs": list(gen), "steps": steps, "dt": fam.cases[0].scene.dt,
