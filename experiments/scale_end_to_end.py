@@ -329,7 +329,8 @@ def main_study(args) -> dict:
     # 1. generate
     t0 = time.perf_counter()
     cases = train_cases + held_cases
-    if os.environ.get("LOCAL_RANK", "0") != "0":
+    first_process = os.environ.get("LOCAL_RANK", "0") == "0"
+    if not first_process:
         # Another process of a DDP training, started again by its launcher once the first reached the fit: the runs
         # are on disk. (A pool of --jobs processes here hung three such processes of a 4-GPU training for 19 minutes.)
         devices = [args.device]
@@ -345,7 +346,8 @@ def main_study(args) -> dict:
                                  "integrator": fam.cases[0].scene.integrator, "viscosity": fam.cases[0].scene.material.viscosity,
                                  "record_every": fam.record_every,
                                  "jobs": args.jobs, "devices": devices, "training_azimuths": list(bfe.TRAINING_AZIMUTHS)}
-    (work / "scale.json").write_text(json.dumps(out, indent=1))
+    if first_process:  # the others would overwrite the generation's timing with their reading of the files
+        (work / "scale.json").write_text(json.dumps(out, indent=1))
 
     # 2. train
     model_path = work / "model" / "cheese.lcm"
@@ -357,7 +359,7 @@ def main_study(args) -> dict:
     t0 = time.perf_counter()
     model = licrom.train([str(p) for p in train_files], model_path, cfg, mcfg)
     wall = time.perf_counter() - t0
-    if os.environ.get("LOCAL_RANK", "0") != "0":
+    if not first_process:
         sys.exit(0)  # another process of a DDP run: the first one goes on
     md = model.metadata
     rank, cub, sub = md.get("rank", {}), md.get("cubature", {}), md.get("subspace", {})
