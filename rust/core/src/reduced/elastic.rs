@@ -171,7 +171,8 @@ impl ElasticTerm {
     fn set_anchor_impl<M: Madd>(&self, q: &[f64], previous: Option<(&[f64], f64)>, anchor: &mut StrainAnchor) {
         let cub = &self.cubature;
         let group_len = cub.group_len();
-        let terms = std::iter::once((q, 1.0, false)).chain(previous.map(|(p, w)| [(q, w, true), (p, -w, true)]).into_iter().flatten());
+        let w = previous.map_or(0.0, |(_, w)| w);
+        let terms = std::iter::once((q, 1.0 + w, false)).chain(previous.map(|(p, w)| (p, -w, true)));
         for (at, weight, add) in terms {
             let f0 = cub.constant_deformation(at);
             for (group, c) in cub.packed.chunks_exact(group_len).zip(anchor.c.chunks_exact_mut(6)) {
