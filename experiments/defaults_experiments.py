@@ -16,9 +16,9 @@ error, with Spearman's rho over all runs and the runs the ``AccuracyWarning`` th
 
 ``--converged`` runs every family at a converged truth (section 12): the material's Kelvin-Voigt viscosity
 400 Pa s and BDF2 at ``CONVERGED_STEPS`` (1 ms; the ball 0.5 ms), frames every 10 ms; the models are then
-trained on such runs, and the section written is 17.
+trained on such runs, and the section written is 16.
 
-Writes ``--work/defaults.json`` and section 11 (17) of ``docs/results.md`` (``--small``: neither under --docs).
+Writes ``--work/defaults.json`` and section 11 (16) of ``docs/results.md`` (``--small``: neither under --docs).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.subspace.basis import RUN_BALANCE
 
 SECTION_TITLE = "## 11. At defaults: what `licrom train` and `ReducedSim(model)` give"
-CONVERGED_TITLE = "## 17. At defaults, against a converged truth"
+CONVERGED_TITLE = "## 16. At defaults, against a converged truth"
 CONVERGED_VISCOSITY = 400.0  # Pa s
 CONVERGED_STEPS = {"cheese": 0.001, "box": 0.001, "sphere": 0.0005}  # s, BDF2: within 2 % / 5 % of h -> 0 (section 12)
 CONVERGED = False  # set by --converged
