@@ -330,7 +330,7 @@ class FullSim:
 
         ``terms`` bits: 1 inertia, 2 elastic, 4 penalty, 8 damping, 16 friction, 32 viscosity.
 
-        On the CPU the evaluation (three memsets, up to three launches) is recorded once per
+        On the CPU the evaluation (three memsets, up to four launches) is recorded once per
         (point array, mode, terms, effective step) as a warp graph and replayed, which skips the
         launches' Python argument packing (warp >= 1.13; :data:`pcg._CPU_CAPTURE`). Everything
         else it reads is fixed for the simulation's life; the results are the same bit for bit.
