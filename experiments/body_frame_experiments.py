@@ -51,6 +51,7 @@ from licrom.learn.training import TrainConfig
 from licrom.reduced.body import BodyFrameSim
 from licrom.rigid import body_frame_displacements, rigid_fit
 from licrom.scene.placement import drop_state, initial_state_on_plane
+from licrom.scene.scene import INTEGRATORS
 from licrom.subspace.affine import apply_affine, fit_affine
 from licrom.subspace.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights
 from licrom.subspace.body_basis import BodyFrameBasis
@@ -121,6 +122,21 @@ def with_physics(fam: Family, dt: float, integrator: str, viscosity: float, fram
                                                                material=dataclasses.replace(c.scene.material, viscosity=viscosity)))
                   for c in fam.cases)
     return dataclasses.replace(fam, steps=steps, cases=cases, record_every=max(1, round(frame_dt / dt)))
+
+
+def add_physics_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--time-step``, ``--integrator`` and ``--viscosity``: a family at other physics (:func:`physics_of`)."""
+    ap.add_argument("--time-step", type=float, default=None, help="h of every run, s (default the family's; frames every 10 ms)")
+    ap.add_argument("--integrator", choices=INTEGRATORS, default=None, help="of every run (default the family's backward Euler)")
+    ap.add_argument("--viscosity", type=float, default=0.0, help="the material's Kelvin-Voigt viscosity, Pa s (section 12: 400 converges the truth)")
+
+
+def physics_of(fam: Family, args: argparse.Namespace) -> Family:
+    """``fam`` at the options of :func:`add_physics_arguments` where any is given (:func:`with_physics`), else as it is."""
+    if not (args.time_step or args.viscosity or args.integrator):
+        return fam
+    base = fam.cases[0].scene
+    return with_physics(fam, args.time_step or base.dt, args.integrator or base.integrator, args.viscosity)
 
 
 def incline(slope_deg: float, azimuth_deg: float, friction: float) -> Plane:

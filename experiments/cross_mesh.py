@@ -50,7 +50,7 @@ from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
 from licrom.analysis.compare import first_contact_frame
 from licrom.learn.training import TrainConfig
-from licrom.scene.scene import INTEGRATORS, SolverParams
+from licrom.scene.scene import SolverParams
 from licrom.subspace.body_basis import BodyFrameBasis
 from truth_convergence import sampled_nonrigid, sampled_positions
 
@@ -263,9 +263,7 @@ def main() -> None:
     ap.add_argument("--record-unconverged", action="store_true",
                     help="full runs record unconverged steps instead of stopping (SolverParams(on_failure='record'), as at 100k tets)")
     ap.add_argument("--truths-only", action="store_true", help="run and cache the full runs of every mesh, then stop (no model needed)")
-    ap.add_argument("--time-step", type=float, default=None, help="h of every run, s (default the family's 10 ms; frames every 10 ms)")
-    ap.add_argument("--integrator", choices=INTEGRATORS, default=None, help="of every run (default the family's backward Euler)")
-    ap.add_argument("--viscosity", type=float, default=0.0, help="the material's Kelvin-Voigt viscosity, Pa s (section 12: 400 converges the truth)")
+    bfe.add_physics_arguments(ap)
     ap.add_argument("--section", default=SECTION_TITLE, help="title of the docs section written")
     args = ap.parse_args()
     t_start = time.perf_counter()
@@ -278,10 +276,7 @@ def main() -> None:
         return caches.get(resolution, work / f"r{resolution}")
 
     def family(resolution: int) -> bfe.Family:
-        fam = cheese(resolution)
-        if args.time_step or args.viscosity or args.integrator:
-            base = fam.cases[0].scene
-            fam = bfe.with_physics(fam, args.time_step or base.dt, args.integrator or base.integrator, args.viscosity)
+        fam = bfe.physics_of(cheese(resolution), args)
         if not args.record_unconverged:
             return fam
         record = SolverParams(on_failure="record")

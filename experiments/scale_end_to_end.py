@@ -60,7 +60,7 @@ from licrom.executors import run_tasks
 from licrom.learn.model.config import ModelConfig
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
-from licrom.scene.scene import INTEGRATORS, SolverParams
+from licrom.scene.scene import SolverParams
 from licrom.subspace.body_basis import BodyFrameBasis
 from licrom.subspace.cubature import ContactPoints, Cubature
 
@@ -188,11 +188,7 @@ def full_runs(args, fam: bfe.Family, cases: list[bfe.Case]):
 def cheese_family(args) -> bfe.Family:
     """The cheese family on ``--resolution``, at ``--time-step``, ``--integrator`` and ``--viscosity`` where given."""
     bfe.CHEESE_RESOLUTION = args.resolution
-    fam = bfe.cheese_family(args.small)
-    if args.time_step or args.viscosity or args.integrator:
-        base = fam.cases[0].scene
-        fam = bfe.with_physics(fam, args.time_step or base.dt, args.integrator or base.integrator, args.viscosity)
-    return fam
+    return bfe.physics_of(bfe.cheese_family(args.small), args)
 
 
 def held_out_family(args) -> bfe.Family:
@@ -536,9 +532,7 @@ def main() -> None:
     ap.add_argument("--contact-points", type=int, nargs="*", default=[], metavar="N",
                     help="also run the held-out scenes with farthest-point subsets of N contact points (ContactPoints.subset)")
     ap.add_argument("--cpu-steps", type=int, default=10, help="steps of a full run on the CPU (0: none)")
-    ap.add_argument("--time-step", type=float, default=None, help="h of every run, s (default the family's 10 ms; frames every 10 ms)")
-    ap.add_argument("--integrator", choices=INTEGRATORS, default=None, help="of every run (default the family's backward Euler)")
-    ap.add_argument("--viscosity", type=float, default=0.0, help="the material's Kelvin-Voigt viscosity, Pa s (section 12: 400 converges the truth)")
+    bfe.add_physics_arguments(ap)
     ap.add_argument("--work", default="out/scale")
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 20 steps, CPU, 1 epoch: a smoke test")

@@ -174,19 +174,18 @@ mod tests {
         (points.iter().flat_map(|p| p.iter().copied()).collect(), tets.concat(), grads, volumes)
     }
 
-    fn ring_energy(material: &StableNeoHookean, tets: &[usize], grads: &[f64], vols: &[f64], y: &[f64]) -> f64 {
-        tets.chunks_exact(4)
-            .enumerate()
-            .map(|(t, c)| {
-                let f: Matrix3<f64> = (0..4)
-                    .map(|a| {
-                        Vector3::from_column_slice(&y[3 * c[a]..3 * c[a] + 3])
-                            * Vector3::from_column_slice(&grads[12 * t + 3 * a..12 * t + 3 * a + 3]).transpose()
-                    })
-                    .sum();
-                vols[t] * material.energy(&f)
+    /// `F` of tet t (corners `tets[4t..4t + 4]`, shape gradients `grads`) at the points `y`.
+    fn deformation(tets: &[usize], grads: &[f64], y: &[f64], t: usize) -> Matrix3<f64> {
+        (0..4)
+            .map(|a| {
+                let p = tets[4 * t + a];
+                Vector3::from_column_slice(&y[3 * p..3 * p + 3]) * Vector3::from_column_slice(&grads[12 * t + 3 * a..12 * t + 3 * a + 3]).transpose()
             })
             .sum()
+    }
+
+    fn ring_energy(material: &StableNeoHookean, tets: &[usize], grads: &[f64], vols: &[f64], y: &[f64]) -> f64 {
+        (0..vols.len()).map(|t| vols[t] * material.energy(&deformation(tets, grads, y, t))).sum()
     }
 
     #[test]
@@ -223,24 +222,14 @@ mod tests {
         let mut near = |scale: f64| -> Vec<f64> { rest.iter().zip(rng.vec(15, scale)).map(|(x, d)| x + d).collect() };
         let (y, now, previous) = (near(0.1), near(0.05), near(0.05));
         let (kappa, w) = (4.0e4, 1.0 / 3.0);
-        let deformation = |x: &[f64], t: usize| -> Matrix3<f64> {
-            (0..4)
-                .map(|a| {
-                    let p = tets[4 * t + a];
-                    Vector3::from_column_slice(&x[3 * p..3 * p + 3])
-                        * Vector3::from_column_slice(&grads[12 * t + 3 * a..12 * t + 3 * a + 3]).transpose()
-                })
-                .sum()
-        };
         let cg = |x: &[f64], t: usize| {
-            let f = deformation(x, t);
+            let f = deformation(&tets, &grads, x, t);
             f.transpose() * f
         };
         let damping = |x: &[f64]| -> f64 {
             (0..2)
                 .map(|t| {
-                    let c = deformation(x, t).transpose() * deformation(x, t);
-                    let d = 0.5 * (c - ((1.0 + w) * cg(&now, t) - w * cg(&previous, t)));
+                    let d = 0.5 * (cg(x, t) - ((1.0 + w) * cg(&now, t) - w * cg(&previous, t)));
                     vols[t] * 0.5 * kappa * d.norm_squared()
                 })
                 .sum()
