@@ -15,7 +15,7 @@ Each reduced run's online error estimate (``Trajectory.error_estimate``) stands 
 error, with Spearman's rho over all runs and the runs the ``AccuracyWarning`` threshold flags.
 
 ``--converged`` runs every family at a converged truth (section 12): the material's Kelvin-Voigt viscosity
-400 Pa s and BDF2 at ``CONVERGED_STEPS`` (1 ms; the ball 0.5 ms), frames every 10 ms; the models are then
+400 Pa s and BDF2 at ``body_frame_experiments.CONVERGED_STEPS`` (1 ms; the ball 0.5 ms), frames every 10 ms; the models are then
 trained on such runs, and the section written is 16.
 
 Writes ``--work/defaults.json`` and section 11 (16) of ``docs/results.md`` (``--small``: neither under --docs).
@@ -44,15 +44,13 @@ from licrom.subspace.basis import RUN_BALANCE
 
 SECTION_TITLE = "## 11. At defaults: what `licrom train` and `ReducedSim(model)` give"
 CONVERGED_TITLE = "## 16. At defaults, against a converged truth"
-CONVERGED_VISCOSITY = 400.0  # Pa s
-CONVERGED_STEPS = {"cheese": 0.001, "box": 0.001, "sphere": 0.0005}  # s, BDF2: within 2 % / 5 % of h -> 0 (section 12)
 CONVERGED = False  # set by --converged
 
 
 def family(name: str, small: bool) -> bfe.Family:
     """The family ``name`` of ``body_frame_experiments``, at a converged truth with ``--converged``."""
     fam = bfe.FAMILIES[name](small)
-    return bfe.with_physics(fam, CONVERGED_STEPS[name], "bdf2", CONVERGED_VISCOSITY) if CONVERGED else fam
+    return bfe.at_converged_truth(name, fam) if CONVERGED else fam
 
 
 def reduced_run(model: Model, case: bfe.Case, full, steps: int, record_every: int = 1, **options) -> dict:
