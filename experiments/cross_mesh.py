@@ -37,6 +37,7 @@ import argparse
 import dataclasses
 import json
 import platform
+import shlex
 import sys
 import time
 import warnings
@@ -49,6 +50,7 @@ import body_frame_experiments as bfe
 from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
 from licrom.analysis.compare import first_contact_frame
+from licrom.full.device import resolve_device
 from licrom.learn.training import TrainConfig
 from licrom.scene.scene import SolverParams
 from licrom.subspace.body_basis import BodyFrameBasis
@@ -182,9 +184,9 @@ def report(result: dict) -> str:
     damped = bool(result.get("viscosity"))
     physics = (f"{result.get('integrator', 'backward_euler')}, material viscosity {result['viscosity']:g} Pa s: section 12's converged truth"
                if damped else "backward Euler")
-    where = ("Full runs: warp on the GPU of the machine named above." if damped else
-             "Full runs: warp on this machine's CPU (2 shared cores); those of the training mesh and of the 864-tet mesh are the "
-             "cached runs of sections 10-11.")
+    device = result.get("full_device", "cpu")
+    where = (f"Full runs: warp on the {'GPU' if device.startswith('cuda') else 'CPU'} of the machine named above"
+             + ("." if damped else "; those of the training mesh and of the 864-tet mesh are the cached runs of sections 10-11."))
     out = [f"Model: `{model['path']}` ({'`licrom train` defaults' if damped else 'section 11' + chr(39) + 's `licrom train` defaults model'}: "
            f"r = {model['r']}, trained on the {model['tets']}-tet cheese, {model['cubature']} fitted cubature tets). Held-out scenes of "
            f"section 10, {result['steps']} steps of h = {1e3 * result['dt']:g} ms ({physics}), built with the same placement code on "
@@ -196,7 +198,7 @@ def report(result: dict) -> str:
            f"against M's; ratio (a) / (b), target at most {TARGET_RATIO:g}x in both; (e) the model on M against the training "
            "mesh's full run. Noise floor: M's full run against itself dropped 0.1 mm higher (non-rigid / COM). Learned projection: "
            "M's full run with its body-frame displacements projected onto the model's modes on M (each frame keeping its rigid "
-           "fit), the subspace's own floor there (on the training mesh: 1.2 / 2.2 / 2.2 / 7.2 %, section 11).", "",
+           "fit), the subspace's own floor there.", "",
            "| mesh M | held-out run | noise floor of M | learned projection on M | non-rigid (a) model | (b) truth gap | ratio | "
            "COM (a) model | (b) truth gap | ratio | stick/slip (model; truths agree) | (e) model vs training truth: non-rigid / COM | "
            f"meets {TARGET_RATIO:g}x |", "|" + "---|" * 13]
@@ -296,7 +298,7 @@ def main() -> None:
         raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} cheese {train_fam.mesh.n_tets}: "
                          "pass its --training-resolution")
     train = truths(cache(train_res), train_fam, cases, steps)
-    result = {"steps": steps, "dt": cases[0].scene.dt, "integrator": cases[0].scene.integrator,
+    result = {"steps": steps, "dt": cases[0].scene.dt, "integrator": cases[0].scene.integrator, "full_device": resolve_device("auto"),
               "viscosity": cases[0].scene.material.viscosity,
               "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
               "training_mesh": own_mesh_rows(model, train, cases, steps, train_fam.record_every), "other_meshes": []}
@@ -316,7 +318,7 @@ def main() -> None:
         tmp.write_text(json.dumps(result, indent=1, default=float))
     if args.small:
         return
-    bfe.write_section(args.docs, f"{args.section}\n\n`python experiments/cross_mesh.py` (issue 24, part 4) on "
+    bfe.write_section(args.docs, f"{args.section}\n\n`python experiments/cross_mesh.py {shlex.join(sys.argv[1:])}` (issue 24, part 4) on "
                       f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}; wall time {result['wall_s']:.0f} s "
                       "(full runs read from the cache where present).\n\n" + text + "\n", args.section)
 

@@ -151,8 +151,9 @@ def meets(row: dict, run: dict) -> bool:
 
 
 def report(rows: list[dict], models: dict[str, Model]) -> str:
-    out = ["Models, one per family, trained by `licrom train RUNS -o FAMILY.lcm` with every option at its default but the device "
-           "(section 11's on one H100 with `--device cuda`; section 16's on this machine's CPU, `--train-here`):",
+    where = ", ".join(f"{name} on {'a GPU' if m.metadata.get('accelerator') == 'gpu' else 'the CPU'}" for name, m in models.items())
+    out = [f"Models, one per family, trained by `licrom train RUNS -o FAMILY.lcm` with every option at its default ({where}; "
+           "the training's own device, `licrom.train` picks CUDA where there is one):",
            "", "| family | tets | r chosen | leave-runs-out error at r (RMS / worst run) | capped | fitted cubature tets | force residual | fit s | "
            "learned / POD(r) on held-out frames | training s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, m in models.items():

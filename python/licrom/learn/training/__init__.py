@@ -42,7 +42,7 @@ leave-runs-out POD projection error meets ``TrainConfig.rank_tolerance`` (:mod:`
 Training ends by fitting the model's cubature and by running the model as a user runs it,
 ``ReducedSim(model, scene=scene)``, on each held-out run, against that run
 (:func:`check_held_out`, ``model.metadata["held_out"]``; an ``AccuracyWarning`` names
-every held-out run it misses by more than 15 %).
+every held-out run it misses by more than ``ERROR_THRESHOLD``, 10 %).
 
 Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.rank` (:func:`choose_rank`), :mod:`.held_out` (:func:`check_held_out`), :mod:`.sampling` (points drawn uniformly
 in volume), :mod:`.objectives` (the POD objective), :mod:`.evaluation` (:func:`evaluate`,
