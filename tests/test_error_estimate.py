@@ -45,15 +45,20 @@ def test_full_space_basis_has_no_residual(mesh, integrator):
     assert traj.error_estimate[-1] < 1e-4
 
 
+def _bend_sim(mesh, scene) -> BodyFrameSim:
+    """A body-frame simulation with the affine modes and one bending mode, every tet as cubature."""
+    x = mesh.vertices - mesh.vertices.mean(axis=0)
+    bend = np.zeros((mesh.n_vertices, 3, 1))
+    bend[:, 2, 0] = x[:, 0] ** 2
+    return BodyFrameSim(BodyFrameBasis(mesh, MeshBasis(mesh, bend)), mesh, scene, cubature=Cubature.full(mesh))
+
+
 @pytest.fixture(scope="module")
 def one_mode_run(mesh):
     """A body-frame run with the affine modes and one bending mode, and the full run of the scene."""
     scene = _scene(mesh)
     full = licrom.FullSim(mesh, scene).run(STEPS)
-    x = mesh.vertices - mesh.vertices.mean(axis=0)
-    bend = np.zeros((mesh.n_vertices, 3, 1))
-    bend[:, 2, 0] = x[:, 0] ** 2
-    sim = BodyFrameSim(BodyFrameBasis(mesh, MeshBasis(mesh, bend)), mesh, scene, cubature=Cubature.full(mesh))
+    sim = _bend_sim(mesh, scene)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         reduced = sim.run(STEPS)
@@ -146,14 +151,10 @@ def test_normalising_block_is_the_weighted_geometric_mean_of_static_and_one_step
 
 
 def _bend_run(mesh, scene, steps):
-    """(estimate, true non-rigid error) of a body-frame run with the affine modes and one bending mode."""
-    x = mesh.vertices - mesh.vertices.mean(axis=0)
-    bend = np.zeros((mesh.n_vertices, 3, 1))
-    bend[:, 2, 0] = x[:, 0] ** 2
-    sim = BodyFrameSim(BodyFrameBasis(mesh, MeshBasis(mesh, bend)), mesh, scene, cubature=Cubature.full(mesh))
+    """(estimate, true non-rigid error) of :func:`_bend_sim` run for ``steps``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AccuracyWarning)
-        reduced = sim.run(steps)
+        reduced = _bend_sim(mesh, scene).run(steps)
     return float(reduced.error_estimate[-1]), nonrigid_error(licrom.FullSim(mesh, scene).run(steps), reduced)
 
 

@@ -430,7 +430,7 @@ class ResidualEstimate:
         near_rest: (U, 3) rest term of their positions in m.
         own: (S,) int64 each sample's index among the near vertices.
         masses: (S,) lumped masses in kg, > 0.
-        jacobi: (S, 3, 3) inverse Jacobi blocks in m/N.
+        normaliser: (S, 3, 3) inverse normalising blocks in m/N (residual force to displacement).
         gravity: (3,) gravity in m/s^2.
         planes: (P, 4) contact planes ``(n, d)``, outside where ``n . x + d >= 0``.
         target: (L,) the integrator's target weights, newest first (L = 2 or 4).
@@ -447,7 +447,7 @@ class ResidualEstimate:
         near_rest: _Float64Array,
         own: _Int64Array,
         masses: _Float64Array,
-        jacobi: _Float64Array,
+        normaliser: _Float64Array,
         gravity: _Float64Array,
         planes: _Float64Array,
         target: _Float64Array,

@@ -197,10 +197,10 @@ class ErrorMonitor:
         block = volumes[:, None, None] * (mu * np.einsum("tkk->t", gg)[:, None, None] * np.eye(3) + (mu + lam) * gg)
         stiffness = np.zeros((len(self.vertices), 3, 3))
         np.add.at(stiffness, owner, block)
-        jacobi = normalising_inverse(stiffness, self._m / h**2)
+        normaliser = normalising_inverse(stiffness, self._m / h**2)
         # The residual in the core: as a dozen numpy calls after each solver step it cost a third of a step.
         self._residual = _core.ResidualEstimate(self._forces, np.ascontiguousarray(values[self.near]), np.ascontiguousarray(rest[self.near]),
-                                                self._own, self._m, jacobi, np.asarray(scene.gravity, dtype=np.float64),
+                                                self._own, self._m, normaliser, np.asarray(scene.gravity, dtype=np.float64),
                                                 np.ascontiguousarray(scene.plane_array()[:, :4]), self._target, h, self._total_mass,
                                                 scene.material.viscosity)
         self._step = 0

@@ -9,8 +9,9 @@
 //! `r_s = m_s (x_s - sum_i w_i x_s^i) / h^2 - m_s g - f_s`
 //! (`f_s` with the material damping's force where the material has one: its
 //! anchor from the states' q, kept from the steps before),
-//! `du_s = J_s r_s` (`J_s` the inverse of the sample's own 3 x 3 block of the
-//! step's Hessian: one Jacobi sweep),
+//! `du_s = B_s^-1 r_s` (`B_s^-1` the caller's 3 x 3 normalising block of the
+//! sample, from its own stiffness and the step's inertia: licrom's
+//! `error_estimate.normalising_inverse`),
 //!
 //! and the step's value is `M sum_s m_s |du_s|^2 / sum_s m_s` over the samples
 //! that no plane touches now or at the step's start (contact forces are not
@@ -41,8 +42,8 @@ pub struct EstimateInputs<'a> {
     pub own: &'a [usize],
     /// Lumped masses of the samples, s, kg (> 0).
     pub masses: &'a [f64],
-    /// Inverse Jacobi blocks, s x 3 x 3 (row-major), 1/(N/m).
-    pub jacobi: &'a [f64],
+    /// Inverse normalising blocks `B_s^-1`, s x 3 x 3 (row-major), 1/(N/m).
+    pub normaliser: &'a [f64],
     /// Gravity, m/s^2.
     pub gravity: [f64; 3],
     /// Contact planes `(n, d)` (`n . x + d >= 0` outside), p x 4.
@@ -73,7 +74,7 @@ pub struct ResidualEstimate {
     forces: VertexForces,
     own: Vec<usize>,
     masses: Vec<f64>,
-    jacobi: Vec<Matrix3<f64>>,
+    normaliser: Vec<Matrix3<f64>>,
     gravity: Vector3<f64>,
     planes: Vec<(Vector3<f64>, f64)>,
     target: Vec<f64>,
@@ -109,7 +110,7 @@ impl ResidualEstimate {
     /// From the inputs and the ring forces of the samples (its points the near
     /// vertices, its samples these), after checking shapes, indices and values.
     pub fn new(inputs: &EstimateInputs<'_>, forces: VertexForces) -> Result<Self> {
-        let EstimateInputs { near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass, viscosity } = *inputs;
+        let EstimateInputs { near_basis, near_rest, own, masses, normaliser, gravity, planes, target, step, total_mass, viscosity } = *inputs;
         crate::error::check_non_negative("viscosity", viscosity)?;
         let (u, s) = (forces.n_points(), forces.n_samples());
         if near_rest.len() != 3 * u {
@@ -119,7 +120,7 @@ impl ResidualEstimate {
         if near_basis.len() != 3 * u * n {
             return Err(LicromError::shape("near_basis", format!("({u}, 3, n)"), format!("{} values", near_basis.len())));
         }
-        for (name, len, shape) in [("own", own.len(), s), ("masses", masses.len(), s), ("jacobi", jacobi.len(), 9 * s)] {
+        for (name, len, shape) in [("own", own.len(), s), ("masses", masses.len(), s), ("normaliser", normaliser.len(), 9 * s)] {
             if len != shape {
                 return Err(LicromError::shape(name, format!("({s}, ...)"), format!("{len} values")));
             }
@@ -133,7 +134,9 @@ impl ResidualEstimate {
         if let Some(&bad) = own.iter().find(|&&i| i >= u) {
             return Err(LicromError::invalid("own", format!("indices must be below the {u} near vertices, got {bad}")));
         }
-        for (name, values) in [("near_basis", near_basis), ("near_rest", near_rest), ("jacobi", jacobi), ("planes", planes), ("target", target)] {
+        for (name, values) in
+            [("near_basis", near_basis), ("near_rest", near_rest), ("normaliser", normaliser), ("planes", planes), ("target", target)]
+        {
             check_finite(name, values)?;
         }
         check_finite("gravity", &gravity)?;
@@ -154,7 +157,7 @@ impl ResidualEstimate {
             forces,
             own: own.to_vec(),
             masses: masses.to_vec(),
-            jacobi: jacobi.chunks_exact(9).map(Matrix3::from_row_slice).collect(),
+            normaliser: normaliser.chunks_exact(9).map(Matrix3::from_row_slice).collect(),
             gravity: Vector3::from(gravity),
             planes: planes.chunks_exact(4).map(|p| (Vector3::new(p[0], p[1], p[2]), p[3])).collect(),
             target: target.to_vec(),
@@ -265,7 +268,7 @@ impl ResidualEstimate {
                 .fold(Vector3::zeros(), |acc, (w, h)| acc + *w * Vector3::from_column_slice(&h[3 * s..3 * s + 3]));
             let m = self.masses[s];
             let residual = m * (x - predicted) / self.h2 - m * self.gravity - f;
-            let du = self.jacobi[s] * residual;
+            let du = self.normaliser[s] * residual;
             if self.planes.iter().all(|(normal, offset)| normal.dot(&x).min(normal.dot(&before)) + offset >= 0.0) {
                 sum += m * du.norm_squared();
                 counted += m;
@@ -305,7 +308,7 @@ mod tests {
     use crate::vertex_forces::RingInputs;
 
     /// One tet (0, 0, 0), x, y, z with its corner 3 as the sample, one mode
-    /// moving the sample along x; masses 2 kg, Jacobi blocks a I.
+    /// moving the sample along x; masses 2 kg, normalising blocks a I.
     fn one_tet(planes: &[f64]) -> ResidualEstimate {
         one_tet_damped(planes, 0.0)
     }
@@ -318,13 +321,13 @@ mod tests {
         let mut basis = vec![0.0; 12];
         basis[9] = 1.0;
         let rest: Vec<f64> = points.iter().flat_map(|p| p.iter().copied()).collect();
-        let jacobi = (Matrix3::identity() * 1e-3).transpose().as_slice().to_vec();
+        let normaliser = (Matrix3::identity() * 1e-3).transpose().as_slice().to_vec();
         let inputs = EstimateInputs {
             near_basis: &basis,
             near_rest: &rest,
             own: &[3],
             masses: &[2.0],
-            jacobi: &jacobi,
+            normaliser: &normaliser,
             gravity: [0.0, 0.0, -9.81],
             planes,
             target: &[2.0, -1.0],

@@ -18,7 +18,7 @@ use crate::vertex_forces::VertexForces;
 ///     near_rest: (U, 3) rest term of their positions in m.
 ///     own: (S,) int64 each sample's index among the near vertices.
 ///     masses: (S,) lumped masses in kg, > 0.
-///     jacobi: (S, 3, 3) inverse Jacobi blocks in m/N.
+///     normaliser: (S, 3, 3) inverse normalising blocks in m/N (residual force to displacement).
 ///     gravity: (3,) gravity in m/s^2.
 ///     planes: (P, 4) contact planes ``(n, d)``, outside where ``n . x + d >= 0``.
 ///     target: (L,) the integrator's target weights, newest first (L = 2 or 4).
@@ -57,7 +57,7 @@ fn state(
 #[pymethods]
 impl ResidualEstimate {
     #[new]
-    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, jacobi, gravity, planes, target, step, total_mass, viscosity = 0.0))]
+    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, normaliser, gravity, planes, target, step, total_mass, viscosity = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -66,7 +66,7 @@ impl ResidualEstimate {
         near_rest: &Bound<'_, PyAny>,
         own: &Bound<'_, PyAny>,
         masses: &Bound<'_, PyAny>,
-        jacobi: &Bound<'_, PyAny>,
+        normaliser: &Bound<'_, PyAny>,
         gravity: &Bound<'_, PyAny>,
         planes: &Bound<'_, PyAny>,
         target: &Bound<'_, PyAny>,
@@ -80,7 +80,7 @@ impl ResidualEstimate {
         let near_basis = read(near_basis, "near_basis", &[Dim::Is(u), Dim::Is(3), Dim::Any("n")])?;
         let own = read_indices(own, "own", &[Dim::Is(s)])?;
         let masses = read(masses, "masses", &[Dim::Is(s)])?;
-        let jacobi = read(jacobi, "jacobi", &[Dim::Is(s), Dim::Is(3), Dim::Is(3)])?;
+        let normaliser = read(normaliser, "normaliser", &[Dim::Is(s), Dim::Is(3), Dim::Is(3)])?;
         let gravity = read(gravity, "gravity", &[Dim::Is(3)])?;
         let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(4)])?;
         let target = read(target, "target", &[Dim::Any("L")])?;
@@ -89,7 +89,7 @@ impl ResidualEstimate {
             near_rest: &near_rest.data,
             own: &own,
             masses: &masses.data,
-            jacobi: &jacobi.data,
+            normaliser: &normaliser.data,
             gravity: [gravity.data[0], gravity.data[1], gravity.data[2]],
             planes: &planes.data,
             target: &target.data,
