@@ -80,6 +80,9 @@ def test_train_chooses_r_records_it_and_extends_once(rank4, tmp_path):
     rank, sub = model.metadata["rank"], model.metadata["subspace"]
     # 4 fields: the smallest default candidate that holds them
     assert model.n_learned == rank["rank"] == 5 and rank["tolerance"] == 1e-6 and rank["max_rank"] == 8
+    # world frame: the dynamics check does not replay, and says so
+    assert rank["projection_rank"] == 5 and rank["dynamics"]["method"] == "not run (world-frame models)"
+    assert RankChoice.from_dict(rank).rank == 5
     assert sub["split"] == "validation" and sub["r"] == 5 and sub["pod"] < 1e-6 < sub["model"]
     # two epochs leave the field far from POD: one extension of half the epochs, no more
     assert sub["extended_epochs"] == 1 and model.metadata["epochs_trained"] == 3 and sub["ratio_before_extension"] > 1.05
@@ -103,3 +106,4 @@ def test_cli_modes_auto_or_integer(rank4, tmp_path, capsys):
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "r chosen from the data (leave one run out" in text and "<- chosen" in text and "learned subspace" in text
+    assert "dynamics check: not run (world-frame models)" in text

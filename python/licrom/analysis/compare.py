@@ -30,7 +30,9 @@ from ..scene.scene import Scene
 from ..validity import CONTACT_TOLERANCE, first_touch
 
 __all__ = [
+    "COM_TARGET",
     "METRICS",
+    "NONRIGID_TARGET",
     "Comparison",
     "Metric",
     "compare",
@@ -304,14 +306,19 @@ def _pct(v: float) -> str:
     return f"{100 * v:.2f} %"
 
 
+NONRIGID_TARGET = 0.10
+"""Target of the non-rigid deformation error (relative)."""
+COM_TARGET = 0.02
+"""Target of the final centre-of-mass error, over the object's size."""
+
 METRICS = (
     Metric("nonrigid_error", "non-rigid error",
            "How far the reduced run's deformation is from the full run's: each frame's best rigid fit removed from both, "
            "the mass-weighted distance between them over the full run's deformation, in the body frame, from first contact.",
-           "< 10 %", lambda v: v < 0.10, _pct),
+           "< 10 %", lambda v: v < NONRIGID_TARGET, _pct),
     Metric("final_com_error", "final centre-of-mass error",
            "Distance between the two runs' centres of mass at the last frame, over the object's size (bounding-box diagonal).",
-           "< 2 % of the size", lambda v: v < 0.02, _pct),
+           "< 2 % of the size", lambda v: v < COM_TARGET, _pct),
     Metric("stick_slip_agree", "stick/slip",
            "Whether both runs slide, or both stick (a run slides when its contact points slip more than 1 % of the size "
            "over the second half of the run).",

@@ -271,7 +271,8 @@ class _Rank(click.ParamType):
 RANK = _Rank()
 # The train command's size flags, by the config field they set.
 _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames", "latent_dim": "--modes / -r", "field_width": "--width",
-               "field_layers": "--layers", "fourier_features": "--fourier", "max_rank": "--max-rank"}
+               "field_layers": "--layers", "fourier_features": "--fourier", "max_rank": "--max-rank",
+               "dynamics_max_rank": "--dynamics-max-rank"}
 
 
 @cli.command("train")
@@ -284,6 +285,8 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
 @click.option("--rank-tolerance", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
               show_default="0.04", help="With -r auto: held-out relative projection error to meet.")
 @click.option("--max-rank", type=click.IntRange(min=1), default=None, show_default="120", help="With -r auto: the largest r.")
+@click.option("--dynamics-max-rank", type=click.IntRange(min=0), default=None, show_default="250",
+              help="With -r auto (body frame): the largest r to which replays of training runs on POD(r) may raise it (0: no replays).")
 @click.option("--frame", type=click.Choice(["body", "world"]), default="body", show_default=True,
               help="body: learn the non-rigid deformation in the body frame (rigid motion exact); world: LiCROM's world-frame modes.")
 @click.option("--objective", type=click.Choice(["pod", "autoencoder"]), default=None,
@@ -308,7 +311,7 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
 @click.option("--fourier", type=int, default=None, show_default="32; 0: plain LiCROM", help="Random Fourier features of X fed to W(X).")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def train_command(data, output, modes, rank_tolerance, max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, join_timeout, batch_frames,
+def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, join_timeout, batch_frames,
                   points, val_fraction, width, layers, projection_weight, fourier, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
@@ -319,6 +322,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
     from ..learn.model import ModelConfig
     from ..learn.training import TrainConfig, output_paths, train
     from ..learn.training.config import check_training_memory
+    from ..learn.training.dynamics import dynamics_lines
     from ..learn.training.held_out import held_out_lines
     from ..learn.training.rank import RankChoice
 
@@ -326,7 +330,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("pod_weighting", pod_weighting), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
                        ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes), ("join_timeout_s", join_timeout),
-                       ("rank_tolerance", rank_tolerance), ("max_rank", max_rank)):
+                       ("rank_tolerance", rank_tolerance), ("max_rank", max_rank), ("dynamics_max_rank", dynamics_max_rank)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}
@@ -359,6 +363,8 @@ def train_command(data, output, modes, rank_tolerance, max_rank, frame, objectiv
                f"({split.get('train_frames')} frames), held out {len(split.get('validation', []))} ({split.get('validation_frames')} frames)")
     if "candidates" in meta.get("rank", {}):
         click.echo(RankChoice.from_dict(meta["rank"]).describe())
+        for line in dynamics_lines(meta["rank"].get("dynamics")):
+            click.echo(line)
     click.echo(f"epochs            {meta.get('epochs_trained')}")
     click.echo(f"final train loss  {final.get('train_loss', float('nan')):.4e}")
     for key, label in (("val_proj_residual", "held-out projection error (residual)"), ("val_enc_residual", "held-out encoder error (residual)"),

@@ -218,6 +218,7 @@ class TrainingData:
         frame: ``"body"`` or ``"world"``.
         train, val: :class:`FrameSet` of each side.
         held_out: ``(name, Trajectory)`` of each validation run, whole.
+        training_runs: ``(name, Trajectory)`` of each training run, whole.
         x_center: (3,) mass-weighted centre of the rest shape, m.
         x_scale: largest distance of a vertex from ``x_center`` along an axis, m.
         u_scale: mass-weighted RMS of the training residuals, m (floored at 1e-6 of the
@@ -249,8 +250,10 @@ class TrainingData:
         rest = np.asarray(self.mesh.vertices)
         self.train = _frames([named[i] for i in self.train_indices], rest, self.masses, self.affine, int(frame_stride), self.frame)
         self.val = _frames([named[i] for i in self.val_indices], rest, self.masses, self.affine, int(frame_stride), self.frame)
-        # The held-out runs themselves, for the end-of-training check of the reduced model against them.
+        # The runs themselves: the held-out ones for the end-of-training check of the reduced model against them,
+        # the training ones for the dynamics check of r (licrom.learn.training.dynamics).
         self.held_out = [named[i] for i in self.val_indices]
+        self.training_runs = [named[i] for i in self.train_indices]
         if len(self.train) == 0:
             raise ConfigError("the training trajectories hold no frames")
         w = self.masses / self.masses.sum()

@@ -38,22 +38,25 @@ starts the other processes by re-running the command that called ``train``, so
 call it from a script or the ``licrom train`` command, once per process.
 
 r is chosen from the data by default (``ModelConfig.latent_dim="auto"``): the smallest r whose
-leave-runs-out POD projection error meets ``TrainConfig.rank_tolerance`` (:mod:`.rank`).
+leave-runs-out POD projection error meets ``TrainConfig.rank_tolerance`` (:mod:`.rank`), then
+raised where replays of training runs on POD(r) miss the targets (:mod:`.dynamics`).
 Training ends by fitting the model's cubature and by running the model as a user runs it,
 ``ReducedSim(model, scene=scene)``, on each held-out run, against that run
 (:func:`check_held_out`, ``model.metadata["held_out"]``; an ``AccuracyWarning`` names
 every held-out run it misses by more than ``ERROR_THRESHOLD``, 10 %).
 
-Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.rank` (:func:`choose_rank`), :mod:`.held_out` (:func:`check_held_out`), :mod:`.sampling` (points drawn uniformly
+Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.rank` (:func:`choose_rank`), :mod:`.dynamics` (:func:`check_dynamics`),
+:mod:`.held_out` (:func:`check_held_out`), :mod:`.sampling` (points drawn uniformly
 in volume), :mod:`.objectives` (the POD objective), :mod:`.evaluation` (:func:`evaluate`,
 :func:`subspace_report`), :mod:`.lightning` (the Lightning module), :mod:`.checkpoints` (weights-only,
 atomic checkpoints resumed only into their own run) and :mod:`.run` (:func:`train`).
 """
 
 from .config import OBJECTIVES, TrainConfig, output_paths
+from .dynamics import DynamicsCheck, check_dynamics
 from .evaluation import evaluate, subspace_report
 from .held_out import check_held_out
 from .rank import RankChoice, choose_rank
 from .run import plot_losses, train
 
-__all__ = ["OBJECTIVES", "RankChoice", "TrainConfig", "check_held_out", "choose_rank", "evaluate", "output_paths", "plot_losses", "subspace_report", "train"]
+__all__ = ["OBJECTIVES", "DynamicsCheck", "RankChoice", "TrainConfig", "check_dynamics", "check_held_out", "choose_rank", "evaluate", "output_paths", "plot_losses", "subspace_report", "train"]

@@ -18,6 +18,7 @@ from ...errors import ConfigError
 from ...subspace.cubature import FIT_TOLERANCE
 from ..model.config import _SIZES as _MODEL_SIZES
 from ..model.config import ModelConfig, field_floats_per_point, model_sizes, network_weights
+from .dynamics import DEFAULT_DYNAMICS_MAX_RANK
 from .rank import DEFAULT_MAX_RANK, DEFAULT_TOLERANCE
 
 OBJECTIVES = ("pod", "autoencoder")
@@ -96,6 +97,9 @@ class TrainConfig:
             held-out relative projection error (leave training runs out) is at most this
             (:func:`licrom.learn.training.rank.choose_rank`).
         max_rank: the largest r chosen automatically.
+        dynamics_max_rank: with ``latent_dim="auto"`` (body frame), the largest r to which replays of
+            training runs on POD(r) may raise the projection's choice
+            (:func:`licrom.learn.training.dynamics.check_dynamics`); 0 (or at most ``max_rank``): no replays.
         extension: when the learned subspace's projection error ends above 1.05x that of
             the POD it is trained towards, training goes on once for ``extension * epochs``
             more epochs (at least 1); 0: never.
@@ -135,6 +139,7 @@ class TrainConfig:
     cubature_samples: int = 256
     rank_tolerance: float = DEFAULT_TOLERANCE
     max_rank: int = DEFAULT_MAX_RANK
+    dynamics_max_rank: int = DEFAULT_DYNAMICS_MAX_RANK
     extension: float = 0.5
 
     def __post_init__(self) -> None:
@@ -152,6 +157,10 @@ class TrainConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not 0 <= v < math.inf:
                 raise ConfigError(f"TrainConfig.{name} must be a number >= 0, got {v!r}")
+        v = self.dynamics_max_rank
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ConfigError(f"TrainConfig.dynamics_max_rank must be an integer >= 0 (0: no replays), got {v!r}")
+        object.__setattr__(self, "dynamics_max_rank", int(v))
         if not isinstance(self.cubature_tolerance, (int, float)) or not 0.0 < self.cubature_tolerance < 1.0:
             raise ConfigError(f"TrainConfig.cubature_tolerance must be a number in (0, 1), got {self.cubature_tolerance!r}")
         tol = self.rank_tolerance

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -99,8 +99,11 @@ class RankChoice:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RankChoice:
-        """The choice recorded by :meth:`to_dict` (a model's ``metadata["rank"]``)."""
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        """The choice recorded by :meth:`to_dict` (a model's ``metadata["rank"]``, where ``"rank"`` is the model's r
+        and ``"projection_rank"``, when the dynamics check raised it, this choice's)."""
+        names = {f.name for f in fields(cls)}
+        kept = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in names}
+        return cls(**{**kept, "rank": d.get("projection_rank", d["rank"])})
 
     def describe(self) -> str:
         """One line per candidate and the choice, for the printed training report."""

@@ -23,6 +23,7 @@ from ..model.finalize import finalize_basis
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
+from .dynamics import check_dynamics
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
 from .held_out import check_held_out
 from .lightning import _lightning_classes
@@ -280,10 +281,11 @@ def train(
                              affine=mcfg.affine, frame_stride=cfg.frame_stride, frame=mcfg.frame)
     tdata.check_deformation()
     t_data = time.perf_counter() - t_start
-    rank = None
+    rank = dynamics = None
     if mcfg.latent_dim == "auto":
         rank = choose_rank(tdata, cfg.rank_tolerance, cfg.max_rank)
-        mcfg = dataclasses.replace(mcfg, latent_dim=rank.rank)
+        dynamics = check_dynamics(tdata, rank.rank, cfg.dynamics_max_rank)
+        mcfg = dataclasses.replace(mcfg, latent_dim=dynamics.rank)
         check_training_memory(cfg, mcfg)
 
     L = _lightning_classes()
@@ -402,7 +404,8 @@ def train(
         "mean_train_seconds_per_epoch": float(np.mean(train_secs)) if train_secs else None,
         "fit_seconds": t_fit,
         "data_seconds": t_data,
-        "rank": rank.to_dict() if rank is not None else {"rank": mcfg.latent_dim, "method": "given (ModelConfig.latent_dim)"},
+        "rank": ({**rank.to_dict(), "rank": mcfg.latent_dim, "projection_rank": rank.rank, "dynamics": dynamics.to_dict()}
+                 if rank is not None and dynamics is not None else {"rank": mcfg.latent_dim, "method": "given (ModelConfig.latent_dim)"}),
         "subspace": subspace,
         "accelerator": accelerator,
         "world_size": trainer.world_size,

@@ -1,0 +1,196 @@
+"""r checked by the dynamics: training runs replayed on POD(r) of the training runs.
+
+The leave-runs-out projection curve (:mod:`.rank`) says how well r modes hold a run's shapes; it does
+not say whether a reduced run on them *moves* as the full run did. A rolling ball is the case that
+showed it (docs/results.md section 16): at a converged truth its curve met the 4 % tolerance at
+r = 100, yet its held-out roll ended 5.3 % of its size away in centre of mass. Its contact patch
+travels round the whole surface, the rolling resistance comes from the deformation there, and with
+100 modes the reduced ball rolled 0.3-0.8 % too fast; POD(200) of the same runs brought it to 1.1 %.
+
+:func:`check_dynamics` replays a few training runs (:data:`DYNAMICS_RUNS`, spread over the list)
+with the body-frame reduced model on POD(r) of *all* the training runs (the run included: what is
+tested is whether r modes carry the dynamics of motion the data covers; whether the data covers a
+new scene is the projection curve's question), every tet as cubature, and compares each with its
+full run (:func:`licrom.analysis.compare.compare`). r is raised from the projection's choice through
+:data:`DYNAMICS_CANDIDATES` to the smallest at which every reproducible replay meets the targets
+with :data:`MARGIN`. A run that misses at the cap too is not reproducible by any r allowed (a
+chaotic tumble, where a nudge of the start moves the run as much) and is left out of the choice.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ...analysis.compare import COM_TARGET, compare
+from ...errors import ConfigError, LicromError, LicromWarning
+from ...reduced.body import BodyFrameSim
+from ...reduced.error_estimate import ERROR_THRESHOLD
+from ...subspace.basis import MeshBasis, run_balanced_weights
+from ...subspace.body_basis import BodyFrameBasis
+from ...subspace.cubature import Cubature
+from ..training_data import TrainingData
+
+__all__ = ["DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics"]
+
+DEFAULT_DYNAMICS_MAX_RANK = 250
+"""Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
+training runs, every tet: 5.8 / 5.0 / 2.7 / 1.1 / 0.9 % of its size in centre of mass at r = 100 /
+120 / 150 / 200 / 250; its step 0.96 ms at 120, 4.2 ms at 250 on 2 cores)."""
+
+DYNAMICS_CANDIDATES = (100, 120, 150, 200, 250)
+"""r values above the projection's choice that the dynamics may take (those above the cap dropped, the cap added)."""
+
+DYNAMICS_RUNS = 4
+"""Training runs replayed at most (evenly spread over the training runs' order): each costs a reduced run per r tried."""
+
+MARGIN = 2.0 / 3.0
+"""A replay meets the targets when its non-rigid error is below ``MARGIN x ERROR_THRESHOLD`` and its final
+centre of mass below ``MARGIN x`` the 2 % target: a held-out scene lands further off than a run the modes
+were fitted to. Measured on the ball at a converged truth (POD(r) of its 4 training runs, every tet): the
+held-out roll's centre-of-mass error over the worst replayed training run's was 1.5x at r = 100 (5.8 / 3.9 %),
+1.4x at 150 (2.7 / 1.9 %) and 0.85x at 200 (1.1 / 1.3 %)."""
+
+MAX_TETS = 5000
+"""Meshes of more tets are not checked: every tet as cubature makes each replay cost the full step's
+elastic pass (a fitted cubature per r tried would be needed there)."""
+
+
+@dataclass(frozen=True)
+class DynamicsCheck:
+    """What the replays found and the r they ask for.
+
+    Attributes:
+        rank: r after the check (the projection's choice, or raised).
+        projection_rank: the projection's choice the check started from.
+        max_rank: the cap applied (``max_rank`` limited by frames and 3 n).
+        levels: the r values replayed, ascending.
+        runs: per replayed run, ``{"run", "reproducible", "rows": [{"r", "nonrigid_error", "com_error",
+            "stick_slip_right", "meets"}]}``.
+        raised: r was raised above the projection's choice.
+        method: ``"replayed"``, or why nothing was replayed.
+        seconds: wall time of the check.
+    """
+
+    rank: int
+    projection_rank: int
+    max_rank: int
+    levels: tuple[int, ...]
+    runs: tuple[dict[str, Any], ...]
+    raised: bool
+    method: str
+    seconds: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def lines(self) -> list[str]:
+        """The check as lines of text for the training report."""
+        if self.method != "replayed":
+            return [f"dynamics check: {self.method}"]
+        nr, com = _limits()
+        lines = [f"dynamics check: training runs replayed on POD(r) of the training runs, every tet as cubature "
+                 f"(meets: non-rigid < {100 * nr:.1f} %, centre of mass < {100 * com:.2f} % of the size, stick/slip right)"]
+        for run in self.runs:
+            cells = ", ".join(f"r = {row['r']}: {100 * row['nonrigid_error']:.1f} % / {100 * row['com_error']:.2f} %"
+                              + ("" if row["meets"] else " (misses)") for row in run["rows"])
+            lines.append(f"  {run['run']}: {cells}" + ("" if run["reproducible"] else "; misses at the cap too: left out (chaotic?)"))
+        verdict = (f"r raised from {self.projection_rank} to {self.rank}" if self.raised
+                   else f"r = {self.rank} kept" if any(r["reproducible"] for r in self.runs)
+                   else f"r = {self.rank} kept: no replay meets the targets at the cap {self.max_rank}")
+        return [*lines, f"  {verdict} ({self.seconds:.0f} s)"]
+
+
+def _limits() -> tuple[float, float]:
+    return MARGIN * ERROR_THRESHOLD, MARGIN * COM_TARGET
+
+
+def _cadence(run: Any) -> tuple[int, int] | None:
+    steps, frames = len(run.iterations), run.n_frames - 1
+    return (steps, steps // frames) if steps >= 1 and frames >= 1 and steps % frames == 0 else None
+
+
+def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMICS_MAX_RANK, runs: int = DYNAMICS_RUNS) -> DynamicsCheck:
+    """The smallest r at or above ``rank`` at which replays of the training runs meet the targets.
+
+    Args:
+        data: training data of body-frame models (its training runs are replayed).
+        rank: the projection's choice (:func:`licrom.learn.training.rank.choose_rank`).
+        max_rank: largest r the check may raise to; at or below ``rank`` nothing is replayed.
+        runs: training runs replayed at most.
+
+    Returns:
+        The :class:`DynamicsCheck`; its ``rank`` is never below ``rank``.
+
+    Raises:
+        ConfigError: ``rank``, ``max_rank`` or ``runs`` not an integer >= 1 (``max_rank`` may be 0: no check),
+            or ``data`` that is not a :class:`~licrom.learn.training_data.TrainingData`.
+    """
+    if not isinstance(data, TrainingData):
+        raise ConfigError(f"check_dynamics needs a TrainingData, got {type(data).__name__}")
+    for name, value, least in (("rank", rank, 1), ("max_rank", max_rank, 0), ("runs", runs, 1)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            raise ConfigError(f"check_dynamics: {name} must be an integer >= {least}, got {value!r}")
+    start = time.perf_counter()
+    cap = min(int(max_rank), len(data.train), 3 * data.mesh.n_vertices)
+
+    def unchecked(why: str) -> DynamicsCheck:
+        return DynamicsCheck(rank, rank, cap, (), (), False, why, time.perf_counter() - start)
+
+    if cap <= rank:
+        return unchecked(f"not run (cap {cap} at or below r = {rank})")
+    if data.frame != "body":
+        return unchecked("not run (world-frame models)")
+    if data.mesh.n_tets > MAX_TETS:
+        return unchecked(f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic pass)")
+    chosen = [data.training_runs[i] for i in np.unique(np.linspace(0, len(data.training_runs) - 1, min(runs, len(data.training_runs))).round().astype(int))]
+    chosen = [(name, run) for name, run in chosen if _cadence(run) is not None]
+    if not chosen:
+        return unchecked("not run (no training run of evenly spaced frames)")
+    frames = data.train
+    pod, _ = MeshBasis.pod(data.mesh, frames.residuals, cap, weights=run_balanced_weights(frames.trajectory, frames.norm2_residual))
+    levels = (rank, *(r for r in DYNAMICS_CANDIDATES if rank < r < cap), cap)
+    density = data.scenes[0].material.density
+    cubature = Cubature.full(data.mesh)
+    nr_limit, com_limit = _limits()
+
+    def replay(name: str, run: Any, r: int) -> dict[str, Any]:
+        basis = BodyFrameBasis(data.mesh, MeshBasis(data.mesh, pod.modes[:, :, :r]), density=density)
+        steps, every = _cadence(run)  # type: ignore[misc]
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LicromWarning)
+                c = compare(run, BodyFrameSim(basis, data.mesh, run.scene, cubature=cubature).run(steps, record_every=every))
+        except LicromError:  # a replay that fails to step misses
+            return {"r": r, "nonrigid_error": float("inf"), "com_error": float("inf"), "stick_slip_right": False, "meets": False}
+        meets = bool(c.nonrigid_error < nr_limit and c.final_com_error < com_limit and c.stick_slip_agree)
+        return {"r": r, "nonrigid_error": float(c.nonrigid_error), "com_error": float(c.final_com_error),
+                "stick_slip_right": bool(c.stick_slip_agree), "meets": meets}
+
+    # At the cap first: a run no r allowed reproduces says nothing about r.
+    rows = {name: {cap: replay(name, run, cap)} for name, run in chosen}
+    reproducible = [(name, run) for name, run in chosen if rows[name][cap]["meets"]]
+    choice = rank
+    if reproducible:
+        for r in levels:
+            for name, run in reproducible:
+                if r not in rows[name]:
+                    rows[name][r] = replay(name, run, r)
+            if all(rows[name][r]["meets"] for name, _ in reproducible):
+                choice = r
+                break
+    report = tuple({"run": name, "reproducible": rows[name][cap]["meets"], "rows": [rows[name][r] for r in sorted(rows[name])]}
+                   for name, _ in chosen)
+    return DynamicsCheck(choice, rank, cap, levels, report, choice > rank, "replayed", time.perf_counter() - start)
+
+
+def dynamics_lines(report: dict[str, Any] | None) -> Sequence[str]:
+    """:meth:`DynamicsCheck.lines` of a check stored as a dict (``model.metadata["rank"]["dynamics"]``)."""
+    if not report:
+        return []
+    return DynamicsCheck(**{**report, "levels": tuple(report["levels"]), "runs": tuple(report["runs"])}).lines()
