@@ -154,12 +154,16 @@ def report(rows: list[dict], models: dict[str, Model]) -> str:
     where = ", ".join(f"{name} on {'a GPU' if m.metadata.get('accelerator') == 'gpu' else 'the CPU'}" for name, m in models.items())
     out = [f"Models, one per family, trained by `licrom train RUNS -o FAMILY.lcm` with every option at its default ({where}; "
            "the training's own device, `licrom.train` picks CUDA where there is one):",
-           "", "| family | tets | r chosen | leave-runs-out error at r (RMS / worst run) | capped | fitted cubature tets | force residual | fit s | "
-           "learned / POD(r) on held-out frames | training s |", "|---|---|---|---|---|---|---|---|---|---|"]
+           "", "| family | tets | r chosen (projection; dynamics check) | leave-runs-out error at the projection's r (RMS / worst run) | capped | "
+           "fitted cubature tets | force residual | fit s | learned / POD(r) on held-out frames | training s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, m in models.items():
         rank, cub, sub = m.metadata.get("rank", {}), m.metadata.get("cubature", {}), m.metadata.get("subspace", {})
-        i = rank["candidates"].index(rank["rank"]) if rank.get("candidates") else None
-        out.append(f"| {name} | {m.mesh.n_tets} | {m.n_learned} | "
+        projection = rank.get("projection_rank", rank.get("rank"))
+        i = rank["candidates"].index(projection) if rank.get("candidates") else None
+        dynamics = rank.get("dynamics", {}).get("method")
+        checked = ("not checked: trained before the check" if dynamics is None else
+                   f"raised from {projection}" if rank.get("dynamics", {}).get("raised") else "kept" if dynamics == "replayed" else dynamics)
+        out.append(f"| {name} | {m.mesh.n_tets} | {m.n_learned} ({checked}) | "
                    + (f"{bfe._pct(rank['errors'][i])} / {bfe._pct(rank['worst_errors'][i])}" if i is not None else "-")
                    + f" | {'yes' if rank.get('capped') else 'no'} | {cub.get('count', '-')} | {cub.get('fit_error', float('nan')):.1e} | "
                    f"{cub.get('fit_seconds', float('nan')):.1f} | {sub.get('ratio', float('nan')):.3f}x | {m.metadata.get('fit_seconds', float('nan')):.0f} |")
