@@ -104,10 +104,12 @@ def generate(case: bfe.Case, mesh: licrom.Mesh, steps: int, device: str, runs: P
     info = {"name": case.name, "kind": case.kind, "held_out": case.held_out, "device": str(sim.device), "setup_s": setup, "run_s": wall,
             "save_s": save, "steps": steps, "step_ms": 1e3 * wall / steps, "median_step_ms": 1e3 * float(np.median(traj.step_seconds)),
             "first10_step_ms": 1e3 * float(np.median(traj.step_seconds[:10])), "newton_its": float(np.mean(traj.iterations)),
-            "unconverged": int(traj.info.get("unconverged_steps", 0)), "file_mb": path.stat().st_size / 2**20}
+            "unconverged": int(traj.info.get("unconverged_steps", 0)), "file_mb": path.stat().st_size / 2**20,
+            # the truth's own validity: frames with an inverted tet (the landing of the soft cheese inverts some at 120k)
+            "min_det_f": float(np.min(traj.min_det_f)), "inverted_frames": int(np.sum(traj.min_det_f <= 0.0))}
     meta.write_text(json.dumps(info, indent=1))
     log(f"full {case.name} on {info['device']}: setup {setup:.1f} s, {steps} steps in {wall:.1f} s (median {info['median_step_ms']:.1f} ms, "
-        f"{info['newton_its']:.1f} its/step), saved {info['file_mb']:.0f} MiB in {save:.1f} s")
+        f"{info['newton_its']:.1f} its/step, min det F {info['min_det_f']:.3f}), saved {info['file_mb']:.0f} MiB in {save:.1f} s")
     return path, info
 
 
@@ -407,6 +409,17 @@ def main_study(args) -> dict:
 
 
 # --- section ---------------------------------------------------------------------------------
+def _inverted(runs: list[dict]) -> str:
+    """How many of ``runs`` invert a tet in some frame (runs of older studies did not record it)."""
+    known = [g for g in runs if "inverted_frames" in g]
+    bad = [g for g in known if g["inverted_frames"]]
+    if not known:
+        return "inverted tets not recorded"
+    if not bad:
+        return "no inverted tet"
+    return (f"{len(bad)} of {len(known)} invert tets: " + ", ".join(f"{g['name']} ({g['inverted_frames']} frames, min det F {g['min_det_f']:.2f})" for g in bad))
+
+
 def _f(x, fmt=".1f") -> str:
     return "-" if x is None else format(x, fmt)
 
@@ -448,11 +461,12 @@ def section(res: dict) -> str:
         out.append(f"| 1. generate: {len(tr)} training runs, full sim on {where} | {took} "
                    f"(per run: setup {np.median([g['setup_s'] for g in tr]):.1f} s, run {np.median([g['run_s'] for g in tr]):.1f} s, "
                    f"save {np.median([g['save_s'] for g in tr]):.1f} s; step {np.median([g['median_step_ms'] for g in tr]):.1f} ms median, "
-                   f"{np.mean([g['newton_its'] for g in tr]):.1f} Newton its; {sum(g['unconverged'] for g in tr)} unconverged steps) | "
+                   f"{np.mean([g['newton_its'] for g in tr]):.1f} Newton its; {sum(g['unconverged'] for g in tr)} unconverged steps; "
+                   f"{_inverted(tr)}) | "
                    f"{np.median([g['file_mb'] for g in tr]):.0f} MiB a run (float32), "
                    f"{sum(g['file_mb'] for g in tr):.0f} MiB in all |")
     if ho:
-        out.append(f"| 1b. the {len(ho)} held-out runs, same | {sum(g['setup_s'] + g['run_s'] + g['save_s'] for g in ho):.0f} s | "
+        out.append(f"| 1b. the {len(ho)} held-out runs, same ({_inverted(ho)}) | {sum(g['setup_s'] + g['run_s'] + g['save_s'] for g in ho):.0f} s | "
                    f"{sum(g['file_mb'] for g in ho):.0f} MiB |")
     rest = train["s"] - sum(train.get(k) or 0.0 for k in ("data_seconds", "fit_seconds")) - (cub.get("fit_seconds") or 0.0)
     out.append(f"| 2. `licrom.train(runs, path)`, defaults | {train['s']:.0f} s: loading the runs {_f(train.get('data_seconds'), '.0f')} s, "
