@@ -58,3 +58,20 @@ def test_runs_whose_frames_are_not_evenly_spaced_steps_are_skipped_with_the_reas
                                  converged=run.converged[:steps], step_seconds=run.step_seconds[:steps])
     report = held_out.check_held_out(model, [(name, uneven)])
     assert "not evenly spaced" in report["runs"][0]["skipped"]
+
+
+def test_a_held_out_run_that_misses_the_centre_of_mass_target_alone_is_named_too(tiny_demo, monkeypatch):
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    name = model.metadata["data"]["validation"][0]
+    run = Trajectory.load(out / "data" / f"{name}.npz")
+    monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 1.0)  # the non-rigid error never misses
+    monkeypatch.setattr(held_out, "COM_TARGET", 0.0)  # the centre of mass always does
+    with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name} \(final centre of mass [0-9.]+ % of the size >= 0 %"):
+        report = held_out.check_held_out(model, [(name, run)])
+    row = report["runs"][0]
+    assert held_out._missed(row) == [f"final centre of mass {100 * row['com_error']:.2f} % of the size >= 0 %"]
+    monkeypatch.setattr(held_out, "COM_TARGET", 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", AccuracyWarning)  # meets every target: no warning
+        held_out.check_held_out(model, [(name, run)])

@@ -6,8 +6,9 @@ fitted cubature and contact points), over the run's steps, and compared with the
 (:func:`licrom.analysis.compare.compare`): the non-rigid deformation error, the final centre of
 mass, stick/slip, and the reduced run's own online error estimate beside them. The
 training report says how wrong the model is on motion it has not seen, and whether its
-estimate knows: an :class:`~licrom.errors.AccuracyWarning` names every held-out run
-above :data:`~licrom.reduced.error_estimate.ERROR_THRESHOLD`.
+estimate knows: an :class:`~licrom.errors.AccuracyWarning` names every held-out run that misses
+a target (non-rigid error above :data:`~licrom.reduced.error_estimate.ERROR_THRESHOLD`, final
+centre of mass at or above :data:`~licrom.analysis.compare.COM_TARGET` of the size, stick/slip wrong).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ...analysis.compare import METRICS, compare, verdict
+from ...analysis.compare import COM_TARGET, METRICS, compare, verdict
 from ...errors import AccuracyWarning, LicromError, LicromWarning
 from ...records.trajectory import Trajectory
 from ...reduced.base import ReducedSim
@@ -81,14 +82,27 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
         })
     done = [r for r in rows if "skipped" not in r]
     worst = max((r["nonrigid_error"] for r in done), default=float("nan"))
-    misses = [r for r in done if r["nonrigid_error"] > ERROR_THRESHOLD]
+    misses = [(r, _missed(r)) for r in done]
+    misses = [(r, what) for r, what in misses if what]
     if misses:
-        shown = ", ".join(f"{r['run']} ({100 * r['nonrigid_error']:.1f} %, estimated {100 * r['estimate']:.1f} %)" for r in misses)
+        shown = "; ".join(f"{r['run']} ({', '.join(what)}; estimated non-rigid {100 * r['estimate']:.1f} %)" for r, what in misses)
         warnings.warn(
-            f"the trained model misses {len(misses)} of its {len(done)} held-out runs by more than {100 * ERROR_THRESHOLD:.0f} % "
-            f"non-rigid error with its defaults: {shown}; train with more runs like them, or allow more modes "
-            "(--max-rank, --rank-tolerance)", AccuracyWarning, stacklevel=3)
+            f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; train with more "
+            "runs like them, or allow more modes (--max-rank, --rank-tolerance, --dynamics-max-rank)", AccuracyWarning, stacklevel=3)
     return {"runs": rows, "worst_nonrigid_error": worst, "threshold": ERROR_THRESHOLD}
+
+
+def _missed(row: dict[str, Any]) -> list[str]:
+    """The targets a checked run misses, each with its value: non-rigid error above ``ERROR_THRESHOLD``, centre of mass
+    at or above ``COM_TARGET``, stick/slip wrong."""
+    what = []
+    if row["nonrigid_error"] > ERROR_THRESHOLD:
+        what.append(f"non-rigid error {100 * row['nonrigid_error']:.1f} % > {100 * ERROR_THRESHOLD:.0f} %")
+    if row["com_error"] >= COM_TARGET:
+        what.append(f"final centre of mass {100 * row['com_error']:.2f} % of the size >= {100 * COM_TARGET:.0f} %")
+    if not row["stick_slip_right"]:
+        what.append("stick/slip wrong")
+    return what
 
 
 def held_out_lines(report: dict[str, Any]) -> list[str]:
