@@ -1,5 +1,6 @@
 """The learned-subspace model: affine modes, basis values and Jacobians, projection, encoder, file."""
 
+import dataclasses
 import zipfile
 
 import numpy as np
@@ -72,11 +73,21 @@ def test_fit_affine_recovers_affine_field_and_is_orthogonal(mesh, rng):
     "kwargs",
     [{"latent_dim": 0}, {"latent_dim": 2.5}, {"field_layers": 1}, {"field_width": -3}, {"encoder_point_widths": ()},
      {"encoder_fc_widths": (4, 0)}, {"affine": "yes"}, {"fourier_features": -1}, {"fourier_scale": 0.0},
-     {"frame": "lab"}, {"frame": None}],
+     {"frame": "lab"}, {"frame": None}, {"field_width": "wide"}, {"field_width": 0}],
 )
 def test_model_config_rejects_bad_values(kwargs):
     with pytest.raises(ConfigError):
         ModelConfig(**kwargs)
+
+
+def test_the_auto_field_width_is_twice_r_and_at_least_256_once_r_is_known():
+    assert ModelConfig().field_width == "auto"  # r not known yet
+    assert [ModelConfig(latent_dim=r).field_width for r in (1, 120, 128, 129, 160, 250)] == [256, 256, 256, 320, 320, 512]
+    # licrom.train replaces the chosen r into the config: the width follows it
+    assert dataclasses.replace(ModelConfig(), latent_dim=250).field_width == 512
+    assert ModelConfig(latent_dim=250, field_width=64).field_width == 64  # given: kept
+    net = LicromNet(ModelConfig(latent_dim=200, field_layers=2, fourier_features=0))
+    assert net.field.mlp[0].out_features == 448 and net.field.mlp[-1].in_features == 448
 
 
 def test_model_config_defaults_are_licrom():

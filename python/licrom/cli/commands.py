@@ -305,7 +305,7 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
 @click.option("--batch-frames", type=int, default=None, show_default="16", help="Frames per step.")
 @click.option("--points", type=int, default=None, show_default="2048", help="Points sampled per step, shared by its frames.")
 @click.option("--val-fraction", type=float, default=None, show_default="0.2", help="Fraction of trajectories held out.")
-@click.option("--width", type=int, default=None, show_default="256", help="Width of the neural field W(X).")
+@click.option("--width", type=int, default=None, show_default="auto", help="Width of the neural field W(X); auto: twice r, at least 256.")
 @click.option("--layers", type=int, default=None, show_default="5", help="Linear layers of the neural field W(X).")
 @click.option("--projection-weight", type=float, default=None, show_default="1; 0: plain LiCROM", help="Weight of the projection loss term.")
 @click.option("--fourier", type=int, default=None, show_default="32; 0: plain LiCROM", help="Random Fourier features of X fed to W(X).")

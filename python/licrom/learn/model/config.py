@@ -14,7 +14,18 @@ from ..._limits import blame, check_memory
 from ...errors import ConfigError
 from ...rigid import check_frame
 
-__all__ = ["ModelConfig"]
+__all__ = ["MIN_FIELD_WIDTH", "ModelConfig", "field_width_for"]
+
+MIN_FIELD_WIDTH = 256
+"""Narrowest field of ``field_width="auto"``: width 60 left 1.6x, 128 1.2x and 256 1.01x the held-out projection
+error of POD(8) on the demo data (body frame, POD objective, 60 epochs)."""
+
+
+def field_width_for(r: int) -> int:
+    """The field width ``"auto"`` gives r learned modes: every mode is a combination of the last hidden layer's
+    functions, so twice r, at least :data:`MIN_FIELD_WIDTH`, rounded up to a multiple of 64. At r = 250 and width 256
+    the ball's learned modes stayed 1.30x their POD after 300 epochs (docs/results.md section 19)."""
+    return max(MIN_FIELD_WIDTH, -(-2 * int(r) // 64) * 64)
 
 # Points evaluated per batch of the field (bounds peak memory, not speed).
 _CHUNK = 16384
@@ -47,10 +58,13 @@ def _model_bytes(s: Mapping[str, Any]) -> int:
 
 
 def model_sizes(config: ModelConfig) -> dict[str, Any]:
-    """The sizes of ``config`` that memory estimates read (``latent_dim`` "auto" counts as 1: r is not known yet)."""
+    """The sizes of ``config`` that memory estimates read (``latent_dim`` "auto" counts as 1 and ``field_width``
+    "auto" as :data:`MIN_FIELD_WIDTH`: r is not known yet)."""
     sizes = {name: getattr(config, name) for name in _SIZES}
     if sizes["latent_dim"] == "auto":
         sizes["latent_dim"] = 1
+    if sizes["field_width"] == "auto":
+        sizes["field_width"] = MIN_FIELD_WIDTH
     return sizes
 
 
@@ -66,11 +80,12 @@ class ModelConfig:
         field_layers: number of linear layers of the neural field W(X) (input 3, then
             ``field_layers - 1`` hidden ELU layers, then the 3 r output), >= 2.
             5 layers of width 60 is LiCROM's network.
-        field_width: width of the hidden layers of W(X). The default 256: every learned
-            mode is a combination of the last hidden layer's functions, and with the
-            POD objective (whose output layer is solved exactly) width 60 left 1.6x and
-            width 128 1.2x the held-out projection error of POD(8) on the demo data,
-            width 256 1.01x (body frame, 60 epochs).
+        field_width: width of the hidden layers of W(X), an integer >= 1, or ``"auto"`` (the
+            default): :func:`field_width_for` r, twice r and at least 256, resolved as soon as r
+            is an integer. Every learned mode is a combination of the last hidden layer's
+            functions, and with the POD objective (whose output layer is solved exactly) width
+            60 left 1.6x and width 128 1.2x the held-out projection error of POD(8) on the demo
+            data, width 256 1.01x (body frame, 60 epochs).
         fourier_features: F, random Fourier features of X fed to W(X) beside X itself
             (0: LiCROM's plain input). The default 32 learned the cheese set's subspace
             2-3x more accurately per epoch than 0 (benches/training_report.py sweep).
@@ -98,7 +113,7 @@ class ModelConfig:
 
     latent_dim: int | str = "auto"
     field_layers: int = 5
-    field_width: int = 256
+    field_width: int | str = "auto"
     fourier_features: int = 32
     fourier_scale: float = 1.0
     encoder_point_widths: tuple[int, ...] = (64, 128, 256)
@@ -115,7 +130,13 @@ class ModelConfig:
         if self.latent_dim != "auto":
             object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
         object.__setattr__(self, "field_layers", positive_int("field_layers", self.field_layers, 2))
-        object.__setattr__(self, "field_width", positive_int("field_width", self.field_width))
+        if self.field_width == "auto":
+            if self.latent_dim != "auto":
+                object.__setattr__(self, "field_width", field_width_for(int(self.latent_dim)))
+        elif isinstance(self.field_width, str):
+            raise ConfigError(f"ModelConfig.field_width must be an integer >= 1 or 'auto', got {self.field_width!r}")
+        else:
+            object.__setattr__(self, "field_width", positive_int("field_width", self.field_width))
         object.__setattr__(self, "fourier_features", positive_int("fourier_features", self.fourier_features, 0))
         fs = self.fourier_scale
         if isinstance(fs, bool) or not isinstance(fs, (int, float, np.floating)) or not np.isfinite(fs) or fs <= 0:
