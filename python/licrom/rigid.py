@@ -59,7 +59,7 @@ def center_of_mass(positions: np.ndarray, masses: np.ndarray) -> np.ndarray:
     """(..., n, 3) positions -> (..., 3) mass-weighted centroid."""
     m = _masses(masses)
     x = _frames("positions", positions, len(m))
-    return np.einsum("...ni,n->...i", x, m) / m.sum()
+    return np.matmul(m, x) / m.sum()  # BLAS: einsum took 7x longer on 150 frames of 23k vertices
 
 
 def best_rotation(matrix: np.ndarray) -> np.ndarray:
@@ -88,7 +88,7 @@ def rigid_fit(positions: np.ndarray, rest: np.ndarray, masses: np.ndarray) -> tu
     x = _frames("positions", x, len(m))
     xbar = rest - center_of_mass(rest, m)
     c = center_of_mass(x, m)
-    a = np.einsum("n,...ni,nj->...ij", m, x - c[..., None, :], xbar)
+    a = np.matmul(np.swapaxes(x - c[..., None, :], -1, -2), m[:, None] * xbar)  # sum_n m (x - c) xbar^T
     return c, best_rotation(a)
 
 
@@ -99,7 +99,7 @@ def body_frame_displacements(positions: np.ndarray, rest: np.ndarray, masses: np
     x = np.asarray(positions, dtype=np.float64)
     rest = np.asarray(rest, dtype=np.float64)
     xbar = rest - center_of_mass(rest, m)
-    return np.einsum("...ji,...nj->...ni", r, x - c[..., None, :]) - xbar
+    return np.matmul(x - c[..., None, :], r) - xbar  # R^T (x - c), row-wise
 
 
 def nonrigid_displacements(positions: np.ndarray, rest: np.ndarray, masses: np.ndarray) -> np.ndarray:
@@ -112,7 +112,7 @@ def nonrigid_displacements(positions: np.ndarray, rest: np.ndarray, masses: np.n
     c, r = rigid_fit(positions, rest, m)
     rest = np.asarray(rest, dtype=np.float64)
     xbar = rest - center_of_mass(rest, m)
-    return np.asarray(positions, dtype=np.float64) - c[..., None, :] - np.einsum("...ij,nj->...ni", r, xbar)
+    return np.asarray(positions, dtype=np.float64) - c[..., None, :] - np.matmul(xbar, np.swapaxes(r, -1, -2))
 
 
 def rotation_angle(rotation: np.ndarray) -> np.ndarray:

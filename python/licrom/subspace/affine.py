@@ -111,7 +111,7 @@ def fit_affine(points: np.ndarray, displacements: np.ndarray, weights: np.ndarra
     xc = x - centre
     design = np.concatenate([xc, np.ones((len(x), 1))], axis=1)  # (n, 4)
     gram = design.T @ (w[:, None] * design)
-    rhs = np.einsum("nk,n,fni->fki", design, w, u)  # (f, 4, 3)
+    rhs = np.matmul((w[:, None] * design).T, u)  # (f, 4, 3); BLAS (einsum took 20x longer at 120k tets)
     coef = np.linalg.solve(gram[None], rhs)  # (f, 4, 3): coef[k, i]
     lin = np.transpose(coef[:, :3, :], (0, 2, 1))  # (f, 3, 3): F_ij
     trans = coef[:, 3, :] - np.einsum("fij,j->fi", lin, centre)
@@ -125,5 +125,5 @@ def apply_affine(points: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
     x = np.asarray(points, dtype=np.float64)
     single = a.ndim == 1
     a2 = a[None] if single else a
-    out = np.einsum("fij,nj->fni", a2[:, :9].reshape(-1, 3, 3), x) + a2[:, None, 9:]
+    out = np.matmul(x, np.swapaxes(a2[:, :9].reshape(-1, 3, 3), -1, -2)) + a2[:, None, 9:]
     return out[0] if single else out

@@ -152,8 +152,10 @@ def _fold_errors(gram: np.ndarray, train: np.ndarray, test: np.ndarray, weights:
     """
     d = np.sqrt(weights)
     k = min(ranks, len(train))
-    lam, vec = eigh(d[:, None] * gram[np.ix_(train, train)] * d[None, :], subset_by_index=[len(train) - k, len(train) - 1])
-    lam, vec = lam[::-1], vec[:, ::-1]
+    # The whole spectrum by divide and conquer, then the top k: on 500-1000 frames faster than the subset driver,
+    # which took 2 s a fold on 120k-tet runs.
+    lam, vec = eigh(d[:, None] * gram[np.ix_(train, train)] * d[None, :], driver="evd")
+    lam, vec = lam[::-1][:k], vec[:, ::-1][:, :k]
     keep = lam > max(float(lam[0]), 1e-300) * 1e-10  # beyond the data's rank (or round-off of the Gram matrix) nothing is captured
     coef = (vec[:, keep] / np.sqrt(lam[keep])).T @ (d[:, None] * gram[np.ix_(train, test)])  # (k', test)
     captured = np.cumsum(coef**2, axis=0)
