@@ -130,7 +130,8 @@ class ModelConfig:
         if self.latent_dim != "auto":
             object.__setattr__(self, "latent_dim", positive_int("latent_dim", self.latent_dim))
         object.__setattr__(self, "field_layers", positive_int("field_layers", self.field_layers, 2))
-        if self.field_width == "auto":
+        auto_width = self.field_width == "auto"
+        if auto_width:
             if self.latent_dim != "auto":
                 object.__setattr__(self, "field_width", field_width_for(int(self.latent_dim)))
         elif isinstance(self.field_width, str):
@@ -159,6 +160,8 @@ class ModelConfig:
         # Before anything is built: a width or rank the machine cannot hold is named, not an allocator traceback.
         sizes = model_sizes(self)
         culprit = blame(_model_bytes, sizes, _SIZES)
+        if culprit == "field_width" and auto_width and self.latent_dim != "auto":
+            culprit = "latent_dim"  # the width follows r: r is what was asked for
         check_memory(f"ModelConfig.{culprit}", getattr(self, culprit), _model_bytes(sizes),
                      f"{Decimal(network_weights(sizes)):.3g} network weights at {_BYTES_PER_WEIGHT} bytes each and the "
                      f"field at {_CHUNK} points at a time; the other sizes as given")
