@@ -24,7 +24,7 @@ error of POD(8) on the demo data (body frame, POD objective, 60 epochs)."""
 def field_width_for(r: int) -> int:
     """The field width ``"auto"`` gives r learned modes: every mode is a combination of the last hidden layer's
     functions, so twice r, at least :data:`MIN_FIELD_WIDTH`, rounded up to a multiple of 64. At r = 250 and width 256
-    the ball's learned modes stayed 1.30x their POD after 300 epochs (docs/results.md section 19)."""
+    the ball's learned modes stayed 1.30x their POD after 300 epochs, at 512 1.000x after 200 (docs/results.md section 19)."""
     return max(MIN_FIELD_WIDTH, -(-2 * int(r) // 64) * 64)
 
 # Points evaluated per batch of the field (bounds peak memory, not speed).
