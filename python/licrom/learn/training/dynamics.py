@@ -35,6 +35,7 @@ from ...subspace.basis import MeshBasis, run_balanced_weights
 from ...subspace.body_basis import BodyFrameBasis
 from ...subspace.cubature import Cubature
 from ..training_data import TrainingData
+from .held_out import run_cadence
 
 __all__ = ["DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics"]
 
@@ -110,11 +111,6 @@ def _limits() -> tuple[float, float]:
     return MARGIN * ERROR_THRESHOLD, MARGIN * COM_TARGET
 
 
-def _cadence(run: Any) -> tuple[int, int] | None:
-    steps, frames = len(run.iterations), run.n_frames - 1
-    return (steps, steps // frames) if steps >= 1 and frames >= 1 and steps % frames == 0 else None
-
-
 def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMICS_MAX_RANK, runs: int = DYNAMICS_RUNS) -> DynamicsCheck:
     """The smallest r at or above ``rank`` at which replays of the training runs meet the targets.
 
@@ -149,7 +145,7 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
     if data.mesh.n_tets > MAX_TETS:
         return unchecked(f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic pass)")
     chosen = [data.training_runs[i] for i in np.unique(np.linspace(0, len(data.training_runs) - 1, min(runs, len(data.training_runs))).round().astype(int))]
-    chosen = [(name, run) for name, run in chosen if _cadence(run) is not None]
+    chosen = [(name, run) for name, run in chosen if run_cadence(run) is not None]
     if not chosen:
         return unchecked("not run (no training run of evenly spaced frames)")
     frames = data.train
@@ -161,7 +157,7 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
 
     def replay(name: str, run: Any, r: int) -> dict[str, Any]:
         basis = BodyFrameBasis(data.mesh, MeshBasis(data.mesh, pod.modes[:, :, :r]), density=density)
-        steps, every = _cadence(run)  # type: ignore[misc]
+        steps, every = run_cadence(run)  # type: ignore[misc]
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", LicromWarning)

@@ -33,8 +33,9 @@ HELD_OUT_RUNS = 8
 """Held-out runs checked at most (the first ones of the split): each costs a reduced run and a comparison."""
 
 
-def _steps(run: Trajectory) -> tuple[int, int] | None:
-    """``(steps, record_every)`` of a recorded run; None where its frames are not evenly spaced steps."""
+def run_cadence(run: Trajectory) -> tuple[int, int] | None:
+    """``(steps, record_every)`` of a recorded run, to replay it step for step; None where its frames are not evenly
+    spaced steps."""
     steps = len(run.iterations)
     frames = run.n_frames - 1
     if steps < 1 or frames < 1 or steps % frames:
@@ -57,7 +58,7 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
     """
     rows: list[dict[str, Any]] = []
     for name, run in list(runs)[:max_runs]:
-        cadence = _steps(run)
+        cadence = run_cadence(run)
         if cadence is None:
             rows.append({"run": name, "skipped": f"{run.n_frames} frames over {len(run.iterations)} steps are not evenly spaced"})
             continue
