@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 from licrom import Model, ReducedSim
 from licrom._io import atomic_path
+from licrom.analysis.compare import COM_TARGET, NONRIGID_TARGET
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.subspace.basis import RUN_BALANCE
@@ -146,8 +147,9 @@ def spearman(x: list[float], y: list[float]) -> float:
 def meets(row: dict, run: dict) -> bool:
     if row.get("chaotic"):
         floor = row["noise_floor"]
-        return run["nonrigid_error"] <= max(0.10, 3 * floor["nonrigid_error"]) and run["com_error"] <= max(0.02, 3 * floor["com_error"])
-    return run["nonrigid_error"] < 0.10 and run["com_error"] < 0.02 and run["stick_slip_right"]
+        return (run["nonrigid_error"] <= max(NONRIGID_TARGET, 3 * floor["nonrigid_error"])
+                and run["com_error"] <= max(COM_TARGET, 3 * floor["com_error"]))
+    return run["nonrigid_error"] < NONRIGID_TARGET and run["com_error"] < COM_TARGET and run["stick_slip_right"]
 
 
 def report(rows: list[dict], models: dict[str, Model]) -> str:
@@ -158,7 +160,7 @@ def report(rows: list[dict], models: dict[str, Model]) -> str:
            "fitted cubature tets | force residual | fit s | learned / POD(r) on held-out frames | training s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, m in models.items():
         rank, cub, sub = m.metadata.get("rank", {}), m.metadata.get("cubature", {}), m.metadata.get("subspace", {})
-        projection = rank.get("projection_rank", rank.get("rank"))
+        projection = rank.get("dynamics", {}).get("projection_rank", rank.get("rank"))
         i = rank["candidates"].index(projection) if rank.get("candidates") else None
         dynamics = rank.get("dynamics", {}).get("method")
         checked = ("not checked: trained before the check" if dynamics is None else

@@ -81,7 +81,7 @@ def test_train_chooses_r_records_it_and_extends_once(rank4, tmp_path):
     # 4 fields: the smallest default candidate that holds them
     assert model.n_learned == rank["rank"] == 5 and rank["tolerance"] == 1e-6 and rank["max_rank"] == 8
     # world frame: the dynamics check does not replay, and says so
-    assert rank["projection_rank"] == 5 and rank["dynamics"]["method"] == "not run (world-frame models)"
+    assert rank["dynamics"]["projection_rank"] == 5 and rank["dynamics"]["method"] == "not run (world-frame models)"
     assert RankChoice.from_dict(rank).rank == 5
     assert sub["split"] == "validation" and sub["r"] == 5 and sub["pod"] < 1e-6 < sub["model"]
     # two epochs leave the field far from POD: one extension of half the epochs, no more

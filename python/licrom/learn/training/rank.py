@@ -100,10 +100,10 @@ class RankChoice:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RankChoice:
         """The choice recorded by :meth:`to_dict` (a model's ``metadata["rank"]``, where ``"rank"`` is the model's r
-        and ``"projection_rank"``, when the dynamics check raised it, this choice's)."""
+        and ``"dynamics"`` the check that may have raised this choice, ``"projection_rank"``)."""
         names = {f.name for f in fields(cls)}
         kept = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in names}
-        return cls(**{**kept, "rank": d.get("projection_rank", d["rank"])})
+        return cls(**{**kept, "rank": d.get("dynamics", {}).get("projection_rank", d["rank"])})
 
     def describe(self) -> str:
         """One line per candidate and the choice, for the printed training report."""

@@ -404,7 +404,7 @@ def train(
         "mean_train_seconds_per_epoch": float(np.mean(train_secs)) if train_secs else None,
         "fit_seconds": t_fit,
         "data_seconds": t_data,
-        "rank": ({**rank.to_dict(), "rank": mcfg.latent_dim, "projection_rank": rank.rank, "dynamics": dynamics.to_dict()}
+        "rank": ({**rank.to_dict(), "rank": mcfg.latent_dim, "dynamics": dynamics.to_dict()}
                  if rank is not None and dynamics is not None else {"rank": mcfg.latent_dim, "method": "given (ModelConfig.latent_dim)"}),
         "subspace": subspace,
         "accelerator": accelerator,
