@@ -2,6 +2,7 @@
 
     python experiments/scale_end_to_end.py --device cuda --resolution 42 --runs 20 --work out/scale
     python experiments/scale_end_to_end.py --device cuda --azimuths 10 --jobs 4 --work out/wide  # 40 runs over a machine's GPUs
+    python experiments/scale_end_to_end.py --device cuda --azimuths 10 --paired --jobs 8 --work out/paired  # 20 runs, 10 azimuths
     python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
     python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
@@ -12,7 +13,8 @@ on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
 
 1. **generate**: the family's training runs (``--runs`` of its 20: the first ones, azimuth by
    azimuth; ``--azimuths N``: 4 runs at each of N azimuths evenly spaced from 0 deg in place of the
-   family's 5) and its held-out runs with the full simulation (``licrom.FullSim(mesh, scene,
+   family's 5; ``--paired``: 2 runs at each, two corners of the slope x friction grid alternating
+   between azimuths) and its held-out runs with the full simulation (``licrom.FullSim(mesh, scene,
    device=--device)``; ``--jobs`` runs at once, in processes that take the machine's GPUs in turn),
    each saved with ``Trajectory.save`` (float32, the CLI's default; file size noted);
 2. **train**: ``licrom.train(run_files, path)`` with its defaults (r chosen from the data, cubature
@@ -69,6 +71,7 @@ import body_frame_experiments as bfe
 
 SECTION_TITLE = "## 13. End to end at 120k tets"
 CONVERGED_TITLE = "## 17. End to end at 120k tets against a converged truth"  # the runs with a viscosity
+PAIRED_TITLE = "## 20. End to end at 120k tets, trained at ten azimuths"  # --paired: 20 runs over 10 azimuths
 
 
 def log(msg: str) -> None:
@@ -343,7 +346,8 @@ def main_study(args) -> dict:
     out["stages"]["generate"] = {"s": time.perf_counter() - t0, "runs": list(gen), "steps": steps, "dt": fam.cases[0].scene.dt,
                                  "integrator": fam.cases[0].scene.integrator, "viscosity": fam.cases[0].scene.material.viscosity,
                                  "record_every": fam.record_every,
-                                 "jobs": args.jobs, "devices": devices, "training_azimuths": list(bfe.TRAINING_AZIMUTHS)}
+                                 "jobs": args.jobs, "devices": devices, "training_azimuths": list(bfe.TRAINING_AZIMUTHS),
+                                 "paired": bfe.PAIRED_DESIGN}
     if first_process:  # the others would overwrite the generation's timing with their reading of the files
         (work / "scale.json").write_text(json.dumps(out, indent=1))
 
@@ -425,8 +429,19 @@ def _f(x, fmt=".1f") -> str:
 
 
 def section_title(res: dict) -> str:
-    """Section 13 for the family as it was (no material damping), 17 for runs with a viscosity."""
-    return CONVERGED_TITLE if res["stages"]["generate"].get("viscosity") else SECTION_TITLE
+    """Section 13 for the family as it was (no material damping), 17 for runs with a viscosity, 20 for the paired design."""
+    gen = res["stages"]["generate"]
+    return PAIRED_TITLE if gen.get("paired") else CONVERGED_TITLE if gen.get("viscosity") else SECTION_TITLE
+
+
+def training_design(gen: dict, runs: int) -> str:
+    """The training runs of a study in words: how many, at which azimuths, which slopes and frictions."""
+    az = gen.get("training_azimuths") or list(bfe.TRAINING_AZIMUTHS)
+    where = f"at azimuths {', '.join(f'{a:g}' for a in az)} deg"
+    if gen.get("paired"):
+        return (f"{runs} training runs {where}, 2 at each (slope 15 deg with mu 0.2 and 30 deg with mu 0.8 at every other "
+                "azimuth, 15 deg with mu 0.8 and 30 deg with mu 0.2 at the rest)")
+    return f"{runs} training runs {where}, slopes 15 and 30 deg, mu 0.2 and 0.8" + (" (the first azimuths)" if runs < 4 * len(az) else "")
 
 
 def section(res: dict) -> str:
@@ -440,14 +455,16 @@ def section(res: dict) -> str:
     rows = red["rows"]
     med_full = float(np.median([g["median_step_ms"] for g in ho])) if ho else float("nan")
     med_red = float(np.median([r["median_step_ms"] for r in rows])) if rows else float("nan")
+    az = gen.get("training_azimuths") or []
+    design = (f" --azimuths {len(az)}" if az and list(az) != list(bfe.TRAINING_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
     physics = (f" --time-step {gen['dt']:g} --integrator {gen['integrator']} --viscosity {gen['viscosity']:g}"
                if gen.get("viscosity") else "")
     out = [section_title(res), "",
-           f"`python experiments/scale_end_to_end.py --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}{physics}` "
+           f"`python experiments/scale_end_to_end.py --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}{design}{physics}` "
            f"(issue 24, part 2) on {res.get('gpu', 'no GPU')}, {res.get('cpus')} CPU cores, {res['date']}. The cheese family of "
            f"section 10 (soft cheese, E = 20 kPa, 6 cm drop; scenes from `body_frame_experiments.cheese_family`, same placement code) "
-           f"on `meshes.cheese(resolution={res['resolution']})`: {mesh['tets']} tets, {mesh['vertices']} vertices; {len(tr)} of the "
-           f"family's 20 training runs{' (the first azimuths)' if len(tr) < 20 else ''} and its {len(ho)} held-out runs, "
+           f"on `meshes.cheese(resolution={res['resolution']})`: {mesh['tets']} tets, {mesh['vertices']} vertices; {training_design(gen, len(tr))} "
+           f"and its {len(ho)} held-out runs, "
            f"{gen['steps']} steps of h = {gen['dt'] * 1e3:g} ms each"
            + (f" ({gen['integrator']}, material viscosity {gen['viscosity']:g} Pa s, a frame every {gen['record_every']} steps)"
               if gen.get("viscosity") else "") + f", full simulation on {res['device']}.", "",
@@ -542,6 +559,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=None, help="training runs (the first of the family's; default: all)")
     ap.add_argument("--azimuths", type=int, default=None, metavar="N",
                     help="N training azimuths evenly spaced from 0 deg (4 runs each) in place of the family's 5")
+    ap.add_argument("--paired", action="store_true",
+                    help="2 runs at each training azimuth (two corners of the slope x friction grid, alternating) in place of 4")
     ap.add_argument("--gpus", type=int, default=None, help="GPUs of the training (TrainConfig.devices; default: licrom.train's)")
     ap.add_argument("--rank", type=int, default=None, help="r given (ModelConfig.latent_dim) in place of the choice from the data")
     ap.add_argument("--jobs", type=int, default=1,
@@ -567,6 +586,7 @@ def main() -> None:
                     help="also the stored cubature with SolverParams.reduced_tolerance = T m/s (--cubatures)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
+    bfe.PAIRED_DESIGN = args.paired
     if args.azimuths is not None:
         bfe.TRAINING_AZIMUTHS = tuple(360.0 * k / args.azimuths for k in range(args.azimuths))
     if args.section_only:
