@@ -69,6 +69,7 @@ from licrom.subspace.cubature import ContactPoints, Cubature
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 
+FAMILY_AZIMUTHS = bfe.TRAINING_AZIMUTHS  # the family's own, before --azimuths replaces them
 SECTION_TITLE = "## 13. End to end at 120k tets"
 CONVERGED_TITLE = "## 17. End to end at 120k tets against a converged truth"  # the runs with a viscosity
 PAIRED_TITLE = "## 20. End to end at 120k tets, trained at ten azimuths"  # --paired: 20 runs over 10 azimuths
@@ -456,7 +457,7 @@ def section(res: dict) -> str:
     med_full = float(np.median([g["median_step_ms"] for g in ho])) if ho else float("nan")
     med_red = float(np.median([r["median_step_ms"] for r in rows])) if rows else float("nan")
     az = gen.get("training_azimuths") or []
-    design = (f" --azimuths {len(az)}" if az and list(az) != list(bfe.TRAINING_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
+    design = (f" --azimuths {len(az)}" if az and list(az) != list(FAMILY_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
     physics = (f" --time-step {gen['dt']:g} --integrator {gen['integrator']} --viscosity {gen['viscosity']:g}"
                if gen.get("viscosity") else "")
     out = [section_title(res), "",

@@ -265,19 +265,25 @@ impl BodyContacts {
         let n_planes = self.points.planes().len();
         let rt = pose.rotation.transpose();
         let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        // The previous pose is usually the last call's: its points' body positions are then kept ones.
+        let kept = anchor.is_some_and(|(prev, _)| start.q_start == prev.q);
         start.q_start.copy_from_slice(&pose.q);
         for s in 0..self.rest.len() {
             let forces = &mut start.normal_force[s * n_planes..(s + 1) * n_planes];
             forces.fill(0.0);
+            let had_y = kept && start.has_y[s];
             start.has_y[s] = self.points.planes().iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, q_norm));
             if !start.has_y[s] {
                 continue;
             }
             let y = self.rest[s] + self.mode_motion::<M>(s, &pose.q);
+            let y_prev = had_y.then(|| start.y_start[s]);
             start.y_start[s] = y;
             let x = pose.center + pose.rotation * y;
             start.x_prev[s] = match anchor {
-                Some((prev, w)) => x + w * (x - prev.center - prev.rotation * (self.rest[s] + self.mode_motion::<M>(s, &prev.q))),
+                Some((prev, w)) => {
+                    x + w * (x - prev.center - prev.rotation * y_prev.unwrap_or_else(|| self.rest[s] + self.mode_motion::<M>(s, &prev.q)))
+                }
                 None => x,
             };
             for (f, plane) in forces.iter_mut().zip(self.points.planes()) {

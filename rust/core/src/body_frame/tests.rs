@@ -225,6 +225,53 @@ fn inertia_and_elastic_derivatives_match_finite_differences() {
 
 /// The material damping in the body frame: a function of q alone (any c and R of the pose or of its
 /// history give the same term), zero where q stays put, its gradient against finite differences.
+/// A step's start keeps from the step before what its history repeats: the
+/// damping's `C(q_{n-1})` and the contact points' body positions at the
+/// previous pose. With both, on a damped BDF2 block in sliding contact, the
+/// carried start is the fresh one: the same anchor strain bit for bit, and the
+/// same energy and gradient at a trial pose (the inertia's `Y_k`, summed in
+/// another order when kept, to 1e-12).
+#[test]
+fn damped_contact_start_carried_over_steps_matches_a_fresh_one() {
+    let scene = BlockScene {
+        learned_modes: 4,
+        cubature_points: 9,
+        contact_points: 12,
+        normal_damping: 5.0e3,
+        integrator: Integrator::Bdf2,
+        viscosity: 400.0,
+        ..Default::default()
+    };
+    let b = body_block(&scene, true).unwrap();
+    let sys = BodyFrameSystem::new(&b.inputs()).unwrap();
+    let mut rng = Rng::new(17);
+    let size = b.scene.size;
+    let sunk = |rng: &mut Rng, x: f64| Pose {
+        center: Vector3::new(x, 0.3 * x, size / 2.0 - 1e-3 - 2e-3 * rng.uniform()),
+        rotation: random_rotation(rng, 1e-3),
+        q: rng.vec(b.n, 1e-3),
+    };
+    let poses: Vec<Pose> = (0..8).map(|t| sunk(&mut rng, 2e-3 * t as f64)).collect();
+    let mut carried = sys.step_start();
+    let (mut ws_carried, mut ws_fresh) = (sys.workspace(), sys.workspace());
+    let mut touching = 0;
+    for t in 3..8 {
+        let history: Vec<&Pose> = (0..4).map(|i| &poses[t - i]).collect();
+        sys.begin_step(&history, &mut carried);
+        let mut fresh = sys.step_start();
+        sys.begin_step(&history, &mut fresh);
+        assert_eq!(carried.strain, fresh.strain, "step {t}: anchor strain");
+        let probe = sunk(&mut rng, 2e-3 * t as f64 + 1e-3);
+        let e_carried = sys.evaluate(&carried, &probe, true, &mut ws_carried);
+        let e_fresh = sys.evaluate(&fresh, &probe, true, &mut ws_fresh);
+        assert!((e_carried - e_fresh).abs() <= 1e-12 * e_fresh.abs(), "step {t}: {e_carried} vs {e_fresh}");
+        assert!(rel_err(&ws_carried.grad, &ws_fresh.grad, 0.0) < 1e-12, "step {t}: gradient");
+        touching += usize::from(fresh.contact.normal_force.iter().any(|&f| f > 0.0));
+        assert_eq!(carried.contact.normal_force, fresh.contact.normal_force, "step {t}: lagged normal forces");
+    }
+    assert!(touching >= 3, "in contact at {touching} of 5 steps");
+}
+
 #[test]
 fn material_damping_depends_on_q_alone_and_matches_finite_differences() {
     let mut rng = Rng::new(5);
