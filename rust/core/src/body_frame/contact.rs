@@ -72,6 +72,15 @@ pub struct ContactStart {
     q_start: Vec<f64>,
 }
 
+impl ContactStart {
+    /// Keeps `other`'s points' body positions at its start pose, for a start that alternates with it.
+    pub(super) fn keep_start(&mut self, other: &ContactStart) {
+        self.y_start.clone_from(&other.y_start);
+        self.has_y.clone_from(&other.has_y);
+        self.q_start.clone_from(&other.q_start);
+    }
+}
+
 #[cfg(test)]
 impl ContactStart {
     /// The same start without the points' start positions: every gap is then

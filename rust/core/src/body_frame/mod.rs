@@ -138,6 +138,19 @@ pub struct BodyStart {
     strain: StrainAnchor,
 }
 
+impl BodyStart {
+    /// Takes from `last`, the start of the step just taken, what the next
+    /// step's start reuses: the inertia's mode products of the poses its
+    /// history repeats, the damping's `C(q_n)` and the contact points' body
+    /// positions at q_n (the solver alternates two starts, keeping the last
+    /// one for the contact forces).
+    fn take_kept(&mut self, last: &mut BodyStart) {
+        self.inertia.take_held(&mut last.inertia);
+        self.strain.keep_last(&last.strain);
+        self.contact.keep_start(&last.contact);
+    }
+}
+
 /// Which Hessian [`BodyFrameSystem::hessian`] assembles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BodyHessian {

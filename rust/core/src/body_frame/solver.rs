@@ -490,8 +490,8 @@ impl BodyFrameSolver {
         self.validity = self.iterate.validity;
         self.has_prev2 = true;
         std::mem::swap(&mut self.last, &mut self.current);
-        // The next step's history repeats this one's poses, whose mode products the last target holds.
-        self.current.inertia.take_held(&mut self.last.inertia);
+        // The next step's history repeats this one's poses, whose products the last start holds.
+        self.current.take_kept(&mut self.last);
         self.has_last = true;
     }
 

@@ -82,6 +82,14 @@ pub struct StrainAnchor {
     last_q: Vec<f64>,
 }
 
+impl StrainAnchor {
+    /// Keeps `other`'s `C(q)` of its last state, for an anchor that alternates with it.
+    pub(crate) fn keep_last(&mut self, other: &StrainAnchor) {
+        self.last.clone_from(&other.last);
+        self.last_q.clone_from(&other.last_q);
+    }
+}
+
 /// The symmetric components `(i, j)` of the damping's six square-root rows, in
 /// the order `StrainAnchor` stores `C`.
 const SYM: [(usize, usize); 6] = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)];

@@ -100,6 +100,12 @@ pub struct StepStart {
 }
 
 impl StepStart {
+    /// Keeps `last`'s damping `C(q_n)` (the start of the step just taken), for
+    /// a solver that alternates two starts: the next step's `C(q_{n-1})`.
+    pub(crate) fn keep_strain(&mut self, last: &StepStart) {
+        self.strain.keep_last(&last.strain);
+    }
+
     /// The step's anchor `q_a` (the state's q for backward Euler): the
     /// velocity after the step is `(q - q_a)/h'`.
     pub fn q(&self) -> &[f64] {

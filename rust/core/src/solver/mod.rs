@@ -463,6 +463,7 @@ impl ReducedSolver {
         self.guess_from_previous = true;
         self.validity = self.iterate.validity;
         std::mem::swap(self.last.fill(), &mut self.current);
+        self.current.keep_strain(&self.last.value);
     }
 
     /// Smallest det F at the cubature points and deepest penetration of a
