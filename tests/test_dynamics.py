@@ -103,3 +103,14 @@ def test_bad_data_and_config_are_config_errors():
     with pytest.raises(ConfigError, match="dynamics_max_rank"):
         TrainConfig(dynamics_max_rank=-1)
     assert TrainConfig(dynamics_max_rank=0).dynamics_max_rank == 0
+
+
+def test_replayed_runs_are_spread_over_what_the_runs_did(demo_data):
+    runs = [run for _, run in demo_data.training_runs]
+    spread = lambda rs, k: dynamics.spread_runs(rs, demo_data.masses, demo_data.mesh.size, k)  # noqa: E731
+    every = spread(runs, 99)
+    assert sorted(every) == list(range(len(runs)))
+    assert spread(runs, 2) == every[:2]  # greedy: a longer choice extends a shorter one
+    # a copy of a run is taken only once every run that did something else is
+    doubled = spread([*runs, runs[every[0]]], len(runs))
+    assert {every[0] if i == len(runs) else i for i in doubled} == set(range(len(runs)))

@@ -50,6 +50,7 @@ import numpy as np
 from .. import _core
 from ..errors import AccuracyWarning, ConfigError
 from ..geometry.mesh import Mesh
+from ..geometry.points import farthest_points
 from ..scene.scene import Scene
 
 __all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "SAMPLE_COUNT", "TARGET_WEIGHTS",
@@ -118,17 +119,6 @@ scene whose noise floor alone is 10-13 %: a residual sees the subspace's error, 
 trajectories) and, with the defaults, the naive cubature's stick (15.5 % true, 8.3 % estimated)."""
 
 
-def _farthest_points(points: np.ndarray, count: int) -> np.ndarray:
-    """Indices of ``count`` well-spread rows of (p, 3) ``points``, from the one nearest their centroid."""
-    chosen = [int(np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1)))]
-    dist = np.linalg.norm(points - points[chosen[0]], axis=1)
-    for _ in range(count - 1):
-        nxt = int(np.argmax(dist))
-        chosen.append(nxt)
-        dist = np.minimum(dist, np.linalg.norm(points - points[nxt], axis=1))
-    return np.array(chosen)
-
-
 def normalising_inverse(stiffness: np.ndarray, inertia: np.ndarray) -> np.ndarray:
     """(s, 3, 3) inverse of ``K^(1 - a) (K + m/h'^2 I)^a`` (:data:`INERTIA_EXPONENT` ``a``) for each vertex's
     (s, 3, 3) stiffness block ``K`` (N/m) and (s,) one-step inertia ``m/h'^2`` (N/m)."""
@@ -139,7 +129,7 @@ def normalising_inverse(stiffness: np.ndarray, inertia: np.ndarray) -> np.ndarra
 
 def sample_vertices(mesh: Mesh, count: int) -> np.ndarray:
     """(s,) ``count`` vertices spread over the body and its surface (farthest-point sampling)."""
-    return np.sort(_farthest_points(mesh.vertices, count))
+    return np.sort(farthest_points(mesh.vertices, count))
 
 
 class ErrorMonitor:

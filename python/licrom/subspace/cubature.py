@@ -17,6 +17,7 @@ import numpy as np
 from .._repr import concise_repr
 from ..errors import ConfigError, ShapeError
 from ..geometry.mesh import Mesh
+from ..geometry.points import farthest_points
 from ..scene.scene import Material
 from .basis import Basis, strain_jacobians
 from .body_basis import BodyFrameBasis
@@ -397,13 +398,7 @@ class ContactPoints:
         if k == everyone.count:
             return everyone
         pts = mesh.vertices[everyone.indices]
-        chosen = [int(np.random.default_rng(seed).integers(len(pts)))]
-        dist = np.linalg.norm(pts - pts[chosen[0]], axis=1)
-        for _ in range(k - 1):
-            nxt = int(np.argmax(dist))
-            chosen.append(nxt)
-            dist = np.minimum(dist, np.linalg.norm(pts - pts[nxt], axis=1))
-        chosen_arr = np.sort(np.array(chosen))
+        chosen_arr = np.sort(farthest_points(pts, k, first=int(np.random.default_rng(seed).integers(len(pts)))))
         _, owner = cKDTree(pts[chosen_arr]).query(pts)
         areas = np.bincount(owner, weights=everyone.areas, minlength=k)
         return cls(everyone.indices[chosen_arr], areas)

@@ -7,7 +7,7 @@ r = 100, yet its held-out roll ended 5.3 % of its size away in centre of mass. I
 travels round the whole surface, the rolling resistance comes from the deformation there, and with
 100 modes the reduced ball rolled 0.3-0.8 % too fast; POD(200) of the same runs brought it to 1.1 %.
 
-:func:`check_dynamics` replays a few training runs (:data:`DYNAMICS_RUNS`, spread over the list)
+:func:`check_dynamics` replays a few training runs (:data:`DYNAMICS_RUNS`, spread over their motions)
 with the body-frame reduced model on POD(r) of *all* the training runs (the run included: what is
 tested is whether r modes carry the dynamics of motion the data covers; whether the data covers a
 new scene is the projection curve's question), every tet as cubature, and compares each with its
@@ -26,17 +26,21 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ...analysis.compare import COM_TARGET, NONRIGID_TARGET, compare
 from ...errors import ConfigError, LicromError, LicromWarning
+from ...geometry.points import farthest_points
+from ...records.trajectory import Trajectory
 from ...reduced.body import BodyFrameSim
+from ...rigid import rigid_fit
 from ...subspace.basis import MeshBasis, run_balanced_weights
 from ...subspace.body_basis import BodyFrameBasis
 from ...subspace.cubature import Cubature
 from ..training_data import TrainingData
 from .held_out import run_cadence
 
-__all__ = ["DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics"]
+__all__ = ["DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics", "spread_runs"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -47,7 +51,7 @@ DYNAMICS_CANDIDATES = (100, 120, 150, 200, 250)
 """r values above the projection's choice that the dynamics may take (those above the cap dropped, the cap added)."""
 
 DYNAMICS_RUNS = 4
-"""Training runs replayed at most (evenly spread over the training runs' order): each costs a reduced run per r tried."""
+"""Training runs replayed at most (spread over what the runs did: :func:`spread_runs`): each costs a reduced run per r tried."""
 
 MARGIN = 2.0 / 3.0
 """A replay meets the targets when its non-rigid error is below ``MARGIN x`` the 10 % target and its final
@@ -143,10 +147,10 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
         return unchecked("not run (world-frame models)")
     if data.mesh.n_tets > MAX_TETS:
         return unchecked(f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic pass)")
-    chosen = [data.training_runs[i] for i in np.unique(np.linspace(0, len(data.training_runs) - 1, min(runs, len(data.training_runs))).round().astype(int))]
-    chosen = [(name, run) for name, run in chosen if run_cadence(run) is not None]
-    if not chosen:
+    candidates = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
+    if not candidates:
         return unchecked("not run (no training run of evenly spaced frames)")
+    chosen = [candidates[i] for i in spread_runs([run for _, run in candidates], data.masses, data.mesh.size, runs)]
     frames = data.train
     pod, _ = MeshBasis.pod(data.mesh, frames.residuals, cap, weights=run_balanced_weights(frames.trajectory, frames.norm2_residual))
     levels = (rank, *(r for r in DYNAMICS_CANDIDATES if rank < r < cap), cap)
@@ -182,6 +186,22 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
     report = tuple({"run": name, "reproducible": rows[name][cap]["meets"], "rows": [rows[name][r] for r in sorted(rows[name])]}
                    for name, _ in chosen)
     return DynamicsCheck(choice, rank, cap, levels, report, choice > rank, "replayed", time.perf_counter() - start)
+
+
+def spread_runs(runs: Sequence[Trajectory], masses: np.ndarray, size: float, count: int) -> list[int]:
+    """Indices of up to ``count`` of ``runs`` spread over what they did, in the order chosen.
+
+    Each run is the point (centre-of-mass travel from its first frame to its last / ``size``, rotation
+    vector of its turn in rad), the rigid fits of those frames; farthest-point sampling from the run
+    nearest their centroid (a typical run, then the most different ones). Spreading by list order put
+    the cheese's 4 replays on 2 of its 5 downhill directions.
+    """
+    motion = np.empty((len(runs), 6))
+    for i, run in enumerate(runs):
+        (c0, r0), (c1, r1) = (rigid_fit(run.positions(f), run.rest_positions, masses) for f in (0, -1))
+        motion[i, :3] = (c1 - c0) / size
+        motion[i, 3:] = Rotation.from_matrix(r1 @ r0.T).as_rotvec()
+    return [int(i) for i in farthest_points(motion, min(count, len(runs)))]
 
 
 def dynamics_lines(report: dict[str, Any] | None) -> Sequence[str]:
