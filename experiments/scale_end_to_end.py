@@ -457,7 +457,9 @@ def section(res: dict) -> str:
     med_full = float(np.median([g["median_step_ms"] for g in ho])) if ho else float("nan")
     med_red = float(np.median([r["median_step_ms"] for r in rows])) if rows else float("nan")
     az = gen.get("training_azimuths") or []
-    design = (f" --azimuths {len(az)}" if az and list(az) != list(FAMILY_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
+    given = res["stages"].get("train", {}).get("rank", {})
+    design = (f" --rank {given['rank']}" if str(given.get("method", "")).startswith("given") else "")
+    design += (f" --azimuths {len(az)}" if az and list(az) != list(FAMILY_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
     physics = (f" --time-step {gen['dt']:g} --integrator {gen['integrator']} --viscosity {gen['viscosity']:g}"
                if gen.get("viscosity") else "")
     out = [section_title(res), "",
