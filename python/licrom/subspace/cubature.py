@@ -173,6 +173,9 @@ class Cubature:
         Greedy selection: repeatedly add the tets whose force contributions best match the
         remaining residual, then solve a non-negative least-squares problem on the chosen
         tets; stop at ``count`` tets or when the relative residual is below ``tolerance``.
+        The target is the reduced force of every tet of the mesh, also where the tets are
+        chosen from a random pool of ``candidates`` (meshes larger than it): the residual
+        (``fit_error``) is then the error against the whole mesh's forces.
 
         Args:
             mesh: the mesh.
@@ -199,18 +202,22 @@ class Cubature:
         if mesh.n_tets > candidates:
             pool = np.sort(np.random.default_rng(seed).choice(mesh.n_tets, size=candidates, replace=False))
         mu, lam = material.snh_parameters
+        values = basis.values(mesh.vertices) if strain == "mesh" else None
         # Per-tet reduced forces per unit volume for every sample: columns of A.
-        g = strain_jacobians(basis, mesh, pool, strain).reshape(len(pool), 9, -1)  # (P, 9, n)
+        g = strain_jacobians(basis, mesh, pool, strain, values).reshape(len(pool), 9, -1)  # (P, 9, n)
         eye = np.eye(3).reshape(9)
         cols = np.empty((len(q), basis.n_modes, len(pool)))
         for s, qs in enumerate(q):
             f = (eye + g @ qs).reshape(-1, 3, 3)
             stress = _core.snh_pk1(np.ascontiguousarray(f), mu, lam).reshape(-1, 9)
             cols[s] = np.einsum("pkn,pk->np", g, stress)
-        # Target: the forces of all tets in the pool with their own volumes, rescaled to the
-        # whole mesh volume when the pool is a subset.
-        vol = mesh.rest_volumes[pool] * (mesh.volume / mesh.rest_volumes[pool].sum())
-        target = cols @ vol  # (S, n)
+        # Target: the reduced forces of every tet of the mesh. Where the pool is a subset (large meshes), its
+        # own forces rescaled to the mesh volume are a sampling estimate of them, and a fit to that estimate
+        # carries its sampling error into every reduced run.
+        if len(pool) == mesh.n_tets:
+            target = cols @ (mesh.rest_volumes[pool] * (mesh.volume / mesh.rest_volumes[pool].sum()))  # (S, n)
+        else:
+            target = _reduced_forces(mesh, basis, mu, lam, q, strain, values)
         norms = np.linalg.norm(target, axis=1)
         keep = norms > 1e-12 * max(norms.max(), 1e-300)
         if not keep.any():
@@ -312,6 +319,26 @@ class Cubature:
         candidates = int(min(20000, max(1000, FIT_MEMORY // (8 * max(len(q), 1) * width))))
         return cls.optimized(mesh, model_basis(model, mesh), model.default_scene.material, samples, count=count, candidates=candidates,
                              tolerance=tolerance, strain=strain)
+
+
+def _reduced_forces(mesh: Mesh, basis: Basis, mu: float, lam: float, q: np.ndarray, strain: str, values: np.ndarray | None,
+                    chunk: int = 2048) -> np.ndarray:
+    """(S, n) reduced elastic forces ``sum_t V_t G_t^T P(F_t)`` over every tet of ``mesh`` at each of the S rows of ``q``.
+
+    Chunks of tets, all samples at once: two matrix products per chunk, the stresses in one native call.
+    """
+    from .. import _core
+
+    eye = np.eye(3).reshape(1, 9, 1)
+    out = np.zeros((len(q), basis.n_modes))
+    for first in range(0, mesh.n_tets, chunk):
+        tets = np.arange(first, min(first + chunk, mesh.n_tets))
+        g = strain_jacobians(basis, mesh, tets, strain, values).reshape(len(tets), 9, -1)  # (P, 9, n)
+        f = eye + (g.reshape(-1, g.shape[2]) @ q.T).reshape(len(tets), 9, len(q))  # (P, 9, S)
+        stress = _core.snh_pk1(np.ascontiguousarray(f.transpose(0, 2, 1).reshape(-1, 3, 3)), mu, lam)
+        stress = stress.reshape(len(tets), len(q), 9) * mesh.rest_volumes[tets, None, None]
+        out += (stress.transpose(1, 0, 2).reshape(len(q), -1) @ g.reshape(-1, g.shape[2]))
+    return out
 
 
 def model_basis(model: Model, mesh: Mesh | None = None) -> Basis:
