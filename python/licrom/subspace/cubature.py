@@ -217,7 +217,7 @@ class Cubature:
         if len(pool) == mesh.n_tets:
             target = cols @ (mesh.rest_volumes[pool] * (mesh.volume / mesh.rest_volumes[pool].sum()))  # (S, n)
         else:
-            target = _reduced_forces(mesh, basis, mu, lam, q, strain, values)
+            target = reduced_forces(mesh, basis, material, q, strain=strain, values=values)
         norms = np.linalg.norm(target, axis=1)
         keep = norms > 1e-12 * max(norms.max(), 1e-300)
         if not keep.any():
@@ -321,23 +321,39 @@ class Cubature:
                              tolerance=tolerance, strain=strain)
 
 
-def _reduced_forces(mesh: Mesh, basis: Basis, mu: float, lam: float, q: np.ndarray, strain: str, values: np.ndarray | None,
-                    chunk: int = 2048) -> np.ndarray:
-    """(S, n) reduced elastic forces ``sum_t V_t G_t^T P(F_t)`` over every tet of ``mesh`` at each of the S rows of ``q``.
+def reduced_forces(mesh: Mesh, basis: Basis, material: Material, q: np.ndarray, tets: np.ndarray | None = None,
+                   weights: np.ndarray | None = None, strain: str = "mesh", values: np.ndarray | None = None,
+                   chunk: int = 2048) -> np.ndarray:
+    """(S, n) reduced elastic forces ``sum_k w_k G_k^T P(F_k)`` at each of the S rows of reduced coordinates ``q``.
 
-    Chunks of tets, all samples at once: two matrix products per chunk, the stresses in one native call.
+    Args:
+        mesh: the mesh.
+        basis: the subspace basis.
+        material: material of the forces.
+        q: (S, n) reduced coordinates.
+        tets: the tets summed over (default every tet of ``mesh``).
+        weights: their weights, m^3 (default their rest volumes: the exact forces).
+        strain: as in :meth:`Cubature.optimized`.
+        values: the basis' values at the mesh vertices, when already evaluated.
+        chunk: tets per pass (all poses at once: two matrix products per chunk, the stresses in one native call).
     """
     from .. import _core
 
+    mu, lam = material.snh_parameters
+    tets = np.arange(mesh.n_tets) if tets is None else np.asarray(tets, dtype=np.int64)
+    weights = mesh.rest_volumes[tets] if weights is None else np.asarray(weights, dtype=np.float64)
+    if strain == "mesh" and values is None:
+        values = basis.values(mesh.vertices)
+    q = np.asarray(q, dtype=np.float64)
     eye = np.eye(3).reshape(1, 9, 1)
-    out = np.zeros((len(q), basis.n_modes))
-    for first in range(0, mesh.n_tets, chunk):
-        tets = np.arange(first, min(first + chunk, mesh.n_tets))
-        g = strain_jacobians(basis, mesh, tets, strain, values).reshape(len(tets), 9, -1)  # (P, 9, n)
-        f = eye + (g.reshape(-1, g.shape[2]) @ q.T).reshape(len(tets), 9, len(q))  # (P, 9, S)
+    out = np.zeros((len(q), q.shape[1]))
+    for first in range(0, len(tets), chunk):
+        part = tets[first:first + chunk]
+        g = strain_jacobians(basis, mesh, part, strain, values).reshape(len(part), 9, -1)  # (P, 9, n)
+        f = eye + (g.reshape(-1, g.shape[2]) @ q.T).reshape(len(part), 9, len(q))  # (P, 9, S)
         stress = _core.snh_pk1(np.ascontiguousarray(f.transpose(0, 2, 1).reshape(-1, 3, 3)), mu, lam)
-        stress = stress.reshape(len(tets), len(q), 9) * mesh.rest_volumes[tets, None, None]
-        out += (stress.transpose(1, 0, 2).reshape(len(q), -1) @ g.reshape(-1, g.shape[2]))
+        stress = stress.reshape(len(part), len(q), 9) * weights[first:first + chunk, None, None]
+        out += stress.transpose(1, 0, 2).reshape(len(q), -1) @ g.reshape(-1, g.shape[2])
     return out
 
 
