@@ -254,3 +254,17 @@ def test_a_fit_over_a_subset_of_candidate_tets_is_fitted_to_every_tets_forces():
     fitted = forces(fit.tets, fit.weights)
     true_error = np.sqrt(np.mean(np.sum((fitted - every) ** 2, axis=1) / np.sum(every**2, axis=1)))
     assert true_error > 1e-3 and fit.fit_error == pytest.approx(true_error, rel=1e-6)
+
+
+def test_training_warns_when_its_fitted_cubature_misses_the_tolerance(tiny_demo):
+    from licrom import AccuracyWarning, Model
+    from licrom.learn.training import TrainConfig
+    from licrom.learn.training.run import fit_cubature
+    from licrom.learn.training_data import TrainingData
+
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    data = TrainingData(out / "data", frame=model.frame)
+    with pytest.warns(AccuracyWarning, match="force residual"):
+        fit_cubature(model, data, TrainConfig(cubature_points=1))
+    assert model.cubature.count == 1 and model.metadata["cubature"]["fit_error"] > FIT_TOLERANCE

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...errors import ConfigError
+from ...errors import AccuracyWarning, ConfigError
 from ...rigid import check_frame
 from ...viz._plot import pyplot, save_png
 from ..model import LicromNet, Model, ModelConfig
@@ -94,6 +94,11 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     samples = model_samples(model, u)
     cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance)
     model.set_cubature(cubature, samples)
+    if cubature.fit_error > cfg.cubature_tolerance:
+        warnings.warn(f"the fitted cubature's force residual is {cubature.fit_error:.1e}, above its tolerance {cfg.cubature_tolerance:.0e}, "
+                      f"with {cubature.count} of {model.mesh.n_tets} tets: the reduced elastic forces are that far off at the training "
+                      "poses (raise TrainConfig.cubature_points, or run with cubature='full' to see what the fit costs)",
+                      AccuracyWarning, stacklevel=3)
     model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
                                   "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "samples": len(samples),
                                   "fit_seconds": time.perf_counter() - t0}
