@@ -268,3 +268,20 @@ def test_training_warns_when_its_fitted_cubature_misses_the_tolerance(tiny_demo)
     with pytest.warns(AccuracyWarning, match="force residual"):
         fit_cubature(model, data, TrainConfig(cubature_points=1))
     assert model.cubature.count == 1 and model.metadata["cubature"]["fit_error"] > FIT_TOLERANCE
+
+
+def test_reduced_forces_refuse_bad_shapes_and_foreign_tets():
+    from licrom import Material
+    from licrom.subspace.cubature import reduced_forces
+
+    mesh = meshes.box(resolution=2)
+    basis = AffineBasis()
+    q = np.zeros((2, basis.n_modes))
+    with pytest.raises(ShapeError, match="q must have shape"):
+        reduced_forces(mesh, basis, Material(), q[:, :-1])
+    with pytest.raises(ShapeError, match="one per tet"):
+        reduced_forces(mesh, basis, Material(), q, tets=[0, 1], weights=[1.0])
+    with pytest.raises(ConfigError, match="outside the mesh"):
+        reduced_forces(mesh, basis, Material(), q, tets=[mesh.n_tets])
+    # at rest every tet's force is zero
+    assert np.abs(reduced_forces(mesh, basis, Material(), q)).max() < 1e-9

@@ -336,15 +336,25 @@ def reduced_forces(mesh: Mesh, basis: Basis, material: Material, q: np.ndarray, 
         strain: as in :meth:`Cubature.optimized`.
         values: the basis' values at the mesh vertices, when already evaluated.
         chunk: tets per pass (all poses at once: two matrix products per chunk, the stresses in one native call).
+
+    Raises:
+        ShapeError: ``q`` not (S, n) for the basis' n, or ``weights`` not one per tet.
+        ConfigError: tet indices outside the mesh.
     """
     from .. import _core
 
     mu, lam = material.snh_parameters
-    tets = np.arange(mesh.n_tets) if tets is None else np.asarray(tets, dtype=np.int64)
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != basis.n_modes:
+        raise ShapeError(f"reduced_forces: q must have shape (S, {basis.n_modes}), got {q.shape}")
+    tets = np.arange(mesh.n_tets) if tets is None else _indices("reduced_forces", "tets", tets)
+    if len(tets) and tets.max() >= mesh.n_tets:
+        raise ConfigError(f"reduced_forces: tet index {tets.max()} outside the mesh's {mesh.n_tets} tets")
     weights = mesh.rest_volumes[tets] if weights is None else np.asarray(weights, dtype=np.float64)
+    if weights.shape != tets.shape:
+        raise ShapeError(f"reduced_forces: weights must have shape {tets.shape} (one per tet), got {weights.shape}")
     if strain == "mesh" and values is None:
         values = basis.values(mesh.vertices)
-    q = np.asarray(q, dtype=np.float64)
     eye = np.eye(3).reshape(1, 9, 1)
     out = np.zeros((len(q), q.shape[1]))
     for first in range(0, len(tets), chunk):

@@ -34,6 +34,9 @@ use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
 use super::layout::{kept_points, lanes_at, widened_at, CubatureLayout, VertexLayout, VertexStrainInputs};
 
+mod anchor;
+pub use anchor::StrainAnchor;
+
 /// Borrowed description of the elastic term; arrays row-major (C order).
 #[derive(Debug, Clone, Copy)]
 pub struct ElasticInputs<'a> {
@@ -65,29 +68,6 @@ pub struct ElasticTerm {
     material: StableNeoHookean,
     /// `eta / h'`, Pa: the damping's weight (0 without damping).
     kappa: f64,
-}
-
-/// The anchor's right Cauchy-Green tensors `C_k` (`F_k^T F_k` extrapolated as the
-/// integrator extrapolates), per cubature point of positive weight (six components, packed by lanes as the
-/// points are): what the material damping measures the strain's rate against.
-/// Empty for a term without damping.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct StrainAnchor {
-    c: Vec<F8>,
-    /// `C(q)` of the last state set, and that state: the next step's previous
-    /// state is this one, so BDF2's `C(q_prev)` is read from here, not formed
-    /// again (one pass over the cubature Jacobians a step instead of two: a
-    /// fifth of the body-frame step's time at n = 120-150, K = 716, profiled).
-    last: Vec<F8>,
-    last_q: Vec<f64>,
-}
-
-impl StrainAnchor {
-    /// Keeps `other`'s `C(q)` of its last state, for an anchor that alternates with it.
-    pub(crate) fn keep_last(&mut self, other: &StrainAnchor) {
-        self.last.clone_from(&other.last);
-        self.last_q.clone_from(&other.last_q);
-    }
 }
 
 /// The symmetric components `(i, j)` of the damping's six square-root rows, in
@@ -168,55 +148,6 @@ impl ElasticTerm {
         self.kappa > 0.0
     }
 
-    /// A zeroed anchor of the right size (empty without damping).
-    pub fn strain_anchor(&self) -> StrainAnchor {
-        let len = if self.damped() { 6 * self.cubature.groups() } else { 0 };
-        StrainAnchor { c: vec![[0.0; LANES]; len], last: vec![[0.0; LANES]; len], last_q: Vec::new() }
-    }
-
-    /// Sets `anchor` from the state `q` and, with a history weight w, the
-    /// previous one: `C = (1 + w) C(q) - w C(q_prev)` (nothing without damping).
-    pub fn set_anchor(&self, q: &[f64], previous: Option<(&[f64], f64)>, anchor: &mut StrainAnchor) {
-        if self.damped() {
-            dispatch(AnchorKernel { term: self, q, previous, anchor });
-        }
-    }
-
-    #[inline(always)]
-    fn set_anchor_impl<M: Madd>(&self, q: &[f64], previous: Option<(&[f64], f64)>, anchor: &mut StrainAnchor) {
-        let kept = previous.is_some_and(|(p, _)| anchor.last_q == p);
-        // C(q_prev) where it was not kept: into `c`, before `last` is overwritten with C(q).
-        if let (Some((p, _)), false) = (previous, kept) {
-            self.cauchy_green::<M>(p, &mut anchor.c);
-        } else if kept {
-            std::mem::swap(&mut anchor.c, &mut anchor.last);
-        }
-        self.cauchy_green::<M>(q, &mut anchor.last);
-        anchor.last_q.clear();
-        anchor.last_q.extend_from_slice(q);
-        let w = previous.map_or(0.0, |(_, w)| w);
-        for (out, now) in anchor.c.iter_mut().zip(&anchor.last) {
-            for l in 0..LANES {
-                out[l] = if previous.is_some() { (1.0 + w) * now[l] - w * out[l] } else { now[l] };
-            }
-        }
-    }
-
-    /// `C = F^T F` at `q` of every group of cubature points, six components each (the order of [`SYM`]).
-    #[inline(always)]
-    fn cauchy_green<M: Madd>(&self, q: &[f64], out: &mut [F8]) {
-        let cub = &self.cubature;
-        let f0 = cub.constant_deformation(q);
-        for (group, c) in cub.packed.chunks_exact(cub.group_len()).zip(out.chunks_exact_mut(6)) {
-            let f = cub.group_deformation::<M>(group, q, &f0);
-            for (out, &(i, j)) in c.iter_mut().zip(&SYM) {
-                for l in 0..LANES {
-                    out[l] = f[i][l] * f[j][l] + f[3 + i][l] * f[3 + j][l] + f[6 + i][l] * f[6 + j][l];
-                }
-            }
-        }
-    }
-
     /// Number of cubature points K.
     pub fn n_cubature(&self) -> usize {
         self.n_cubature
@@ -253,7 +184,7 @@ impl ElasticTerm {
     /// The anchor's six components of group `g`, where the term is damped and `anchor` given.
     #[inline(always)]
     fn anchor_of<'a>(&self, anchor: Option<&'a StrainAnchor>, g: usize) -> Option<&'a [F8]> {
-        anchor.filter(|_| self.damped()).map(|a| &a.c[6 * g..6 * g + 6])
+        anchor.filter(|_| self.damped()).map(|a| a.group(g))
     }
 
     /// Adds the damping's energy density and stress (both per unit weight) at
@@ -683,20 +614,5 @@ impl WithMadd for ElasticKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) -> f64 {
         self.term.evaluate_impl::<M>(self.q, self.anchor, self.ws)
-    }
-}
-
-struct AnchorKernel<'a> {
-    term: &'a ElasticTerm,
-    q: &'a [f64],
-    previous: Option<(&'a [f64], f64)>,
-    anchor: &'a mut StrainAnchor,
-}
-
-impl WithMadd for AnchorKernel<'_> {
-    type Output = ();
-    #[inline(always)]
-    fn run<M: Madd>(self) {
-        self.term.set_anchor_impl::<M>(self.q, self.previous, self.anchor)
     }
 }
