@@ -445,7 +445,7 @@ def training_design(gen: dict, runs: int) -> str:
     return f"{runs} training runs {where}, slopes 15 and 30 deg, mu 0.2 and 0.8" + (" (the first azimuths)" if runs < 4 * len(az) else "")
 
 
-def section(res: dict) -> str:
+def section(res: dict, title: str | None = None) -> str:
     st = res["stages"]
     gen, train, red = st["generate"], st["train"], st["reduce"]
     runs = gen["runs"]
@@ -462,7 +462,7 @@ def section(res: dict) -> str:
     design += (f" --azimuths {len(az)}" if az and list(az) != list(FAMILY_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
     physics = (f" --time-step {gen['dt']:g} --integrator {gen['integrator']} --viscosity {gen['viscosity']:g}"
                if gen.get("viscosity") else "")
-    out = [section_title(res), "",
+    out = [title or section_title(res), "",
            f"`python experiments/scale_end_to_end.py --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}{design}{physics}` "
            f"(issue 24, part 2) on {res.get('gpu', 'no GPU')}, {res.get('cpus')} CPU cores, {res['date']}. The cheese family of "
            f"section 10 (soft cheese, E = 20 kPa, 6 cm drop; scenes from `body_frame_experiments.cheese_family`, same placement code) "
@@ -577,6 +577,7 @@ def main() -> None:
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--small", action="store_true", help="tiny cheese, 20 steps, CPU, 1 epoch: a smoke test")
     ap.add_argument("--section-only", action="store_true", help="write the docs section from --work/scale.json")
+    ap.add_argument("--section", help="title of the section --section-only writes (default: by the study's design, e.g. section 20 for --paired)")
     ap.add_argument("--bounds", type=Path, metavar="MODEL", help="only the held-out runs' subspace bounds for MODEL (--work/bounds.json)")
     ap.add_argument("--cubatures", type=Path, metavar="MODEL",
                     help="only the held-out runs with MODEL's stored cubature, its refits and every tet (--work/cubatures.json)")
@@ -594,7 +595,8 @@ def main() -> None:
         bfe.TRAINING_AZIMUTHS = tuple(360.0 * k / args.azimuths for k in range(args.azimuths))
     if args.section_only:
         res = json.loads((Path(args.work) / "scale.json").read_text())
-        bfe.write_section(Path(args.docs), section(res), section_title(res))
+        title = args.section or section_title(res)
+        bfe.write_section(Path(args.docs), section(res, title), title)
         return
     if args.small:
         args.device, args.resolution = "cpu", 5

@@ -298,6 +298,12 @@ fn write_rows<M: Madd>(at: usize, gs: &[F8; 9], coefs: [&[[F8; 9]; 9]; 2], count
     }
 }
 
+/// `u_v` of used vertex v from displacements stored three per vertex.
+#[inline(always)]
+pub(super) fn stored_displacement(u: &[f64], v: usize) -> [f64; 3] {
+    [u[3 * v], u[3 * v + 1], u[3 * v + 2]]
+}
+
 impl ElasticTerm {
     /// Elastic energy and, with `ws`, its gradient and smallest `det F` into
     /// `ws`: through the vertices where the term has their form, else through
@@ -387,9 +393,7 @@ impl ElasticTerm {
     ) -> f64 {
         let n = self.n;
         if let Some(ws) = ws.as_deref_mut() {
-            for (v, u) in ws.vertex_u.chunks_exact_mut(3).enumerate() {
-                u.copy_from_slice(&vertices.displacement::<M>(v, q, n));
-            }
+            vertices.displacements::<M>(q, n, &mut ws.vertex_u);
             ws.vertex_force.fill(0.0);
         }
         let track = ws.is_some();
@@ -398,27 +402,10 @@ impl ElasticTerm {
         for (g, weights) in self.cubature.weights.chunks_exact(LANES).enumerate() {
             let tets = &vertices.tets[g * 4 * LANES..(g + 1) * 4 * LANES];
             let grads = &vertices.grads[g * 12 * LANES..(g + 1) * 12 * LANES];
-            let mut f = [[0.0; LANES]; 9];
-            for a in [0, 4, 8] {
-                f[a] = [1.0; LANES];
-            }
-            for (t, vs) in tets.chunks_exact(LANES).enumerate() {
-                let mut u = [[0.0; LANES]; 3];
-                for (l, &v) in vs.iter().enumerate() {
-                    let uv = match ws.as_deref() {
-                        Some(ws) => [ws.vertex_u[3 * v as usize], ws.vertex_u[3 * v as usize + 1], ws.vertex_u[3 * v as usize + 2]],
-                        None => vertices.displacement::<M>(v as usize, q, n),
-                    };
-                    for i in 0..3 {
-                        u[i][l] = uv[i];
-                    }
-                }
-                for i in 0..3 {
-                    for j in 0..3 {
-                        f[3 * i + j] = M::madd8(&u[i], lanes_at(grads, (3 * t + j) * LANES), f[3 * i + j]);
-                    }
-                }
-            }
+            let f = match ws.as_deref() {
+                Some(ws) => vertices.group_deformation::<M>(g, |v| stored_displacement(&ws.vertex_u, v)),
+                None => vertices.group_deformation::<M>(g, |v| vertices.displacement::<M>(v, q, n)),
+            };
             if track {
                 lowest_dets(&f, weights, &mut low);
             }

@@ -349,4 +349,40 @@ impl VertexLayout {
     pub(super) fn displacement<M: Madd>(&self, v: usize, q: &[f64], n: usize) -> [f64; 3] {
         rows_dot::<M, 3>(&self.basis[3 * n * v..3 * n * (v + 1)], q)
     }
+
+    /// `u_v = W_v q` of every used vertex, three values each, into `u`.
+    #[inline(always)]
+    pub(super) fn displacements<M: Madd>(&self, q: &[f64], n: usize, u: &mut [f64]) {
+        for (v, uv) in u.chunks_exact_mut(3).enumerate() {
+            uv.copy_from_slice(&self.displacement::<M>(v, q, n));
+        }
+    }
+
+    /// `F = I + sum_t u_t grad_t^T` of group `g` of cubature points (row-major
+    /// components, eight points a lane each), from its tets' vertex
+    /// displacements `u_of(v)`.
+    #[inline(always)]
+    pub(super) fn group_deformation<M: Madd>(&self, g: usize, u_of: impl Fn(usize) -> [f64; 3]) -> [F8; 9] {
+        let tets = &self.tets[g * 4 * LANES..(g + 1) * 4 * LANES];
+        let grads = &self.grads[g * 12 * LANES..(g + 1) * 12 * LANES];
+        let mut f = [[0.0; LANES]; 9];
+        for a in [0, 4, 8] {
+            f[a] = [1.0; LANES];
+        }
+        for (t, vs) in tets.chunks_exact(LANES).enumerate() {
+            let mut u = [[0.0; LANES]; 3];
+            for (l, &v) in vs.iter().enumerate() {
+                let uv = u_of(v as usize);
+                for i in 0..3 {
+                    u[i][l] = uv[i];
+                }
+            }
+            for i in 0..3 {
+                for j in 0..3 {
+                    f[3 * i + j] = M::madd8(&u[i], lanes_at(grads, (3 * t + j) * LANES), f[3 * i + j]);
+                }
+            }
+        }
+        f
+    }
 }

@@ -375,6 +375,22 @@ fn vertex_form_of_the_cubature_matches_its_jacobians_and_finite_differences() {
     by_points.evaluate(&start, &q, true, &mut ws_p);
     by_vertices.evaluate(&start, &q, true, &mut ws_v);
     assert!(rel_err(&ws_v.grad, &ws_p.grad, 1e-9) < 1e-6 && (ws_v.elastic_energy - e_v).abs() <= 1e-14 * e_v);
+    // With damping each system forms its step start's anchor strain C(q_n) its own way (the vertex
+    // form through the vertices); the damped energies and gradients at q then agree as the plain ones do.
+    let damped = |vs: Option<VertexStrainInputs>| {
+        ReducedSystem::new(&ReducedInputs { elastic: ElasticInputs { viscosity: 50.0, vertex_strain: vs, ..base.elastic }, ..base }).unwrap()
+    };
+    let (damped_p, damped_v) = (damped(None), damped(Some(vertex_strain)));
+    let (start_p, _, _) = sliding_start(&model, &damped_p);
+    let (start_v, _, _) = sliding_start(&model, &damped_v);
+    damped_p.evaluate(&start_p, &q, true, &mut ws_p);
+    damped_v.evaluate(&start_v, &q, true, &mut ws_v);
+    // The damping's energy: each damped elastic term less the plain one of the same form.
+    let damping_p = ws_p.elastic_energy - by_points.elastic(&q, false, &mut by_points.workspace());
+    let damping_v = ws_v.elastic_energy - by_vertices.elastic(&q, false, &mut by_vertices.workspace());
+    assert!(damping_v > 1e-4 * ws_v.elastic_energy, "the damping counts: {damping_v} of {}", ws_v.elastic_energy);
+    assert!((damping_v - damping_p).abs() < 1e-5 * damping_v, "damping energy {damping_v} vs {damping_p}");
+    assert!(rel_err(&ws_v.grad, &ws_p.grad, 1e-9) < 1e-6, "damped gradient vs the Jacobians': {}", rel_err(&ws_v.grad, &ws_p.grad, 1e-9));
 }
 
 #[test]
