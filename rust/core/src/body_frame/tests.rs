@@ -282,12 +282,16 @@ fn total_derivatives_match_finite_differences_on_a_turned_block() {
 #[test]
 fn contact_points_are_skipped_only_where_they_cannot_touch() {
     // Within a step each gap is bounded from the point's position at the step
-    // start through the largest singular value of W_j. At the bound's worst
-    // case (the body turned so that W_j's top left singular vector is the
-    // plane's normal, and dq along the top right one) a point that starts
-    // above the plane and ends 1 um in it must be evaluated: the energy and
-    // gradient are those of the bound through |q| alone. A bound 1 % too
-    // tight skips the point and fails here.
+    // start, or at the points' reference q, through the largest singular value
+    // of W_j. At the bound's worst case (the body turned so that W_j's top left
+    // singular vector is the plane's normal, and dq along the top right one) a
+    // point that starts above the plane and ends 1 um in it must be evaluated:
+    // the energy and gradient are those of the bound through |q| alone. A bound
+    // 1 % too tight skips the point and fails here. Two starts: one that forms
+    // the reference at its own q (the point has no start position and is
+    // bounded from the reference), and one begun after a start further along
+    // dq, whose reference it keeps (loose enough that the point gets a start
+    // position, and is bounded from that).
     let (b, sys, _, _) = turned_case();
     let (n, plane) = (b.n, &b.terms.planes[0]);
     let mut ws = sys.workspace();
@@ -299,27 +303,33 @@ fn contact_points_are_skipped_only_where_they_cannot_touch() {
         let u = Vector3::from_iterator(svd.u.as_ref().unwrap().column(k).iter().copied());
         let v: Vec<f64> = svd.v_t.as_ref().unwrap().row(k).iter().copied().collect();
         let rotation = nalgebra::Rotation3::rotation_between(&u, &plane.normal()).unwrap().into_inner();
-        let s = 0.02;
+        let s = 0.004; // small enough that the kept reference (0.3 s back) is not formed again
         let q: Vec<f64> = v.iter().map(|vi| s * vi).collect();
         let y = Vector3::from_column_slice(&b.terms.contact_rest[3 * j..3 * j + 3]) + &w * nalgebra::DVector::from_column_slice(&q);
         let g0 = 0.5 * sigma * s;
         let center = plane.normal() * (g0 - plane.gap(&(rotation * y)));
         let cur = Pose { center, rotation, q };
-        let mut start = sys.step_start();
-        sys.begin_step(&[&cur, &cur], &mut start);
-        let loose = BodyStart { contact: start.contact.without_start_positions(), ..start.clone() };
         let t = (g0 + 1e-6) / sigma;
-        let x: Vec<f64> = [0.0; 6].into_iter().chain(v.iter().map(|vi| -t * vi)).collect();
-        let pose = moved(&cur, &x);
+        let along = |d: f64| moved(&cur, &[0.0; 6].into_iter().chain(v.iter().map(|vi| d * vi)).collect::<Vec<f64>>());
+        let pose = along(-t);
         let x_j = pose.center
             + pose.rotation
                 * (Vector3::from_column_slice(&b.terms.contact_rest[3 * j..3 * j + 3]) + &w * nalgebra::DVector::from_column_slice(&pose.q));
         assert!(g0 > 1e-5 && (plane.gap(&x_j) + 1e-6).abs() < 1e-9, "point {j}: start gap {g0}, end gap {}", plane.gap(&x_j));
-        let e = sys.evaluate(&start, &pose, true, &mut ws);
-        let grad = ws.grad.clone();
-        let e_loose = sys.evaluate(&loose, &pose, true, &mut ws);
-        assert!(rel_err(&[e], &[e_loose], 1e-300) < 1e-14, "energy {e} against {e_loose} with point {j} pushed in");
-        assert!(rel_err(&grad, &ws.grad, 1e-300) < 1e-14, "gradient with point {j} pushed in");
+        let mut own = sys.step_start();
+        sys.begin_step(&[&cur, &cur], &mut own);
+        let mut kept = sys.step_start();
+        let before = along(-0.3 * s);
+        sys.begin_step(&[&before, &before], &mut kept);
+        sys.begin_step(&[&cur, &cur], &mut kept);
+        for (start, which) in [(own, "its own reference"), (kept, "a kept reference")] {
+            let loose = BodyStart { contact: start.contact.without_start_positions(), ..start.clone() };
+            let e = sys.evaluate(&start, &pose, true, &mut ws);
+            let grad = ws.grad.clone();
+            let e_loose = sys.evaluate(&loose, &pose, true, &mut ws);
+            assert!(rel_err(&[e], &[e_loose], 1e-300) < 1e-14, "energy {e} against {e_loose} with point {j} pushed in ({which})");
+            assert!(rel_err(&grad, &ws.grad, 1e-300) < 1e-14, "gradient with point {j} pushed in ({which})");
+        }
     }
 }
 
