@@ -7,6 +7,7 @@
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
     python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
     python experiments/scale_end_to_end.py --cubatures out/scale/model/cheese.lcm --every-tet --own-pod --work out/scale  # cubature, dynamics
+    python experiments/scale_end_to_end.py --speed out/scale/model/cheese.lcm --work out/speed  # speed alone, one run at a time
 
 The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes and placement code)
 on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
@@ -38,6 +39,9 @@ held-out runs with MODEL's stored cubature, with refits of it to the model's sto
 ``--cubature-counts`` tets, with every tet (``--every-tet``) and, with ``--own-pod``, on POD(r) of each run's own frames
 with every tet, and with ``--training-pod`` on POD(r) of the training runs' frames (what the learned modes are trained
 towards) with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's, the dynamics', the network's.
+``--speed MODEL`` times on one machine, one run at a time, each held-out scene's full step on ``--device`` (its run
+generated alone) and MODEL's reduced step (one CPU thread), with ``--cpu-steps`` of the first scene's full run on
+the CPU (``--work/speed.json``): the speed-ups without the other jobs of a study sharing the GPU.
 """
 
 from __future__ import annotations
@@ -298,6 +302,36 @@ def cubature_study(args) -> dict:
             save()
             (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
     return {"rows": rows}
+
+
+def speed_study(args) -> dict:
+    """``--speed MODEL``: the held-out scenes' full step on ``--device`` and MODEL's reduced step, one run at a time."""
+    work = Path(args.work)
+    fam = held_out_family(args)
+    model = licrom.Model.load(args.speed)
+    import torch  # licrom's training dependency, imported where it is used
+
+    out = {"model": str(args.speed), "device": args.device, "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+           "cpus": os.cpu_count(), "date": time.strftime("%Y-%m-%d"), "rows": []}
+    for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
+        row = reduced_stage(model, case, full, fam.steps, projection=False, record_every=fam.record_every)
+        row.update(full_device=info["device"], full_device_step_ms=info["median_step_ms"], speedup_device=info["median_step_ms"] / row["median_step_ms"])
+        out["rows"].append(row)
+        log(f"speed {case.name}: reduced {row['median_step_ms']:.3f} ms, full {info['median_step_ms']:.2f} ms on {info['device']}: "
+            f"{row['speedup_device']:.1f}x")
+        (work / "speed.json").write_text(json.dumps(out, indent=1, default=str))
+    if args.cpu_steps and out["rows"]:
+        case = fam.held_out[0]
+        traj = licrom.FullSim(fam.mesh, recording_failures(case).scene, device="cpu").run(args.cpu_steps)
+        cpu_ms = 1e3 * float(np.median(traj.step_seconds))
+        first = json.loads((work / "runs" / f"{case.name}.json").read_text())["first10_step_ms"]
+        out["cpu_full"] = {"scene": case.kind, "steps": args.cpu_steps, "median_step_ms": cpu_ms, "device_first_steps_ms": first,
+                           "speedup_cpu": cpu_ms / out["rows"][0]["median_step_ms"]}
+        log(f"full on the CPU: {args.cpu_steps} steps, median {cpu_ms:.0f} ms (same steps on {args.device}: {first:.1f} ms); "
+            f"{out['cpu_full']['speedup_cpu']:.0f}x the reduced step")
+        (work / "speed.json").write_text(json.dumps(out, indent=1, default=str))
+    log("done")
+    return out
 
 
 def main_study(args) -> dict:
@@ -581,6 +615,8 @@ def main() -> None:
     ap.add_argument("--bounds", type=Path, metavar="MODEL", help="only the held-out runs' subspace bounds for MODEL (--work/bounds.json)")
     ap.add_argument("--cubatures", type=Path, metavar="MODEL",
                     help="only the held-out runs with MODEL's stored cubature, its refits and every tet (--work/cubatures.json)")
+    ap.add_argument("--speed", type=Path, metavar="MODEL",
+                    help="only the speed: held-out full steps on --device, one run at a time, against MODEL's reduced step (--work/speed.json)")
     ap.add_argument("--cubature-counts", type=int, nargs="*", default=[3000], metavar="N", help="most tets of each refit (--cubatures)")
     ap.add_argument("--every-tet", action="store_true", help="also every tet as cubature (--cubatures)")
     ap.add_argument("--training-pod", action="store_true",
@@ -605,6 +641,9 @@ def main() -> None:
         return
     if args.cubatures is not None:
         cubature_study(args)
+        return
+    if args.speed is not None:
+        speed_study(args)
         return
     res = main_study(args)
     print(section(res))
