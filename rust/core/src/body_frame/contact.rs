@@ -7,11 +7,8 @@
 //! Gauss-Newton Hessian `Jc^T H_x Jc` and, for the exact Hessian, the
 //! geometric terms `sym(f p^T) - (f.p) I` (omega-omega) and `(R W_j^k) x f`
 //! (omega-q_k). Points that cannot touch a plane and carry no lagged normal
-//! force are culled by a lower bound on their gap: through their body
-//! positions at a reference `q_ref` and `|W_j (q - q_ref)| <= |W_j|_2 |q - q_ref|`
-//! (the reference formed for every point in one pass, again when the body
-//! has deformed by more than [`REFERENCE_SLACK`] of its extent since), and
-//! within a step through their positions at its start.
+//! force are culled by a lower bound on their gap, from the step's start or
+//! the points' reference positions ([`ContactStart`]).
 //!
 //! **Incremental Hessian.** `Jc = R A_j T^T` with `A_j = [I, -[y_j]x, W_j]`
 //! and `T = diag(R, R, I)`, so the Gauss-Newton contact Hessian is
@@ -31,28 +28,21 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::Pose;
-use crate::contact::{Plane, RankOneTerms, CURVATURE_SLACK, DIRECTION_COS};
+use crate::contact::{RankOneTerms, CURVATURE_SLACK, DIRECTION_COS};
 use crate::contact_points::{ContactInputs, ContactPoints};
 use crate::dense::{add_gram, rows_dot, IncrementalGram};
 use crate::error::Result;
 use crate::simd::{dispatch, Madd, Separate, WithMadd};
 use crate::validity::Validity;
 
+mod start;
+pub use start::{ContactStart, REFERENCE_SLACK};
+
 /// The incremental contact Hessian keeps a point's rows while its body
 /// position `y_j` has moved by less than this share of its length since they
 /// were formed: the rows' rotational part `y_j x d` is then off by at most as
 /// much, the lag the world-frame solver allows its terms.
 pub const LEVER_SLACK: f64 = 0.1;
-
-/// The points' reference body positions are formed again when the bound they
-/// give has grown to this share of the points' extent (when
-/// `max_j |W_j|_2 |q - q_ref|` exceeds `REFERENCE_SLACK x extent`). Every point
-/// within that distance of a plane then goes on to its position at each step's
-/// start. A pass over all points at every start (the |q| bound culled almost
-/// none of a deformed body's) was a third of the body-frame step on the
-/// 120k-tet cheese's 2000 contact points (profiled, r = 120); with the
-/// reference, only the points near a plane cost.
-pub const REFERENCE_SLACK: f64 = 0.05;
 
 /// The contact points with non-zero area (the kept points of
 /// [`ContactPoints`]), with their rest positions, basis rows and areas in
@@ -72,55 +62,6 @@ pub struct BodyContacts {
     /// Largest distance of a point's rest position from their centroid, m.
     extent: f64,
     areas: Vec<f64>,
-}
-
-/// Positions at the start of a step and lagged normal forces (per kept point and plane).
-///
-/// Also the body positions `y_s` at the start of the step's q (`q_start`) of
-/// the points that might touch then (`has_y`). Within a step q moves little,
-/// so `|W_s (q - q_start)|` bounds a point's gap much more tightly than
-/// `|W_s q|`, and fewer points go on to their positions (measured:
-/// docs/results.md section 8, "Solver choices, measured").
-#[derive(Debug, Clone)]
-pub struct ContactStart {
-    pub(super) x_prev: Vec<Vector3<f64>>,
-    pub(super) normal_force: Vec<f64>,
-    y_start: Vec<Vector3<f64>>,
-    has_y: Vec<bool>,
-    q_start: Vec<f64>,
-    /// Every point's body position at `q_ref` (empty `q_ref`: none yet), the
-    /// culling's bound between starts (see [`REFERENCE_SLACK`]).
-    y_ref: Vec<Vector3<f64>>,
-    q_ref: Vec<f64>,
-}
-
-impl ContactStart {
-    /// Keeps `other`'s points' body positions at its start pose and at its
-    /// reference, for a start that alternates with it.
-    pub(super) fn keep_start(&mut self, other: &ContactStart) {
-        self.y_start.clone_from(&other.y_start);
-        self.has_y.clone_from(&other.has_y);
-        self.q_start.clone_from(&other.q_start);
-        self.y_ref.clone_from(&other.y_ref);
-        self.q_ref.clone_from(&other.q_ref);
-    }
-
-    /// `|q - q_ref|`, or none without a reference.
-    fn reference_distance(&self, q: &[f64]) -> Option<f64> {
-        (!self.q_ref.is_empty()).then(|| q.iter().zip(&self.q_ref).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt())
-    }
-}
-
-#[cfg(test)]
-impl ContactStart {
-    /// The same start without the points' start and reference positions:
-    /// every gap is then bounded through `|q|` alone.
-    pub(super) fn without_start_positions(&self) -> Self {
-        let mut out = self.clone();
-        out.has_y.fill(false);
-        out.q_ref.clear();
-        out
-    }
 }
 
 /// Scratch for rows of the Hessian (N = 6 + n wide, row-major): the
@@ -247,20 +188,6 @@ impl BodyContacts {
         self.points.is_empty()
     }
 
-    /// Zeroed start-of-step buffers.
-    pub fn start(&self) -> ContactStart {
-        let c = self.rest.len();
-        ContactStart {
-            x_prev: vec![Vector3::zeros(); c],
-            normal_force: vec![0.0; c * self.points.planes().len()],
-            y_start: vec![Vector3::zeros(); c],
-            has_y: vec![false; c],
-            q_start: vec![0.0; self.n],
-            y_ref: vec![Vector3::zeros(); c],
-            q_ref: Vec::new(),
-        }
-    }
-
     /// Whether any contact term can be non-zero (points with area and planes).
     pub fn any(&self) -> bool {
         self.points.any()
@@ -299,84 +226,6 @@ impl BodyContacts {
         Vector3::from(rows_dot::<M, 3>(&self.basis[3 * n * s..3 * n * (s + 1)], v))
     }
 
-    /// The lagged normal forces of the points at `pose`, and the anchor
-    /// positions of those that might touch a plane (the only ones that use
-    /// them): at `pose`, or `x + w (x - x_prev)` with `anchor = (prev, w)`
-    /// (BDF2's, [`crate::integrator`]).
-    pub fn begin(&self, pose: &Pose, anchor: Option<(&Pose, f64)>, start: &mut ContactStart) {
-        dispatch(BeginKernel { contacts: self, pose, anchor, start })
-    }
-
-    #[inline(always)]
-    fn begin_impl<M: Madd>(&self, pose: &Pose, anchor: Option<(&Pose, f64)>, start: &mut ContactStart) {
-        let n_planes = self.points.planes().len();
-        let rt = pose.rotation.transpose();
-        let ref_dist = match start.reference_distance(&pose.q) {
-            Some(d) if self.max_reach * d <= REFERENCE_SLACK * self.extent => d,
-            _ => {
-                for (s, y) in start.y_ref.iter_mut().enumerate() {
-                    *y = self.rest[s] + self.mode_motion::<M>(s, &pose.q);
-                }
-                start.q_ref.clone_from(&pose.q);
-                0.0
-            }
-        };
-        // The previous pose is usually the last call's: its points' body positions are then kept ones.
-        let kept = anchor.is_some_and(|(prev, _)| start.q_start == prev.q);
-        start.q_start.copy_from_slice(&pose.q);
-        for s in 0..self.rest.len() {
-            let forces = &mut start.normal_force[s * n_planes..(s + 1) * n_planes];
-            forces.fill(0.0);
-            let had_y = kept && start.has_y[s];
-            start.has_y[s] = self.points.planes().iter().any(|plane| self.may_touch(plane, &pose.center, &rt, s, &start.y_ref[s], ref_dist));
-            if !start.has_y[s] {
-                continue;
-            }
-            // At the reference's own q the point's position is the reference's, by the same products.
-            let y = if ref_dist == 0.0 { start.y_ref[s] } else { self.rest[s] + self.mode_motion::<M>(s, &pose.q) };
-            let y_prev = had_y.then(|| start.y_start[s]);
-            start.y_start[s] = y;
-            let x = pose.center + pose.rotation * y;
-            start.x_prev[s] = match anchor {
-                Some((prev, w)) => {
-                    x + w * (x - prev.center - prev.rotation * y_prev.unwrap_or_else(|| self.rest[s] + self.mode_motion::<M>(s, &prev.q)))
-                }
-                None => x,
-            };
-            for (f, plane) in forces.iter_mut().zip(self.points.planes()) {
-                *f = self.points.model().lagged_normal_force(plane, self.areas[s], &x);
-            }
-        }
-    }
-
-    /// Whether point s may touch `plane` for the body at `center` turned by
-    /// `rt^T`: its gap bounded from below through its body position `y` at some
-    /// q' and `|W_s (q - q')| <= |W_s|_2 |q - q'|` (`dist` = |q - q'|).
-    #[inline(always)]
-    fn may_touch(&self, plane: &Plane, center: &Vector3<f64>, rt: &Matrix3<f64>, s: usize, y: &Vector3<f64>, dist: f64) -> bool {
-        plane.gap(center) + (rt * plane.normal()).dot(y) - self.reach[s] * dist < 0.0
-    }
-
-    /// [`Self::may_touch`] within a step: from the point's start position where
-    /// it has one, else from its reference position, else from its rest
-    /// position (q' = 0) (`dists` = (|q - q_start|, |q - q_ref|, |q|)).
-    #[inline(always)]
-    fn may_touch_in_step(
-        &self,
-        plane: &Plane,
-        center: &Vector3<f64>,
-        rt: &Matrix3<f64>,
-        s: usize,
-        start: &ContactStart,
-        dists: (f64, Option<f64>, f64),
-    ) -> bool {
-        match (start.has_y[s], dists.1) {
-            (true, _) => self.may_touch(plane, center, rt, s, &start.y_start[s], dists.0),
-            (false, Some(ref_dist)) => self.may_touch(plane, center, rt, s, &start.y_ref[s], ref_dist),
-            (false, None) => self.may_touch(plane, center, rt, s, &self.rest[s], dists.2),
-        }
-    }
-
     /// Contact energy (J) at `pose`, with the parts of `out` requested.
     pub(super) fn evaluate(&self, start: &ContactStart, pose: &Pose, out: ContactOut<'_>) -> f64 {
         dispatch(EvaluateKernel { contacts: self, start, pose, out })
@@ -389,9 +238,7 @@ impl BodyContacts {
         let n_planes = self.points.planes().len();
         let r = &pose.rotation;
         let rt = r.transpose();
-        let q_norm = pose.q.iter().map(|v| v * v).sum::<f64>().sqrt();
-        let dq_norm = pose.q.iter().zip(&start.q_start).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
-        let dists = (dq_norm, start.reference_distance(&pose.q), q_norm);
+        let bounds = start.gap_bounds(&pose.q);
         if let Some(rows) = out.rows.as_deref_mut() {
             rows.count = 0;
         }
@@ -407,7 +254,7 @@ impl BodyContacts {
                 .planes()
                 .iter()
                 .zip(forces)
-                .any(|(plane, &f)| f > 0.0 || self.may_touch_in_step(plane, &pose.center, &rt, s, start, dists));
+                .any(|(plane, &f)| f > 0.0 || self.may_touch_in_step(plane, &pose.center, &rt, s, start, &bounds));
             if !engaged {
                 if let Some(terms) = out.terms.as_deref_mut() {
                     for t in &mut terms.terms[s * n_planes..(s + 1) * n_planes] {
@@ -696,20 +543,5 @@ impl WithMadd for StickKernel<'_> {
     #[inline(always)]
     fn run<M: Madd>(self) -> usize {
         self.contacts.stick_impl::<M>(self.start, self.pose, self.dir, self.terms, self.rows, self.rhs)
-    }
-}
-
-struct BeginKernel<'a> {
-    contacts: &'a BodyContacts,
-    pose: &'a Pose,
-    anchor: Option<(&'a Pose, f64)>,
-    start: &'a mut ContactStart,
-}
-
-impl WithMadd for BeginKernel<'_> {
-    type Output = ();
-    #[inline(always)]
-    fn run<M: Madd>(self) {
-        self.contacts.begin_impl::<M>(self.pose, self.anchor, self.start)
     }
 }
