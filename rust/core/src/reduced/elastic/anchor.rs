@@ -14,7 +14,7 @@ use super::{stored_displacement, ElasticTerm, SYM};
 /// integrator extrapolates), per cubature point of positive weight (six components, packed by lanes as the
 /// points are): what the material damping measures the strain's rate against.
 /// Empty for a term without damping.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default)]
 pub struct StrainAnchor {
     c: Vec<F8>,
     /// `C(q)` of the last state set, and that state: the next step's previous
@@ -23,6 +23,16 @@ pub struct StrainAnchor {
     /// fifth of the body-frame step's time at n = 120-150, K = 716, profiled).
     last: Vec<F8>,
     last_q: Vec<f64>,
+    /// Scratch for the used vertices' displacements (3 each) where F goes
+    /// through the vertices, so that setting the anchor does not allocate.
+    vertex_u: Vec<f64>,
+}
+
+/// Equal anchors: the same strains of the same state (the scratch aside).
+impl PartialEq for StrainAnchor {
+    fn eq(&self, other: &Self) -> bool {
+        self.c == other.c && self.last == other.last && self.last_q == other.last_q
+    }
 }
 
 impl StrainAnchor {
@@ -43,7 +53,11 @@ impl ElasticTerm {
     /// A zeroed anchor of the right size (empty without damping).
     pub fn strain_anchor(&self) -> StrainAnchor {
         let len = if self.damped() { 6 * self.cubature.groups() } else { 0 };
-        StrainAnchor { c: vec![[0.0; LANES]; len], last: vec![[0.0; LANES]; len], last_q: Vec::new() }
+        let vertices = match &self.vertices {
+            Some(v) if self.damped() => 3 * v.n_vertices(self.n),
+            _ => 0,
+        };
+        StrainAnchor { c: vec![[0.0; LANES]; len], last: vec![[0.0; LANES]; len], last_q: Vec::new(), vertex_u: vec![0.0; vertices] }
     }
 
     /// Sets `anchor` from the state `q` and, with a history weight w, the
@@ -59,11 +73,11 @@ impl ElasticTerm {
         let kept = previous.is_some_and(|(p, _)| anchor.last_q == p);
         // C(q_prev) where it was not kept: into `c`, before `last` is overwritten with C(q).
         if let (Some((p, _)), false) = (previous, kept) {
-            self.cauchy_green::<M>(p, &mut anchor.c);
+            self.cauchy_green::<M>(p, &mut anchor.c, &mut anchor.vertex_u);
         } else if kept {
             std::mem::swap(&mut anchor.c, &mut anchor.last);
         }
-        self.cauchy_green::<M>(q, &mut anchor.last);
+        self.cauchy_green::<M>(q, &mut anchor.last, &mut anchor.vertex_u);
         anchor.last_q.clear();
         anchor.last_q.extend_from_slice(q);
         let w = previous.map_or(0.0, |(_, w)| w);
@@ -79,14 +93,13 @@ impl ElasticTerm {
     /// whose points share vertices that is several times cheaper than through the Jacobians, and this
     /// pass ran once a step: an eighth of the body-frame step's time at n = 120, K = 716, profiled).
     #[inline(always)]
-    fn cauchy_green<M: Madd>(&self, q: &[f64], out: &mut [F8]) {
+    fn cauchy_green<M: Madd>(&self, q: &[f64], out: &mut [F8], u: &mut [f64]) {
         let cub = &self.cubature;
         match &self.vertices {
             Some(vertices) => {
-                let mut u = vec![0.0; 3 * vertices.n_vertices(self.n)];
-                vertices.displacements::<M>(q, self.n, &mut u);
+                vertices.displacements::<M>(q, self.n, u);
                 for (g, c) in out.chunks_exact_mut(6).enumerate() {
-                    write_cauchy_green(&vertices.group_deformation::<M>(g, |v| stored_displacement(&u, v)), c);
+                    write_cauchy_green(&vertices.group_deformation::<M>(g, |v| stored_displacement(u, v)), c);
                 }
             }
             None => {
