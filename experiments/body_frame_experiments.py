@@ -262,16 +262,19 @@ def _close(a, b) -> bool:
     return a == b
 
 
-def full_run(work: Path, name: str, mesh: licrom.Mesh, scene: Scene, steps: int, record_every: int = 1) -> Trajectory:
-    """The full-space run (a frame every ``record_every`` steps), from the cache when it holds this scene and step count."""
+def full_run(work: Path, name: str, mesh: licrom.Mesh, scene: Scene, steps: int, record_every: int = 1,
+             impact_window: float = 0.0) -> Trajectory:
+    """The full-space run (a frame every ``record_every`` steps, impact frames for ``impact_window`` s after each
+    impact), from the cache when it holds this scene, step count and impact window."""
     path = work / "full" / f"{name}.npz"
     if path.exists():
         traj = Trajectory.load(path)
         if (_close(traj.scene.to_dict(), scene.to_dict()) and traj.n_frames == steps // record_every + 1
-                and traj.rest_positions.shape == mesh.vertices.shape):
+                and traj.rest_positions.shape == mesh.vertices.shape and traj.info.get("impact_window", 0.0) == impact_window):
             return traj
     t0 = time.perf_counter()
-    traj = licrom.FullSim(mesh, scene).run(steps, record_every=record_every)  # looked up here: warp loads only when a run is not cached
+    # looked up here: warp loads only when a run is not cached
+    traj = licrom.FullSim(mesh, scene).run(steps, record_every=record_every, impact_window=impact_window)
     traj.save(path, precision="float64")
     print(f"  full {name}: {mesh.n_tets} tets, {steps} steps in {time.perf_counter() - t0:.1f} s "
           f"({traj.iterations.mean():.1f} Newton its/step)", flush=True)

@@ -88,6 +88,25 @@ def test_changed_parameters_are_not_mistaken_for_finished_runs(tmp_path):
     assert Trajectory.load(manifest_path.parent / entries[0]["file"]).n_frames == 4
 
 
+def test_impact_frames_are_kept_and_another_window_is_not_mistaken_for_a_finished_run(tmp_path):
+    _, _, manifest_path = _tiny(tmp_path, steps=8, impact_window=0.02)
+    out = manifest_path.parent
+    assert load_manifest(out)["impact_window"] == 0.02
+    for e in load_manifest(out)["trajectories"]:
+        traj = Trajectory.load(out / e["file"])
+        steps = np.round(traj.impact_times / 0.01).astype(int)
+        assert len(steps) == 1 and steps[0] % 2 == 1  # the landing's step between two frames (a window of 2 steps)
+        assert traj.penetration[(steps[0] + 1) // 2] > 0 and traj.penetration[(steps[0] - 1) // 2] == 0  # first in contact there
+    _, _, manifest_path = _tiny(tmp_path, steps=8, impact_window=0.0)
+    entries = load_manifest(out)["trajectories"]
+    assert [e["skipped"] for e in entries] == [False, False]
+    assert all(len(Trajectory.load(out / e["file"]).impact_times) == 0 for e in entries)
+    _, _, manifest_path = _tiny(tmp_path, steps=8, record_every=1)  # every step a frame: no impact frames asked
+    assert load_manifest(out)["impact_window"] == 0.0
+    with pytest.raises(ConfigError, match="impact_window"):
+        _tiny(tmp_path, impact_window=-1.0)
+
+
 def test_another_mesh_in_the_same_directory_is_refused(tmp_path):
     _tiny(tmp_path)
     with pytest.raises(ConfigError, match="another mesh"):

@@ -613,3 +613,20 @@ def test_a_first_run_says_that_warp_compiles_its_kernels(tmp_path, monkeypatch):
     assert said == []
     device.load_kernels("cuda", said.append)  # built for the CPU only
     assert len(said) == 1
+
+
+def test_impact_frames_are_the_every_step_run_between_frames_after_the_landing():
+    mesh = meshes.box(L, resolution=1)
+    scene = Scene(material=STIFF, planes=(Plane(),), contact=CONTACT, dt=0.005,
+                  initial=InitialState(translation=(0.0, 0.0, L / 2 + 0.004)))  # lands after about 29 ms
+    every = FullSim(mesh, scene).run(16)
+    traj = FullSim(mesh, scene).run(16, record_every=4, impact_window=0.02)
+    landing = int(np.argmax(every.penetration > 0))  # the first step that ends inside the plane
+    expected = [s for s in range(landing, landing + 4) if s % 4]
+    assert 0 < landing < 12 and len(expected) >= 2
+    np.testing.assert_allclose(traj.impact_times, every.times[expected], atol=1e-12)
+    np.testing.assert_allclose(traj.impact_displacements, every.displacements[expected], atol=1e-12)
+    np.testing.assert_allclose(traj.displacements, every.displacements[::4], atol=1e-12)
+    assert FullSim(mesh, scene).run(16, record_every=4).impact_displacements.shape == (0, mesh.n_vertices, 3)
+    with pytest.raises(ConfigError, match="impact_window"):
+        FullSim(mesh, scene).run(4, impact_window=-0.1)

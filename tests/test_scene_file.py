@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from licrom import ConfigError, FileFormatError, Plane, meshes
 from licrom.cli.commands import main
+from licrom.data.dataset import IMPACT_WINDOW
 from licrom.data.scene_file import DropSpec, builtin_scenes, load_scene
 from licrom.scene.placement import drop_state, initial_state_on_plane
 from licrom.scene.scene import InitialState
@@ -63,6 +64,7 @@ def test_defaults_of_a_minimal_file(tmp_path):
     (MINIMAL + "[solver]\nreduced_tolerance = -1e-4", "solver.reduced_tolerance"),
     (MINIMAL + "[time]\nsteps = 0", "time.steps must be an integer >= 1, got 0"),
     (MINIMAL + "[time]\ndt = 0.0", r"time.dt must be a number > 0 \(s\)"),
+    (MINIMAL + "[time]\nimpact_window = -0.1", r"time.impact_window must be a number >= 0 \(s\)"),
     (MINIMAL + "[sweep]\nfrictions = []", "sweep.frictions must be a non-empty list of numbers >= 0"),
     (MINIMAL + "[sweep]\nslopes = [10.0, 95.0]", r"sweep.slopes\[1\] must be a number in \[0, 90\)"),
     ("version = 1\nplanes = []\n[object]\nmesh = 'box'\n[sweep]\nslopes = [10.0]", "sweep.slopes tilts the first plane, but planes is empty"),
@@ -165,6 +167,9 @@ def test_overrides_replace_and_check_values():
     assert (m.youngs_modulus, m.poisson_ratio, m.density, m.viscosity, s.scene.dt, s.steps, s.record_every) == (2e5, 0.4, 500.0, 400.0, 0.005, 7, 7)
     assert "viscosity 400 Pa s" in s.summary()
     assert s.n_runs == 1 and s.dataset_spec().scenes()[0].planes[0] == Plane.incline(15.0, 0.2)
+    assert s.impact_window == IMPACT_WINDOW and s.overridden(impact_window=0.05).dataset_spec().impact_window == 0.05
+    with pytest.raises(ConfigError, match="impact_window must be a number"):
+        load_scene("cheese").overridden(impact_window=-0.1)
     with pytest.raises(ConfigError, match=r"slope 95 must be a number in \[0, 90\)"):
         load_scene("cheese").overridden(slopes=(95,))
     with pytest.raises(ConfigError, match="resolution applies to procedural shapes"):

@@ -37,3 +37,24 @@ def test_a_failing_step_passes_through_with_the_progress_bar_closed():
     with pytest.raises(SolverError) as info:
         record_run(c.step, lambda: c.t, lambda: c.t, 5, progress=True)
     assert info.value.iterations == 3 and c.t == 1.0
+
+
+def test_impact_frames_are_the_steps_between_frames_just_after_each_impact():
+    # deepest penetration after each step 1..12: impacts (none -> some) at steps 3 and 9
+    depth = [0.0, 0.0, 1e-4, 2e-4, 1e-4, 0.0, 0.0, 0.0, 3e-4, 1e-4, 1e-4, 1e-4]
+    c = Counter()
+    probe = lambda: (1.0, depth[round(c.t / 0.5) - 1])  # noqa: E731
+    rec = record_run(c.step, lambda: c.t, lambda: c.t, 12, record_every=4, validity=probe, impact_window=3)
+    steps = [round(t / 0.5) for t in rec.impact_times]
+    assert steps == [3, 5, 9, 10, 11]  # steps 3-5 and 9-11, less the regular frame at step 4
+    assert rec.impact_frames == rec.impact_times and [round(t / 0.5) for t in rec.times] == [0, 4, 8, 12]
+    assert record_run(Counter().step, lambda: 0, lambda: 0.0, 12, 4, validity=probe).impact_frames == []
+
+
+def test_a_run_that_starts_in_contact_counts_its_first_step_as_an_impact_and_a_bad_window_is_named():
+    c = Counter()
+    rec = record_run(c.step, lambda: c.t, lambda: c.t, 6, record_every=3, validity=lambda: (1.0, 1e-4), impact_window=2)
+    assert [round(t / 0.5) for t in rec.impact_times] == [1, 2]
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ConfigError, match="impact_window"):
+            record_run(Counter().step, lambda: 0, lambda: 0.0, 3, 1, impact_window=bad)

@@ -111,6 +111,21 @@ def test_body_frame_data_is_the_deformation_without_rigid_motion(coarse_box, tra
     np.testing.assert_allclose(d2.val.residuals, d.val.residuals, atol=1e-6 * np.abs(d.val.residuals).max())
 
 
+def test_impact_frames_are_training_frames_after_the_regular_ones(trajs):
+    import dataclasses
+
+    t = trajs[0]
+    impacts = dataclasses.replace(t, impact_displacements=t.displacements[1:4] * 0.5, impact_times=t.times[1:4] + 1e-3)
+    d = TrainingData([impacts, *trajs[1:]], val_indices=[1], frame="body")
+    plain = TrainingData(trajs, val_indices=[1], frame="body")
+    own = d.train.trajectory == 0
+    assert len(d.train) == len(plain.train) + 3 and list(d.train.frame[own][-4:]) == [t.n_frames - 1, -1, -1, -1]
+    # an impact frame is processed as a regular frame of the same displacement would be
+    same = TrainingData([dataclasses.replace(t, displacements=t.displacements[1:4] * 0.5, velocities=t.velocities[1:4],
+                                             times=t.times[1:4]), *trajs[1:]], val_indices=[1], frame="body")
+    np.testing.assert_allclose(d.train.residuals[own][-3:], same.train.residuals[same.train.trajectory == 0], atol=1e-9)
+
+
 def test_unknown_frame_is_a_config_error_naming_the_frames(trajs):
     with pytest.raises(ConfigError, match="'body', 'world'"):
         TrainingData(trajs, frame="inertial")

@@ -118,7 +118,7 @@ def test_a_boolean_format_version_is_refused(tmp_path):
 
     header, arrays = load_npz(_traj().save(tmp_path / "t.npz"), "trajectory")
     save_npz(tmp_path / "v.npz", arrays, {**header, "version": True})
-    with pytest.raises(FileFormatError, match="format version True; this licrom reads version 1 only"):
+    with pytest.raises(FileFormatError, match="format version True; this licrom reads version 1 or 2 only"):
         Trajectory.load(tmp_path / "v.npz")
 
 
@@ -144,3 +144,31 @@ def test_info_that_json_cannot_hold_is_a_config_error_naming_the_entry(tmp_path)
     t = _traj()
     t.info = {"source": "full", "sweep": {"mu": [0.1, 0.5], "slope": (10.0, 20.0)}, "n": 3, "ok": True, "none": None, "x": np.float64(2.5)}
     assert Trajectory.load(t.save(tmp_path / "t.npz")).info == {**t.info, "sweep": {"mu": [0.1, 0.5], "slope": [10.0, 20.0]}}
+
+
+def test_impact_frames_round_trip_as_version_2_and_a_run_without_them_stays_version_1(tmp_path):
+    from licrom._io import load_npz
+
+    t = _traj()
+    plain = t.save(tmp_path / "plain.npz")
+    assert load_npz(plain, "trajectory")[0]["version"] == 1
+    assert Trajectory.load(plain).impact_displacements.shape == (0, len(t.rest_positions), 3)
+    t.impact_displacements, t.impact_times = t.displacements[:2] * 0.5, np.array([0.003, 0.004])
+    t.__post_init__()
+    p = t.save(tmp_path / "impacts.npz", precision="float64")
+    assert load_npz(p, "trajectory")[0]["version"] == 2
+    back = Trajectory.load(p)
+    np.testing.assert_array_equal(back.impact_displacements, t.impact_displacements)
+    np.testing.assert_array_equal(back.impact_times, t.impact_times)
+
+
+@pytest.mark.parametrize("impacts, times, error", [
+    (np.zeros((2, 5, 3)), [0.1, 0.2], ShapeError),  # another vertex count
+    (np.zeros((2, 27, 3)), [0.1], ShapeError),  # one time for two frames
+    (np.zeros((2, 27, 3)), [0.2, 0.1], ShapeError),  # times out of order
+    (np.full((1, 27, 3), np.inf), [0.1], SolverError),
+])
+def test_bad_impact_frames_are_refused(impacts, times, error):
+    t = _traj()
+    with pytest.raises(error, match="impact"):
+        dataclasses.replace(t, impact_displacements=impacts, impact_times=np.array(times))

@@ -312,9 +312,9 @@ def load_npz(path: str | os.PathLike, kind: str) -> tuple[dict[str, Any], dict[s
     return header, arrays
 
 
-def check_version(found: Any, supported: int, what: str) -> None:
-    """Raise FileFormatError unless ``found`` is the ``supported`` format version (an integer; ``true`` is not 1)."""
-    if isinstance(found, bool) or found != supported:
-        raise FileFormatError(
-            f"{what} has format version {found!r}; this licrom reads version {supported} only"
-        )
+def check_version(found: Any, supported: int | tuple[int, ...], what: str) -> None:
+    """Raise FileFormatError unless ``found`` is a ``supported`` format version (an integer; ``true`` is not 1)."""
+    versions = supported if isinstance(supported, tuple) else (supported,)
+    if isinstance(found, bool) or found not in versions:
+        accepted = " or ".join(str(v) for v in versions)
+        raise FileFormatError(f"{what} has format version {found!r}; this licrom reads version {accepted} only")

@@ -115,6 +115,8 @@ class RunRecord:
             previous frame, this frame's included (``(inf, 0)`` for frame 0 and without a
             ``validity`` probe).
         trailing: the same over the steps after the last frame.
+        impact_frames, impact_times: snapshots and times of the steps between frames inside an
+            impact window (see :func:`record_run`).
     """
 
     frames: list[Any] = field(default_factory=list)
@@ -125,6 +127,8 @@ class RunRecord:
     seconds: list[float] = field(default_factory=list)
     between: list[tuple[float, float]] = field(default_factory=list)
     trailing: tuple[float, float] = (np.inf, 0.0)
+    impact_frames: list[Any] = field(default_factory=list)
+    impact_times: list[float] = field(default_factory=list)
 
     __repr__ = concise_repr
 
@@ -162,8 +166,13 @@ def record_run(
     progress: bool = False,
     desc: str = "steps",
     validity: Callable[[], tuple[float, float]] | None = None,
+    impact_window: int = 0,
 ) -> RunRecord:
     """Take ``steps`` steps and record the state before the first and after every ``record_every``-th.
+
+    With ``impact_window`` and a ``validity`` probe, the state after every other step is kept too, as an impact
+    frame, for ``impact_window`` steps from each impact: a step that ends with a vertex inside a plane after one
+    that ended with none (the start counts as none). An impact's fast transient falls between regular frames.
 
     Args:
         step: takes one step; returns ``(iterations, residual, converged)``.
@@ -175,13 +184,17 @@ def record_run(
         desc: the bar's label.
         validity: ``(min det F, deepest penetration)`` after a step, probed after every step
             (:mod:`licrom.validity`: a state between frames counts too).
+        impact_window: steps kept as impact frames from each impact (0: none).
 
     Raises:
         ConfigError: bad ``steps`` or ``record_every``. Whatever ``step`` raises passes through.
     """
     steps, record_every = check_run_arguments(steps, record_every)
+    if isinstance(impact_window, bool) or not isinstance(impact_window, (int, np.integer)) or impact_window < 0:
+        raise ConfigError(f"impact_window must be an integer >= 0 (steps), got {impact_window!r}")
     rec = RunRecord(frames=[snapshot()], times=[clock()], between=[(np.inf, 0.0)])
     worst = (np.inf, 0.0)
+    touching, window_left = False, 0
     with _progress(steps, desc, progress) as bar:
         for s in range(1, steps + 1):
             start = time.perf_counter()
@@ -193,11 +206,18 @@ def record_run(
             if validity is not None:
                 det, depth = validity()
                 worst = (min(worst[0], det), max(worst[1], depth))
+                if depth > 0.0 and not touching:
+                    window_left = impact_window
+                touching = depth > 0.0
             if s % record_every == 0:
                 rec.frames.append(snapshot())
                 rec.times.append(clock())
                 rec.between.append(worst)
                 worst = (np.inf, 0.0)
+            elif window_left > 0:
+                rec.impact_frames.append(snapshot())
+                rec.impact_times.append(clock())
+            window_left = max(window_left - 1, 0)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(iterations=its, refresh=False)

@@ -202,6 +202,8 @@ def scene_command(source, output, mesh_file) -> None:
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=None, show_default="the scene's", help="Time step in s.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, show_default="the scene's", help="Time steps per trajectory.")
 @click.option("--record-every", type=click.IntRange(min=1), default=None, show_default="the scene's", help="Record every n-th step.")
+@click.option("--impact-window", type=click.FloatRange(min=0), default=None, show_default="the scene's, else 0.05",
+              help="Where --record-every > 1: keep every step's frame this long after each impact, in s, for training (0: none).")
 @click.option("--device", default="auto", show_default=True, help="Simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local: this machine (--jobs processes); ray: one task per run on a Ray cluster (RAY_ADDRESS, else a local one).")
@@ -210,7 +212,7 @@ def scene_command(source, output, mesh_file) -> None:
               show_default="LICROM_RAY_TIMEOUT, else 30", help="Seconds to wait for the Ray cluster at RAY_ADDRESS to answer.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modulus, poisson_ratio, density, viscosity, friction, slope,
-                     dt, steps, record_every, device, executor, jobs, ray_timeout, quiet) -> None:
+                     dt, steps, record_every, impact_window, device, executor, jobs, ray_timeout, quiet) -> None:
     """Simulate a dataset of full-space trajectories into OUT_DIR (resumable: finished files are skipped).
 
     The runs are the scene file's sweep (friction x slope x initial state); the options
@@ -228,11 +230,13 @@ def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modu
     scene = load_scene(scene_source).overridden(
         mesh=mesh_source, resolution=resolution, youngs_modulus=youngs_modulus, poisson_ratio=poisson_ratio, density=density,
         viscosity=viscosity, frictions=friction or None, slopes=slope or None, dt=dt, steps=steps, record_every=record_every,
+        impact_window=impact_window,
     )
     spec = scene.dataset_spec()
+    impacts = f"; every step for {spec.impact_window:g} s after each impact" if spec.record_every > 1 and spec.impact_window else ""
     click.echo(f"scene {spec.name} ({scene.source}): {spec.description}".rstrip(": "))
     click.echo(f"mesh {scene.object.describe()}: {spec.mesh.n_vertices} vertices, {spec.mesh.n_tets} tets; {spec.n_trajectories} trajectories x "
-               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}) on {device}, {where}")
+               f"{spec.steps} steps of {spec.base_scene.dt:g} s (record every {spec.record_every}{impacts}) on {device}, {where}")
     manifest_path = spec.generate(out_dir, device=device, progress=not quiet, executor=executor, jobs=jobs, ray_timeout=ray_timeout)
     import json
 

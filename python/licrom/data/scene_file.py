@@ -25,7 +25,9 @@ radius = 0.05                    # sphere: radius, m
 [contact]                        # normal_stiffness (N/m^3), normal_damping (N s/m^3), friction_stiffness (N s/m^3)
 [solver]                         # tolerance, reduced_tolerance (m/s), max_iterations, on_failure ("raise" | "record")
 [time]                           # dt (s, > 0), steps (>= 1), record_every (>= 1),
-                                 # integrator ("backward_euler" | "bdf2": full simulation only)
+                                 # integrator ("backward_euler" | "bdf2": full simulation only),
+                                 # impact_window (s, >= 0; default 0.05: every step kept this long after
+                                 # each impact where record_every > 1, for training)
 
 [[planes]]                       # any number; default: one horizontal ground, mu 0.5
 slope = 20.0                     # deg in [0, 90); or normal = [nx, ny, nz] instead of slope/azimuth
@@ -70,7 +72,7 @@ from ..errors import ConfigError, FileFormatError
 from ..geometry.mesh import Mesh
 from ..scene.scene import INTEGRATORS, ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
 from ..scene.sweep import DEFAULT_FRICTION, check_friction, held_out_pairs, slope_friction_pairs, sweep, sweep_axis, sweep_count, tilted, with_friction
-from .dataset import DatasetSpec
+from .dataset import IMPACT_WINDOW, DatasetSpec
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -345,6 +347,8 @@ class SceneFile:
             :class:`InitialState` (world frame).
         steps: time steps per run.
         record_every: record every n-th step.
+        impact_window: s, every step kept this long after each impact where ``record_every > 1``
+            (:data:`~licrom.data.dataset.IMPACT_WINDOW`).
         held_out: scenes kept out of training.
     """
 
@@ -359,6 +363,7 @@ class SceneFile:
     steps: int = 200
     record_every: int = 1
     held_out: tuple[HeldOut, ...] = field(default=())
+    impact_window: float = IMPACT_WINDOW
 
     def replace(self, **changes: Any) -> SceneFile:
         """A copy with some fields changed (``dataclasses.replace``)."""
@@ -367,7 +372,7 @@ class SceneFile:
     def overridden(self, *, mesh: str | None = None, resolution: int | None = None, youngs_modulus: float | None = None,
                    poisson_ratio: float | None = None, density: float | None = None, viscosity: float | None = None, frictions: tuple[float, ...] | None = None,
                    slopes: tuple[float, ...] | None = None, dt: float | None = None, steps: int | None = None,
-                   record_every: int | None = None) -> SceneFile:
+                   record_every: int | None = None, impact_window: float | None = None) -> SceneFile:
         """A copy with the given values replaced (None keeps the file's); the values are checked.
 
         ``mesh`` is ``box``, ``sphere``, ``cheese`` (optionally ``:RES``) or a tet mesh file;
@@ -399,6 +404,7 @@ class SceneFile:
             self, object=obj, scene=scene, frictions=self.frictions if frictions is None else frictions,
             slopes=self.slopes if slopes is None else slopes, steps=self.steps if steps is None else _integer(steps, "steps", 1),
             record_every=self.record_every if record_every is None else _integer(record_every, "record_every", 1),
+            impact_window=self.impact_window if impact_window is None else _number(impact_window, "impact_window", 0.0, hi_open=True, unit="s"),
         )
 
     @property
@@ -430,6 +436,7 @@ class SceneFile:
             record_every=self.record_every,
             initial_frame="plane" if self.dropped else "world",
             description=self.description,
+            impact_window=self.impact_window,
         )
 
     def cases(self, mesh: Mesh, slopes: tuple[float, ...] = (), frictions: tuple[float, ...] = ()) -> list[tuple[str, Scene]]:
@@ -609,6 +616,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
     dt = tt.number("dt", 0.01, 0.0, lo_open=True, unit="s")
     steps = tt.integer("steps", 200)
     record_every = tt.integer("record_every", 1)
+    impact_window = tt.number("impact_window", IMPACT_WINDOW, 0.0, hi_open=True, unit="s")
     integrator = tt.string("integrator", "backward_euler", INTEGRATORS)
     tt.done()
 
@@ -644,7 +652,7 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
 
     scene = Scene(material=material, planes=planes, gravity=gravity, dt=dt, integrator=integrator, contact=contact, solver=solver)
     return SceneFile(name=name, description=description, source=where, object=spec, scene=scene, frictions=frictions, slopes=slopes,
-                     initial=initial, steps=steps, record_every=record_every, held_out=tuple(held_out))
+                     initial=initial, steps=steps, record_every=record_every, held_out=tuple(held_out), impact_window=impact_window)
 
 
 def _number_table(top: _Table, name: str, cls: type[_T], **fields: dict[str, Any]) -> _T:

@@ -562,8 +562,13 @@ class FullSim:
         return self._forces.numpy()[:c].astype(np.float64, copy=True)
 
     @exclusive
-    def run(self, steps: int, record_every: int = 1, progress: bool = False) -> Trajectory:
+    def run(self, steps: int, record_every: int = 1, progress: bool = False, impact_window: float = 0.0) -> Trajectory:
         """Step ``steps`` times; record frame 0 (the current state) and every ``record_every``-th step.
+
+        With ``impact_window`` (s), the displacement after every step between frames is kept too for that long from
+        each impact (a step that ends with a vertex inside a plane after one that ended with none), as
+        ``Trajectory.impact_displacements``: training data for the subspace, which must hold an impact's fast
+        transient (:data:`licrom.data.dataset.IMPACT_WINDOW`).
 
         With ``scene.solver.on_failure == "record"``, unconverged steps are flagged in
         ``Trajectory.converged`` and the run goes on from the last iterate. Each frame's
@@ -573,9 +578,11 @@ class FullSim:
         (:mod:`licrom.validity`).
 
         Raises:
-            ConfigError: bad ``steps`` or ``record_every``.
+            ConfigError: bad ``steps``, ``record_every`` or ``impact_window``.
             SolverError: a step failed and ``on_failure == "raise"``, or met NaN/inf.
         """
+        if isinstance(impact_window, bool) or not isinstance(impact_window, (int, float)) or not 0.0 <= impact_window < math.inf:
+            raise ConfigError(f"impact_window must be a finite time >= 0 in s, got {impact_window!r}")
         rest = self.mesh.vertices
         linear = 0
         if progress:
@@ -588,7 +595,7 @@ class FullSim:
             return its, res, self.last_stats.converged
 
         rec = record_run(step, lambda: (self.positions - rest, self.velocities), lambda: self.time, steps, record_every, progress,
-                         f"full ({self.device})", self.validity)
+                         f"full ({self.device})", self.validity, math.ceil(impact_window / self.scene.dt - 1e-9))
         converged = rec.converged
         displacements = np.array([d for d, _ in rec.frames])
         dm_inv, tets = self.mesh.shape_matrix_inverses, self.mesh.tets
@@ -606,6 +613,8 @@ class FullSim:
             scene=self.scene,
             min_det_f=min_det_f,
             penetration=depth,
+            impact_displacements=np.array([d for d, _ in rec.impact_frames]).reshape(-1, len(rest), 3),
+            impact_times=np.array(rec.impact_times),
             **arrays,
             info={
                 "source": "full",
@@ -614,6 +623,7 @@ class FullSim:
                 "n_tets": int(self.mesh.n_tets),
                 "contact_points": len(self._contact_idx),
                 "record_every": int(record_every),
+                "impact_window": float(impact_window),
                 "linear_iterations": int(linear),
                 "unconverged_steps": int(len(converged) - int(np.sum(converged))),
             },

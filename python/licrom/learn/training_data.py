@@ -140,7 +140,8 @@ class FrameSet:
         affine: (F, 12) float64 affine coefficients of the mass-weighted fit (zeros
             when the affine modes are off).
         trajectory: (F,) index (into ``names``) of the trajectory of each frame.
-        frame: (F,) frame number within its trajectory.
+        frame: (F,) frame number within its trajectory; -1 for an impact frame
+            (:attr:`licrom.Trajectory.impact_displacements`).
         norm2_full: (F,) mass-weighted squared norm ``sum_v m_v |u_v|^2`` of each full displacement.
         norm2_residual: (F,) the same for the residual.
         names: trajectory names.
@@ -168,8 +169,10 @@ def _frames(named: Sequence[tuple[str, Trajectory]], rest: np.ndarray, masses: n
     res_list, aff_list, traj_list, frame_list, nf_list, nr_list = [], [], [], [], [], []
     n = len(rest)
     for k, (_, t) in enumerate(named):
-        idx = np.arange(0, t.n_frames, stride)
-        u = t.displacements[idx]
+        # the impact frames too: the fast transient of each impact, which the regular frames alias
+        impacts = t.impact_displacements[::stride]
+        idx = np.concatenate([np.arange(0, t.n_frames, stride), np.full(len(impacts), -1)])
+        u = np.concatenate([t.displacements[idx[idx >= 0]], impacts])
         if frame == "body":
             u = body_frame_displacements(rest + u, rest, masses)
         if affine:

@@ -17,9 +17,11 @@ from ..rigid import center_of_mass
 from ..scene.scene import Scene
 from ..validity import PENETRATION_LIMIT
 
-__all__ = ["TRAJECTORY_FORMAT_VERSION", "Trajectory"]
+__all__ = ["READABLE_VERSIONS", "TRAJECTORY_FORMAT_VERSION", "Trajectory"]
 
-TRAJECTORY_FORMAT_VERSION = 1
+TRAJECTORY_FORMAT_VERSION = 2
+"""Written when a run holds impact frames; otherwise version 1 (the same file without them), which older licrom reads."""
+READABLE_VERSIONS = (1, 2)
 
 
 @dataclass
@@ -46,6 +48,10 @@ class Trajectory:
         error_estimate: (f,) a reduced run's online estimate of its non-rigid error, running
             from the first contact (dimensionless; see :mod:`licrom.reduced.error_estimate`), or empty
             (full runs, and files written before it existed).
+        impact_displacements: (k, n, 3) displacement at extra frames kept for learning, m: the steps
+            between frames just after each impact (:func:`licrom.stepping.record_run`, ``impact_window``),
+            whose fast transient the regular frames alias; empty (0, n, 3) when none were kept.
+        impact_times: (k,) time of each impact frame, s, strictly increasing.
         info: free-form JSON-ready metadata (source, mesh name, sweep parameters, ...).
     """
 
@@ -62,6 +68,8 @@ class Trajectory:
     min_det_f: np.ndarray = field(default_factory=lambda: np.zeros(0))
     penetration: np.ndarray = field(default_factory=lambda: np.zeros(0))
     error_estimate: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    impact_displacements: np.ndarray | None = None
+    impact_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     info: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -84,6 +92,17 @@ class Trajectory:
                 raise SolverError(f"Trajectory.{name} holds NaN or inf; refusing to keep a diverged simulation")
         if self.times.ndim != 1 or np.any(np.diff(self.times) <= 0):
             raise ShapeError("Trajectory.times must be a 1-D array of strictly increasing times in s")
+        self.impact_times = np.asarray(self.impact_times, dtype=np.float64)
+        k = len(self.impact_times)
+        impact = np.zeros((0, n, 3)) if self.impact_displacements is None else self.impact_displacements
+        self.impact_displacements = np.asarray(impact, dtype=np.float64)
+        if self.impact_displacements.shape != (k, n, 3) or self.impact_times.ndim != 1:
+            raise ShapeError(f"Trajectory.impact_displacements must have shape (impact frames, vertices, 3) = {(k, n, 3)} "
+                             f"(one per impact time), got {self.impact_displacements.shape}")
+        if not (np.all(np.isfinite(self.impact_displacements)) and np.all(np.isfinite(self.impact_times))):
+            raise SolverError("Trajectory impact frames hold NaN or inf; refusing to keep a diverged simulation")
+        if np.any(np.diff(self.impact_times) <= 0):
+            raise ShapeError("Trajectory.impact_times must be strictly increasing times in s")
         self.iterations = np.asarray(self.iterations, dtype=np.int32)
         self.residuals = np.asarray(self.residuals, dtype=np.float64)
         self.converged = np.asarray(self.converged, dtype=bool)
@@ -150,7 +169,7 @@ class Trajectory:
             raise ShapeError(f"precision must be 'float32' or 'float64', got {precision!r}")
         _check_info(self.info)
         limit = float(np.finfo(precision).max)
-        for name in ("displacements", "velocities"):
+        for name in ("displacements", "velocities", "impact_displacements"):
             # Values beyond float32 would be stored as inf, which load refuses.
             if np.abs(getattr(self, name)).max(initial=0.0) > limit:
                 raise ShapeError(f"Trajectory.{name} exceed the {precision} range (|value| <= {limit:.3g}); save with precision='float64'")
@@ -159,7 +178,7 @@ class Trajectory:
             p = p.with_name(p.name + ".npz")
         header = {
             "kind": "trajectory",
-            "version": TRAJECTORY_FORMAT_VERSION,
+            "version": TRAJECTORY_FORMAT_VERSION if len(self.impact_times) else 1,
             "scene": self.scene.to_dict(),
             "info": self.info,
         }
@@ -177,6 +196,8 @@ class Trajectory:
             "penetration": self.penetration,
             "error_estimate": self.error_estimate,
         }
+        if len(self.impact_times):
+            arrays |= {"impact_displacements": self.impact_displacements.astype(precision), "impact_times": self.impact_times}
         save_npz(p, arrays, header)
         return p
 
@@ -189,7 +210,7 @@ class Trajectory:
                 contents a trajectory cannot hold (wrong shapes, NaN, an invalid scene).
         """
         header, arrays = load_npz(path, "trajectory")
-        check_version(header.get("version"), TRAJECTORY_FORMAT_VERSION, f"trajectory '{path}'")
+        check_version(header.get("version"), READABLE_VERSIONS, f"trajectory '{path}'")
         if not isinstance(header.get("info", {}), dict):
             raise FileFormatError(f"trajectory '{path}' has a corrupt header: 'info' must be a JSON object")
         _check_members(path, arrays)

@@ -273,7 +273,7 @@ class Cubature:
             model: a trained :class:`licrom.Model`.
             runs: trajectories on the model's rest mesh (its training runs), landing included.
             count: maximum number of cubature tets.
-            frame_stride: every ``frame_stride``-th frame of each run is a sample.
+            frame_stride: every ``frame_stride``-th frame of each run is a sample, and of its impact frames.
             tolerance: stop when the relative force residual falls below this.
             strain: as in :meth:`optimized`.
 
@@ -290,7 +290,7 @@ class Cubature:
         for i, run in enumerate(runs):
             if run.rest_positions.shape != mesh.vertices.shape or not np.allclose(run.rest_positions, mesh.vertices):
                 raise ShapeError(f"runs[{i}] is not on the model's rest mesh ({mesh.n_vertices} vertices)")
-        frames = np.concatenate([run.displacements[::step] for run in runs])
+        frames = np.concatenate([np.concatenate([run.displacements[::step], run.impact_displacements[::step]]) for run in runs])
         if model.frame == "body":
             frames = body_frame_displacements(mesh.vertices + frames, mesh.vertices, mesh.vertex_masses(model.default_scene.material.density))
         return cls.fitted(model, model_samples(model, frames), count=count, tolerance=tolerance, strain=strain)
