@@ -10,14 +10,14 @@ and the body-frame model with POD(r) of their frames as training weighs them (ru
 alike; every tet as cubature, so that only the modes differ) runs each held-out scene against its converged truth:
 non-rigid error, final centre of mass over the size, and the projection bound of those modes. The mechanism's row:
 the new-azimuth scene on POD(r) of its own frames, the 10 ms frames against every step's. ``--write-runs DIR`` copies
-the training runs at the default window (:data:`licrom.data.dataset.IMPACT_WINDOW`) into DIR, for ``licrom train``.
+the training runs of the cheese, the box and the ball at the default window (:data:`licrom.data.dataset.IMPACT_WINDOW`)
+into DIR/FAMILY, for ``licrom train`` (section 16's models trained on them).
 ``--small``: the tiny cheese at h = 5 ms, 40 steps, r = 8.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 import warnings
 from pathlib import Path
 
@@ -64,6 +64,19 @@ def held_out_rows(fam: bfe.Family, cases, basis: BodyFrameBasis, truths: dict) -
     return rows
 
 
+def write_runs(out: Path, work: Path, small: bool) -> None:
+    """The training runs of every family of section 16 (cheese, box, ball) at its converged truth, with impact frames
+    for :data:`~licrom.data.dataset.IMPACT_WINDOW`, copied into ``out/FAMILY`` for ``licrom train``."""
+    for name in ("cheese", "box", "sphere"):
+        fam = family(small) if name == "cheese" else bfe.FAMILIES[name](small)
+        if name != "cheese":
+            fam = bfe.with_physics(fam, 0.005, "bdf2", bfe.CONVERGED_VISCOSITY) if small else bfe.at_converged_truth(name, fam)
+        runs = training_runs(fam, work, IMPACT_WINDOW)
+        (out / name).mkdir(parents=True, exist_ok=True)
+        for case, run in zip((c for c in fam.cases if not c.held_out), runs):
+            run.save(out / name / f"{case.name}.npz")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=Path("out/converged"), help="cache of the full runs (the converged truths)")
@@ -101,12 +114,7 @@ def main() -> None:
         lines.append(f"| {label} | {len(frames)} | {100 * row['nonrigid']:.2f} % | {100 * row['com']:.2f} % |")
         print(lines[-1], flush=True)
     if args.write_runs:
-        args.write_runs.mkdir(parents=True, exist_ok=True)
-        where = args.work if IMPACT_WINDOW == 0 else args.work / f"impact_{IMPACT_WINDOW:g}"
-        training_runs(fam, args.work, IMPACT_WINDOW)
-        for c in fam.cases:
-            if not c.held_out:
-                shutil.copy(where / "full" / f"{c.name}.npz", args.write_runs / f"{c.name}.npz")
+        write_runs(args.write_runs, args.work, args.small)
     if args.docs:
         args.docs.mkdir(parents=True, exist_ok=True)
         bfe.write_section(args.docs, f"{SECTION_TITLE}\n\nMeasured by `python experiments/impact_frames.py` "
