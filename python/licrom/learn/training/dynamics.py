@@ -13,7 +13,7 @@ tested is whether r modes carry the dynamics of motion the data covers; whether 
 new scene is the projection curve's question), every tet as cubature, and compares each with its
 full run (:func:`licrom.analysis.compare.compare`). r is raised from the projection's choice through
 :data:`DYNAMICS_CANDIDATES` to the smallest at which every reproducible replay meets the targets
-with :data:`MARGIN`. A run that misses at the cap too is not reproducible by any r allowed (a
+with :data:`MARGIN` and :data:`COM_MARGIN`. A run that misses at the cap too is not reproducible by any r allowed (a
 chaotic tumble, where a nudge of the start moves the run as much) and is left out of the choice.
 """
 
@@ -40,7 +40,7 @@ from ...subspace.cubature import Cubature
 from ..training_data import TrainingData
 from .held_out import run_cadence
 
-__all__ = ["DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics", "spread_runs"]
+__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics", "spread_runs"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -54,11 +54,17 @@ DYNAMICS_RUNS = 4
 """Training runs replayed at most (spread over what the runs did: :func:`spread_runs`): each costs a reduced run per r tried."""
 
 MARGIN = 2.0 / 3.0
-"""A replay meets the targets when its non-rigid error is below ``MARGIN x`` the 10 % target and its final
-centre of mass below ``MARGIN x`` the 2 % target: a held-out scene lands further off than a run the modes
-were fitted to. Measured on the ball at a converged truth (POD(r) of its 4 training runs, every tet): the
-held-out roll's centre-of-mass error over the worst replayed training run's was 1.5x at r = 100 (5.8 / 3.9 %),
-1.4x at 150 (2.7 / 1.9 %) and 0.85x at 200 (1.1 / 1.3 %)."""
+"""A replay meets the non-rigid target when its non-rigid error is below ``MARGIN x`` the 10 % target: a held-out
+scene lands further off than a run the modes were fitted to (the ball at r = 120: 4.3 % held out against 4.0 % for
+the worst replay, 1.1x)."""
+
+COM_MARGIN = 0.45
+"""A replay meets the centre-of-mass target when its final centre of mass is below ``COM_MARGIN x`` the 2 % target.
+Measured on the ball at a converged truth, POD(r) of its training runs, every tet: the held-out roll's centre-of-mass
+error over the worst replayed training run's was 1.5x at r = 100 (5.8 / 3.9 %), 1.4x at 150 (2.7 / 1.9 %) and 0.85x at
+200 (1.1 / 1.3 %) with frames 10 ms apart; with impact frames in the training runs (results section 26) the replays
+improved more than the held-out roll did, 2.2x at r = 120 (2.7 / 1.25 %), and 2/3 of the target let r = 120 through.
+0.45 takes the largest ratio measured."""
 
 MAX_TETS = 5000
 """Meshes of more tets are not checked: every tet as cubature makes each replay cost the full step's
@@ -111,7 +117,7 @@ class DynamicsCheck:
 
 
 def _limits() -> tuple[float, float]:
-    return MARGIN * NONRIGID_TARGET, MARGIN * COM_TARGET
+    return MARGIN * NONRIGID_TARGET, COM_MARGIN * COM_TARGET
 
 
 def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMICS_MAX_RANK, runs: int = DYNAMICS_RUNS) -> DynamicsCheck:
