@@ -61,7 +61,7 @@ from pathlib import Path
 import licrom
 import numpy as np
 from licrom import BodyFrameSim, ReducedSim, Trajectory
-from licrom.data.dataset import local_devices
+from licrom.data.dataset import IMPACT_WINDOW, local_devices
 from licrom.executors import run_tasks
 from licrom.learn.model.config import ModelConfig
 from licrom.learn.training import TrainConfig
@@ -94,9 +94,10 @@ def peak_gpu() -> tuple[float | None, callable]:
     return 0.0, lambda: torch.cuda.max_memory_allocated() / 2**30
 
 
-def generate(case: bfe.Case, mesh: licrom.Mesh, steps: int, device: str, runs: Path, record_every: int = 1) -> tuple[Path, dict]:
-    """The full run of ``case`` on ``device`` (a frame every ``record_every`` steps), saved (cached: a file already
-    there is kept with its timing)."""
+def generate(case: bfe.Case, mesh: licrom.Mesh, steps: int, device: str, runs: Path, record_every: int = 1,
+             impact_window: float = 0.0) -> tuple[Path, dict]:
+    """The full run of ``case`` on ``device`` (a frame every ``record_every`` steps, impact frames for
+    ``impact_window`` s after each impact), saved (cached: a file already there is kept with its timing)."""
     path, meta = runs / f"{case.name}.npz", runs / f"{case.name}.json"
     if path.exists() and meta.exists():
         return path, json.loads(meta.read_text())
@@ -104,13 +105,13 @@ def generate(case: bfe.Case, mesh: licrom.Mesh, steps: int, device: str, runs: P
     sim = licrom.FullSim(mesh, case.scene, device=device)
     setup = time.perf_counter() - t0
     t1 = time.perf_counter()
-    traj = sim.run(steps, record_every=record_every)
+    traj = sim.run(steps, record_every=record_every, impact_window=impact_window)
     wall = time.perf_counter() - t1
     t2 = time.perf_counter()
     traj.save(path)
     save = time.perf_counter() - t2
     info = {"name": case.name, "kind": case.kind, "held_out": case.held_out, "device": str(sim.device), "setup_s": setup, "run_s": wall,
-            "save_s": save, "steps": steps, "step_ms": 1e3 * wall / steps, "median_step_ms": 1e3 * float(np.median(traj.step_seconds)),
+            "save_s": save, "impact_frames": len(traj.impact_times), "steps": steps, "step_ms": 1e3 * wall / steps, "median_step_ms": 1e3 * float(np.median(traj.step_seconds)),
             "first10_step_ms": 1e3 * float(np.median(traj.step_seconds[:10])), "newton_its": float(np.mean(traj.iterations)),
             "unconverged": int(traj.info.get("unconverged_steps", 0)), "file_mb": path.stat().st_size / 2**20,
             # the truth's own validity: frames with an inverted tet (the landing of the soft cheese inverts some at 120k)
@@ -374,7 +375,8 @@ def main_study(args) -> dict:
                      for i, case in enumerate(cases)}
     else:
         devices = local_devices(args.device, args.jobs)
-        tasks = [(case, mesh, steps, devices[i % len(devices)], work / "runs", fam.record_every) for i, case in enumerate(cases)]
+        tasks = [(case, mesh, steps, devices[i % len(devices)], work / "runs", fam.record_every, 0.0 if case.held_out else args.impact_window)
+                 for i, case in enumerate(cases)]
         generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
     files, gen = zip(*(generated[i] for i in range(len(cases))))
     train_files, held_files = list(files[: len(train_cases)]), list(files[len(train_cases):])
@@ -603,6 +605,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1,
                     help="full runs generated at once, in processes that take the machine's GPUs in turn (licrom.executors)")
     ap.add_argument("--held", type=int, default=4, help="held-out runs (of 4)")
+    ap.add_argument("--impact-window", type=float, default=IMPACT_WINDOW,
+                    help="s of impact frames kept in the training runs (licrom generate's default; 0: none, as sections 13-23)")
     ap.add_argument("--contact-points", type=int, nargs="*", default=[], metavar="N",
                     help="also run the held-out scenes with farthest-point subsets of N contact points (ContactPoints.subset)")
     ap.add_argument("--cpu-steps", type=int, default=10, help="steps of a full run on the CPU (0: none)")
