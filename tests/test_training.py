@@ -120,6 +120,7 @@ def test_impact_frames_are_training_frames_after_the_regular_ones(trajs):
     plain = TrainingData(trajs, val_indices=[1], frame="body")
     own = d.train.trajectory == 0
     assert len(d.train) == len(plain.train) + 3 and list(d.train.frame[own][-4:]) == [t.n_frames - 1, -1, -1, -1]
+    assert (d.summary()["train_impact_frames"], plain.summary()["train_impact_frames"]) == (3, 0)
     # an impact frame is processed as a regular frame of the same displacement would be
     same = TrainingData([dataclasses.replace(t, displacements=t.displacements[1:4] * 0.5, velocities=t.velocities[1:4],
                                              times=t.times[1:4]), *trajs[1:]], val_indices=[1], frame="body")
@@ -568,3 +569,10 @@ def test_progress_bar_counts_epochs_from_one(trajs, capsys):
     shown = "".join(capsys.readouterr())  # Lightning's bars write to stdout
     epochs = [part for part in shown.replace("\n", "\r").split("\r") if part.startswith("Epoch")]
     assert any(p.startswith("Epoch 1/2: 100%") for p in epochs) and epochs[-1].startswith("Epoch 2/2: 100%")
+
+
+def test_the_training_report_says_how_many_frames_are_impact_frames():
+    from licrom.cli.commands import _frames_of
+
+    assert _frames_of({"train_frames": 10, "train_impact_frames": 3}, "train") == "10 frames, 3 of them impact frames"
+    assert _frames_of({"validation_frames": 4, "validation_impact_frames": 0}, "validation") == "4 frames"

@@ -93,6 +93,8 @@ def test_repr_is_one_short_line_not_every_array():
     reduced = dataclasses.replace(t, info={"source": "reduced", "frame": "body", "n_modes": 14, "cubature_points": 20})
     assert repr(full).startswith("Trajectory(full: 50 frames")
     assert repr(reduced).startswith("Trajectory(reduced, frame body, n modes 14, cubature points 20: 50 frames")
+    impacts = dataclasses.replace(full, impact_displacements=t.displacements[:3], impact_times=np.array([0.001, 0.002, 0.003]))
+    assert repr(impacts).startswith("Trajectory(full: 50 frames (+3 impact frames), t = 0..0.49 s")
 
 
 @pytest.mark.parametrize(("member", "edit", "message"), [

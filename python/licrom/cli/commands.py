@@ -259,6 +259,12 @@ def generate_command(out_dir, scene_source, mesh_source, resolution, youngs_modu
         raise click.ClickException(f"{len(failed)} trajectories failed (see {manifest_path}); rerun to retry them")
 
 
+def _frames_of(split: dict, side: str) -> str:
+    """``N frames``, with how many of them are impact frames where there are any (the training data's summary)."""
+    impacts = split.get(f"{side}_impact_frames") or 0
+    return f"{split.get(f'{side}_frames')} frames" + (f", {impacts} of them impact frames" if impacts else "")
+
+
 class _Rank(click.ParamType):
     """``-r``: an integer >= 1 or ``auto``."""
 
@@ -364,7 +370,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_ra
     split = meta.get("data", {})
     on_top = f"+{model.n_affine} affine" if model.frame == "world" else "+6 affine and the rigid motion"
     click.echo(f"trained r = {model.n_learned} ({on_top}, {model.frame} frame) on {len(split.get('train', []))} trajectories "
-               f"({split.get('train_frames')} frames), held out {len(split.get('validation', []))} ({split.get('validation_frames')} frames)")
+               f"({_frames_of(split, 'train')}), held out {len(split.get('validation', []))} ({_frames_of(split, 'validation')})")
     if "candidates" in meta.get("rank", {}):
         click.echo(RankChoice.from_dict(meta["rank"]).describe())
         for line in dynamics_lines(meta["rank"].get("dynamics")):

@@ -299,6 +299,8 @@ class TrainingData:
             "validation": [self.names[i] for i in self.val_indices],
             "train_frames": len(self.train),
             "validation_frames": len(self.val),
+            "train_impact_frames": int(np.sum(self.train.frame < 0)),
+            "validation_impact_frames": int(np.sum(self.val.frame < 0)),
             "n_vertices": self.mesh.n_vertices,
             "n_tets": self.mesh.n_tets,
             "x_center": self.x_center.tolist(),

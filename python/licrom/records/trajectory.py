@@ -123,7 +123,8 @@ class Trajectory:
         source = self.info.get("source", "unknown source")
         if source == "reduced":
             source += "".join(f", {k.replace('_', ' ')} {self.info[k]}" for k in ("frame", "n_modes", "cubature_points") if k in self.info)
-        return (f"Trajectory({source}: {self.n_frames} frames, {span}, {len(self.rest_positions)} vertices, {len(self.tets)} tets, "
+        impacts = f" (+{len(self.impact_times)} impact frames)" if len(self.impact_times) else ""
+        return (f"Trajectory({source}: {self.n_frames} frames{impacts}, {span}, {len(self.rest_positions)} vertices, {len(self.tets)} tets, "
                 f"{len(self.iterations)} steps ({int((~self.converged).sum())} unconverged), planes: {planes})")
 
     @cached_property
