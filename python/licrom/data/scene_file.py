@@ -60,9 +60,7 @@ import math
 import os
 import re
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from functools import partial
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -72,6 +70,7 @@ from ..errors import ConfigError, FileFormatError
 from ..geometry.mesh import Mesh
 from ..scene.scene import INTEGRATORS, ContactParams, InitialState, Material, Plane, Scene, SolverParams, _rotation, _vec3
 from ..scene.sweep import DEFAULT_FRICTION, check_friction, held_out_pairs, slope_friction_pairs, sweep, sweep_axis, sweep_count, tilted, with_friction
+from .checked_table import Table, checked_integer, checked_number
 from .dataset import IMPACT_WINDOW, DatasetSpec
 
 if sys.version_info >= (3, 11):
@@ -92,129 +91,7 @@ __all__ = [
 
 SCENE_FILE_VERSION = 1
 PROCEDURAL_SHAPES = ("box", "sphere", "cheese")
-_MISSING: Any = object()
 _T = TypeVar("_T")
-
-
-# --- reading checked values -----------------------------------------------------------------
-def _interval(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
-    if hi == math.inf:
-        return f"{'>' if lo_open else '>='} {lo:g}"
-    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-
-
-class _Table:
-    """One TOML table being read: each value is checked as it is read; keys never read are refused."""
-
-    def __init__(self, data: Any, path: str) -> None:
-        if not isinstance(data, dict):
-            raise ConfigError(f"{path} must be a table, got {_kind(data)}")
-        self.data = data
-        self.path = path
-        self.read: list[str] = []
-
-    def key(self, name: str) -> str:
-        return f"{self.path}.{name}" if self.path else name
-
-    def has(self, name: str) -> bool:
-        return name in self.data
-
-    def raw(self, name: str, default: Any = _MISSING) -> Any:
-        self.read.append(name)
-        if name not in self.data:
-            if default is _MISSING:
-                raise ConfigError(f"{self.key(name)} is required")
-            return default
-        return self.data[name]
-
-    def absent(self, name: str, default: Any) -> bool:
-        """True when ``name`` is not given and has a default (which is then used unchecked)."""
-        if name in self.data or default is _MISSING:
-            return False
-        self.read.append(name)
-        return True
-
-    def number(self, name: str, default: Any = _MISSING, lo: float = -math.inf, hi: float = math.inf,
-               lo_open: bool = False, hi_open: bool = False, unit: str = "") -> Any:
-        if self.absent(name, default):
-            return default
-        return _number(self.raw(name), self.key(name), lo, hi, lo_open, hi_open, unit)
-
-    def integer(self, name: str, default: Any = _MISSING, lo: int = 1) -> Any:
-        if self.absent(name, default):
-            return default
-        return _integer(self.raw(name), self.key(name), lo)
-
-    def vector(self, name: str, default: Any = _MISSING, unit: str = "") -> Any:
-        if self.absent(name, default):
-            return default
-        value = self.raw(name)
-        if not isinstance(value, (list, tuple)) or len(value) != 3:
-            raise ConfigError(f"{self.key(name)} must be 3 numbers{f' ({unit})' if unit else ''}, got {value!r}")
-        return tuple(_number(v, f"{self.key(name)}[{i}]", unit=unit) for i, v in enumerate(value))  # type: ignore[return-value]
-
-    def friction(self, name: str, default: Any = _MISSING) -> Any:
-        """A Coulomb coefficient (:func:`licrom.scene.sweep.check_friction`)."""
-        if self.absent(name, default):
-            return default
-        return check_friction(self.raw(name), self.key(name))
-
-    def numbers(self, name: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False, hi_open: bool = False,
-                unit: str = "", check: Callable[[Any, str], float] | None = None) -> tuple[float, ...] | None:
-        """A non-empty list of numbers in the range, each read by ``check(value, key)`` (default: :func:`_number` in the range)."""
-        value = self.raw(name, None)
-        if value is None:
-            return None
-        if not isinstance(value, list) or not value:
-            raise ConfigError(f"{self.key(name)} must be a non-empty list of numbers {_interval(lo, hi, lo_open, hi_open)}, got {value!r}")
-        check = check or partial(_number, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open, unit=unit)
-        return tuple(check(v, f"{self.key(name)}[{i}]") for i, v in enumerate(value))
-
-    def string(self, name: str, default: Any = _MISSING, choices: tuple[str, ...] | None = None) -> str:
-        value = self.raw(name, default)
-        if not isinstance(value, str) or (choices is not None and value not in choices):
-            accepted = f"one of {', '.join(repr(c) for c in choices)}" if choices else "a string"
-            raise ConfigError(f"{self.key(name)} must be {accepted}, got {value!r}")
-        return value
-
-    def table(self, name: str, required: bool = False) -> _Table:
-        return _Table(self.raw(name, _MISSING if required else {}), self.key(name))
-
-    def tables(self, name: str) -> list[_Table] | None:
-        value = self.raw(name, None)
-        if value is None:
-            return None
-        if not isinstance(value, list):
-            raise ConfigError(f"{self.key(name)} must be an array of tables ([[{name}]]), got {_kind(value)}")
-        return [_Table(item, f"{self.key(name)}[{i}]") for i, item in enumerate(value)]
-
-    def done(self) -> None:
-        unknown = [k for k in self.data if k not in self.read]
-        if unknown:
-            where = self.path or "the top level"
-            raise ConfigError(f"unknown key {self.key(unknown[0])}; accepted keys in {where}: {', '.join(dict.fromkeys(self.read))}")
-
-
-def _integer(value: Any, key: str, lo: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-        raise ConfigError(f"{key} must be an integer >= {lo}, got {value!r}")
-    return value
-
-
-def _kind(value: Any) -> str:
-    return {dict: "a table", list: "a list", str: "a string", bool: "a boolean"}.get(type(value), type(value).__name__)
-
-
-def _number(value: Any, key: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False, hi_open: bool = False,
-            unit: str = "") -> float:
-    accepted = "" if (lo, hi) == (-math.inf, math.inf) else " " + _interval(lo, hi, lo_open, hi_open)
-    what = f"a number{accepted}{f' ({unit})' if unit else ''}"
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{key} must be {what}, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
-        raise ConfigError(f"{key} must be {what}, got {value!r}")
-    return v
 
 
 # --- the parts of a scene file --------------------------------------------------------------
@@ -385,26 +262,26 @@ class SceneFile:
         if resolution is not None:
             if not obj.procedural:
                 raise ConfigError(f"resolution applies to procedural shapes ({', '.join(PROCEDURAL_SHAPES)}), not to the mesh file '{obj.mesh}'")
-            obj = replace(obj, resolution=_integer(resolution, "resolution", 4 if obj.mesh != "box" else 1))
+            obj = replace(obj, resolution=checked_integer(resolution, "resolution", 4 if obj.mesh != "box" else 1))
         m = self.scene.material
         material = Material(
-            youngs_modulus=m.youngs_modulus if youngs_modulus is None else _number(youngs_modulus, "youngs_modulus", 0.0, lo_open=True, unit="Pa"),
-            poisson_ratio=m.poisson_ratio if poisson_ratio is None else _number(poisson_ratio, "poisson_ratio", -1.0, 0.5, True, True),
-            density=m.density if density is None else _number(density, "density", 0.0, lo_open=True, unit="kg/m^3"),
-            viscosity=m.viscosity if viscosity is None else _number(viscosity, "viscosity", 0.0, unit="Pa s"),
+            youngs_modulus=m.youngs_modulus if youngs_modulus is None else checked_number(youngs_modulus, "youngs_modulus", 0.0, lo_open=True, unit="Pa"),
+            poisson_ratio=m.poisson_ratio if poisson_ratio is None else checked_number(poisson_ratio, "poisson_ratio", -1.0, 0.5, True, True),
+            density=m.density if density is None else checked_number(density, "density", 0.0, lo_open=True, unit="kg/m^3"),
+            viscosity=m.viscosity if viscosity is None else checked_number(viscosity, "viscosity", 0.0, unit="Pa s"),
         )
         if frictions is not None:
             frictions = tuple(check_friction(v, f"friction {v!r}") for v in frictions) or None
         if slopes is not None:
-            slopes = tuple(_number(v, f"slope {v!r}", 0.0, 90.0, hi_open=True, unit="deg") for v in slopes) or None
+            slopes = tuple(checked_number(v, f"slope {v!r}", 0.0, 90.0, hi_open=True, unit="deg") for v in slopes) or None
             if slopes and not self.scene.planes:
                 raise ConfigError(f"a slope tilts the first plane, but scene '{self.name}' has no planes")
-        scene = self.scene.replace(material=material, dt=self.scene.dt if dt is None else _number(dt, "dt", 0.0, lo_open=True, unit="s"))
+        scene = self.scene.replace(material=material, dt=self.scene.dt if dt is None else checked_number(dt, "dt", 0.0, lo_open=True, unit="s"))
         return replace(
             self, object=obj, scene=scene, frictions=self.frictions if frictions is None else frictions,
-            slopes=self.slopes if slopes is None else slopes, steps=self.steps if steps is None else _integer(steps, "steps", 1),
-            record_every=self.record_every if record_every is None else _integer(record_every, "record_every", 1),
-            impact_window=self.impact_window if impact_window is None else _number(impact_window, "impact_window", 0.0, hi_open=True, unit="s"),
+            slopes=self.slopes if slopes is None else slopes, steps=self.steps if steps is None else checked_integer(steps, "steps", 1),
+            record_every=self.record_every if record_every is None else checked_integer(record_every, "record_every", 1),
+            impact_window=self.impact_window if impact_window is None else checked_number(impact_window, "impact_window", 0.0, hi_open=True, unit="s"),
         )
 
     @property
@@ -567,7 +444,7 @@ def load_scene(source: str | Path) -> SceneFile:
 
 
 def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: str) -> SceneFile:
-    top = _Table(data, "")
+    top = Table(data, "")
     version = top.raw("version", None)
     if version is None:
         raise ConfigError(f"version is required (version = {SCENE_FILE_VERSION})")
@@ -655,8 +532,8 @@ def _parse(data: dict[str, Any], where: str, base: Path | None, default_name: st
                      initial=initial, steps=steps, record_every=record_every, held_out=tuple(held_out), impact_window=impact_window)
 
 
-def _number_table(top: _Table, name: str, cls: type[_T], **fields: dict[str, Any]) -> _T:
-    """The table ``name`` of ``top`` as a ``cls`` of numbers: each of ``fields`` read by :meth:`_Table.number`
+def _number_table(top: Table, name: str, cls: type[_T], **fields: dict[str, Any]) -> _T:
+    """The table ``name`` of ``top`` as a ``cls`` of numbers: each of ``fields`` read by :meth:`Table.number`
     with its keyword arguments (bounds, unit), defaulting to ``cls()``'s value."""
     table = top.table(name)
     default = cls()
@@ -665,7 +542,7 @@ def _number_table(top: _Table, name: str, cls: type[_T], **fields: dict[str, Any
     return value
 
 
-def _plane(t: _Table) -> Plane:
+def _plane(t: Table) -> Plane:
     slope = t.number("slope", None, 0.0, 90.0, hi_open=True, unit="deg")
     azimuth = t.number("azimuth", None, unit="deg")
     normal = t.vector("normal", None)
@@ -681,7 +558,7 @@ def _plane(t: _Table) -> Plane:
     return Plane(normal=normal, offset=offset, friction=friction)
 
 
-def _initial_states(tables: list[_Table], has_planes: bool) -> tuple[DropSpec, ...] | tuple[InitialState, ...]:
+def _initial_states(tables: list[Table], has_planes: bool) -> tuple[DropSpec, ...] | tuple[InitialState, ...]:
     drops = [t.has("drop_height") for t in tables]
     if any(drops) and not all(drops):
         first_world = tables[drops.index(False)]
