@@ -103,8 +103,9 @@ def test_impact_frames_are_kept_and_another_window_is_not_mistaken_for_a_finishe
     assert all(len(Trajectory.load(out / e["file"]).impact_times) == 0 for e in entries)
     _, _, manifest_path = _tiny(tmp_path, steps=8, record_every=1)  # every step a frame: no impact frames asked
     assert load_manifest(out)["impact_window"] == 0.0
-    with pytest.raises(ConfigError, match="impact_window"):
-        _tiny(tmp_path, impact_window=-1.0)
+    for every in (1, 2):  # refused also where it would not be used
+        with pytest.raises(ConfigError, match="impact_window must be a finite time >= 0"):
+            _tiny(tmp_path, impact_window=-1.0, record_every=every)
 
 
 def test_another_mesh_in_the_same_directory_is_refused(tmp_path):

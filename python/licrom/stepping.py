@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -22,7 +23,7 @@ import numpy as np
 from ._repr import concise_repr
 from .errors import ConcurrencyError, ConfigError, ShapeError
 
-__all__ = ["BUSY_MESSAGE", "IMPACT_FRAMES_PER_FRAME", "RunRecord", "ThreadGuard", "check_run_arguments", "exclusive", "record_run"]
+__all__ = ["BUSY_MESSAGE", "IMPACT_FRAMES_PER_FRAME", "RunRecord", "ThreadGuard", "check_impact_window", "check_run_arguments", "exclusive", "record_run"]
 
 StepOutcome = tuple[int, float, bool]
 """``(iterations, residual in m/s, converged)`` of one step."""
@@ -107,6 +108,18 @@ IMPACT_FRAMES_PER_FRAME = 2
 """Impact frames a run keeps at most per regular frame (:func:`record_run`): its file at most triples. Within it the
 training runs of results section 26 kept every impact (a cheese landing 45 frames of its 151, a ball's two
 landings 190 of 101) but the two that tumble (341 and 360 of 151) and the box thrown to tumble (1124 of 151)."""
+
+
+def check_impact_window(impact_window: Any) -> float:
+    """``impact_window`` (a finite time >= 0, s) as a float.
+
+    Raises:
+        ConfigError: anything else, booleans included.
+    """
+    if isinstance(impact_window, bool) or not isinstance(impact_window, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= impact_window < math.inf:
+        raise ConfigError(f"impact_window must be a finite time >= 0 in s, got {impact_window!r}")
+    return float(impact_window)
 
 
 @dataclass

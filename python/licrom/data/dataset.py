@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import time
 from collections.abc import Iterator, Sequence
@@ -43,6 +42,7 @@ from ..records.trajectory import READABLE_VERSIONS
 from ..scene.placement import initial_state_on_plane
 from ..scene.scene import InitialState, Plane, Scene
 from ..scene.sweep import DEFAULT_FRICTION, check_friction, sweep, sweep_axis, sweep_count, with_friction
+from ..stepping import check_impact_window
 
 __all__ = [
     "DATASET_FORMAT_VERSION",
@@ -405,9 +405,9 @@ def generate_dataset(
         raise ConfigError(f"record_every must be an integer >= 1, got {record_every!r}")
     if precision not in ("float32", "float64"):
         raise ConfigError(f"precision must be 'float32' or 'float64', got {precision!r}")
-    if isinstance(impact_window, bool) or not isinstance(impact_window, (int, float)) or not 0.0 <= impact_window < math.inf:
-        raise ConfigError(f"impact_window must be a finite time >= 0 in s, got {impact_window!r}")
-    impact_window = float(impact_window) if record_every > 1 else 0.0
+    impact_window = check_impact_window(impact_window)
+    if record_every == 1:
+        impact_window = 0.0  # every step is a frame already
     runs = sweep_runs(mesh, base_scene, frictions, planes, initial_states, initial_frame)
     executor, jobs = check_executor(executor, jobs)
     ray_timeout = check_ray_timeout(ray_timeout) if executor == "ray" else None

@@ -18,7 +18,7 @@ from ..errors import ConfigError, ShapeError, SolverError
 from ..geometry.mesh import Mesh
 from ..records.trajectory import Trajectory
 from ..scene.scene import Scene
-from ..stepping import ThreadGuard, check_field, exclusive, record_run
+from ..stepping import ThreadGuard, check_field, check_impact_window, exclusive, record_run
 from ..validity import check_start, penetration, tet_determinants, warn_frames, with_steps
 from . import contact, damping, elastic, inertia, pcg, validity
 from .device import (
@@ -581,8 +581,7 @@ class FullSim:
             ConfigError: bad ``steps``, ``record_every`` or ``impact_window``.
             SolverError: a step failed and ``on_failure == "raise"``, or met NaN/inf.
         """
-        if isinstance(impact_window, bool) or not isinstance(impact_window, (int, float)) or not 0.0 <= impact_window < math.inf:
-            raise ConfigError(f"impact_window must be a finite time >= 0 in s, got {impact_window!r}")
+        impact_window = check_impact_window(impact_window)
         rest = self.mesh.vertices
         linear = 0
         if progress:
