@@ -71,7 +71,11 @@ grippiest run: 16 % non-rigid at r = 120 left out, 5 % kept in; every ball run m
 
 MAX_TETS = 5000
 """Meshes of more tets are not checked: every tet as cubature makes each replay cost the full step's
-elastic pass (a fitted cubature per r tried would be needed there)."""
+elastic pass, and a cubature fitted per r does not hold the replays there. Tried on the 120k-tet cheese
+(docs/results.md section 28; POD(250) of its 16 training runs, 256 training poses, the fit's candidates cut to
+2048 tets by its memory bound, 622 tets chosen): every replayed run missed at r = 250 (14-145 % non-rigid), where
+the learned model at r = 120 with its own fit lands its held-out scenes at 4.7-7.9 %; on the 1.6k-tet cheese the
+same per-r fit moves the replays by up to 1.5x against every tet (it would choose 200 for the ball, 150 for the cheese)."""
 
 
 @dataclass(frozen=True)
