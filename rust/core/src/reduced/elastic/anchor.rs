@@ -104,8 +104,10 @@ impl ElasticTerm {
             }
             None => {
                 let f0 = cub.constant_deformation(q);
-                for (group, c) in cub.packed.chunks_exact(cub.group_len()).zip(out.chunks_exact_mut(6)) {
-                    write_cauchy_green(&cub.group_deformation::<M>(group, q, &f0), c);
+                // sliced by index, not chunked: with every column constant over the points (affine modes alone) a group is empty
+                let len = cub.group_len();
+                for (g, c) in out.chunks_exact_mut(6).enumerate() {
+                    write_cauchy_green(&cub.group_deformation::<M>(&cub.packed[g * len..(g + 1) * len], q, &f0), c);
                 }
             }
         }
