@@ -1,10 +1,17 @@
-"""The defaults on held-out cheese scenes no earlier section ran: drawn slopes, azimuths and friction.
+"""The defaults on held-out scenes no earlier section ran: drawn slopes, azimuths, friction and throws.
 
-    python experiments/more_scenes.py [--model out/converged/models/cheese.lcm] [--scenes 8] [--work out/more_scenes] [--small]
+    python experiments/more_scenes.py [--family cheese] [--model out/converged/models/cheese.lcm] [--scenes 8] [--work out/more_scenes] [--small]
 
-Section 16 judges the defaults on four held-out cheese scenes, one of each kind. This draws ``--scenes`` more
-of the same kinds (seeded: slope 18-32 deg, downhill azimuth anywhere, friction 0.25-0.6; the cheese dropped as
-the family drops it, on the 1638-tet mesh), runs each at the converged truth of section 12 (BDF2, h = 1 ms,
+Section 16 judges the defaults on a few held-out scenes of each family, one of each kind. This draws ``--scenes``
+more of the same kinds (seeded, placed as the family places its runs), :data:`DRAWS`:
+
+* ``cheese`` (1638 tets): slope 18-32 deg, downhill azimuth anywhere, friction 0.25-0.6;
+* ``sphere`` (1074 tets): thrown down slopes of 20-30 deg at friction 0.2-0.5 (downhill along x, as it was trained);
+* ``box`` (432 tets): every other scene tips over (slope 20-30 deg, friction 0.8-1.0), the others are thrown to
+  tumble (slope 30-35 deg, spin 10-15 rad/s, 0.3-0.5 m/s, friction 0.6), whose targets are 3x the noise floor
+  where it is above 2 % (chaotic).
+
+Each runs at the converged truth of section 12 (BDF2, h = 1 ms,
 viscosity 400 Pa s) in full and with ``ReducedSim(model, scene=scene)`` (the model's defaults), and prints a
 row per scene: the noise floor (the full run against itself dropped 0.1 mm higher), the learned projection
 (the full run's body-frame displacements projected onto the model's modes), the reduced run's non-rigid error,
@@ -30,21 +37,42 @@ SEED = 2026
 """Seed of the drawn scenes."""
 
 
-def drawn_family(count: int, small: bool) -> bfe.Family:
-    """The cheese family's mesh and drop with ``count`` drawn held-out scenes, at the converged truth (``small``: the
-    tiny cheese at the family's own 10 ms, where 20 steps see it land)."""
-    fam = bfe.cheese_family(small)
+DRAWS = ("cheese", "sphere", "box")
+"""Families whose scenes can be drawn."""
+
+
+def drawn_case(family: str, fam: bfe.Family, rng: np.random.Generator, k: int) -> bfe.Case:
+    """The ``k``-th drawn held-out scene of ``family`` (``fam`` its family at the original physics)."""
     base = fam.held_out[0].scene
+    if family == "cheese":
+        slope, az, mu = round(rng.uniform(18.0, 32.0), 1), round(rng.uniform(0.0, 360.0)), round(rng.uniform(0.25, 0.6), 2)
+        plane = bfe.incline(slope, az, mu)
+        return bfe.Case(f"cheese_drawn_{plane.slope_deg:.1f}_{plane.friction:g}_az{az}", "drawn: " + bfe._label(plane, az), True,
+                        bfe._on_plane(fam.mesh, base, plane, 0.06, (0.15, 0.1, 0.0)))
+    if family == "sphere":
+        slope, mu = round(rng.uniform(20.0, 30.0), 1), round(rng.uniform(0.2, 0.5), 2)
+        plane = bfe.incline(slope, 0.0, mu)
+        return bfe.Case(f"sphere_drawn_{slope:g}_{mu:g}", "drawn, rolls: " + bfe._label(plane, 0.0), True,
+                        bfe._on_plane(fam.mesh, base, plane, 0.1, velocity=(0.5, 0.0, -1.0)))
+    if k % 2 == 0:
+        slope, mu = round(rng.uniform(20.0, 30.0), 1), round(rng.uniform(0.8, 1.0), 2)
+        plane = bfe.incline(slope, 0.0, mu)
+        return bfe.Case(f"box_drawn_tip_{slope:g}_{mu:g}", "drawn, tips over: " + bfe._label(plane, 0.0), True,
+                        bfe._on_plane(fam.mesh, base, plane, 0.005))
+    slope, spin, speed = round(rng.uniform(30.0, 35.0), 1), round(rng.uniform(10.0, 15.0), 1), round(rng.uniform(0.3, 0.5), 2)
+    plane = bfe.incline(slope, 0.0, 0.6)
+    return bfe.Case(f"box_drawn_tumble_{slope:g}_{spin:g}_{speed:g}", f"drawn, tumbles: spin {spin:g} rad/s, {speed:g} m/s, "
+                    + bfe._label(plane, 0.0), True, bfe._on_plane(fam.mesh, base, plane, 0.03, rotation=(np.pi / 2, 0.0, 0.0),
+                                                                velocity=(speed, 0.0, 0.0), angular_velocity=(0.0, spin, 0.0)))
+
+
+def drawn_family(family: str, count: int, small: bool) -> bfe.Family:
+    """``family``'s mesh and stepping with ``count`` drawn held-out scenes (seeded by :data:`SEED`), at the converged truth
+    (``small``: the tiny mesh at the family's own step, where 20 steps see it land)."""
+    fam = bfe.FAMILIES[family](small)
     rng = np.random.default_rng(SEED)
-    cases = []
-    for _ in range(count):
-        slope, az, mu = rng.uniform(18.0, 32.0), rng.uniform(0.0, 360.0), rng.uniform(0.25, 0.6)
-        plane = bfe.incline(round(slope, 1), round(az), round(mu, 2))
-        scene = bfe._on_plane(fam.mesh, base, plane, 0.06, (0.15, 0.1, 0.0))
-        cases.append(bfe.Case(f"cheese_drawn_{plane.slope_deg:.1f}_{plane.friction:g}_az{round(az)}",
-                              "drawn: " + bfe._label(plane, round(az)), True, scene))
-    drawn = bfe.Family("cheese", fam.mesh, fam.steps, tuple(cases))
-    return drawn if small else bfe.at_converged_truth("cheese", drawn)
+    drawn = bfe.Family(family, fam.mesh, fam.steps, tuple(drawn_case(family, fam, rng, k) for k in range(count)))
+    return drawn if small else bfe.at_converged_truth(family, drawn)
 
 
 def scene_row(model: licrom.Model, fam: bfe.Family, case: bfe.Case, work: Path, values: np.ndarray) -> dict:
@@ -54,11 +82,15 @@ def scene_row(model: licrom.Model, fam: bfe.Family, case: bfe.Case, work: Path, 
         warnings.simplefilter("ignore")  # the estimate's warning is a column of the table
         reduced = licrom.ReducedSim(model, scene=case.scene).run(fam.steps, record_every=fam.record_every)
     m = bfe.run_metrics(full, reduced)
-    row = {"name": case.name, "kind": case.kind, "floor_nonrigid": floor["nonrigid_error"], "floor_com": floor["com_error"],
+    chaotic = max(floor["nonrigid_error"], floor["com_error"]) > bfe.CHAOTIC_FLOOR
+    row = {"name": case.name, "kind": case.kind, "floor_nonrigid": floor["nonrigid_error"], "floor_com": floor["com_error"], "chaotic": chaotic,
            "learned_projection": bfe.body_projection_error(full, values), "nonrigid_error": m["nonrigid_error"], "com_error": m["com_error"],
            "stick_slip_right": m["stick_slip_right"], "estimate": float(reduced.error_estimate[-1]) if len(reduced.error_estimate) else float("nan"),
            "reduced_ms": 1e3 * float(np.median(reduced.step_seconds)), "full_ms": 1e3 * float(np.median(full.step_seconds))}
-    row["meets"] = bool(row["nonrigid_error"] < NONRIGID_TARGET and row["com_error"] < COM_TARGET and row["stick_slip_right"])
+    if chaotic:  # within 3x its noise floor
+        row["meets"] = bool(row["nonrigid_error"] <= max(NONRIGID_TARGET, 3 * row["floor_nonrigid"]) and row["com_error"] <= max(COM_TARGET, 3 * row["floor_com"]))
+    else:
+        row["meets"] = bool(row["nonrigid_error"] < NONRIGID_TARGET and row["com_error"] < COM_TARGET and row["stick_slip_right"])
     return row
 
 
@@ -67,7 +99,7 @@ def table(rows: list[dict]) -> str:
     out = ["| scene | noise floor (non-rigid / COM) | learned projection | non-rigid error | estimate | final COM / size | stick/slip | "
            "reduced ms/step | full ms/step | meets |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        out.append(f"| {r['kind']} | {pct(r['floor_nonrigid'])} / {pct(r['floor_com'])} | {pct(r['learned_projection'])} | {pct(r['nonrigid_error'])} | "
+        out.append(f"| {r['kind']} | {pct(r['floor_nonrigid'])} / {pct(r['floor_com'])}{' chaotic' if r.get('chaotic') else ''} | {pct(r['learned_projection'])} | {pct(r['nonrigid_error'])} | "
                    f"{pct(r['estimate'])} | {pct(r['com_error'])} | {'right' if r['stick_slip_right'] else 'wrong'} | {r['reduced_ms']:.3f} | "
                    f"{r['full_ms']:.1f} | {'yes' if r['meets'] else 'no'} |")
     return "\n".join(out)
@@ -75,26 +107,27 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--model", type=Path, default=Path("out/converged/models/cheese.lcm"), help="the cheese model (licrom train defaults)")
+    ap.add_argument("--family", choices=DRAWS, default="cheese", help="the object whose scenes are drawn")
+    ap.add_argument("--model", type=Path, default=None, help="the family's model (licrom train defaults; default out/converged/models/FAMILY.lcm)")
     ap.add_argument("--scenes", type=int, default=8, help="scenes drawn")
     ap.add_argument("--work", type=Path, default=Path("out/more_scenes"))
     ap.add_argument("--small", action="store_true", help="tiny cheese, 2 scenes of 20 steps, a 1-epoch model trained here")
     args = ap.parse_args()
     bfe.CHEESE_RESOLUTION = 10
-    fam = drawn_family(2 if args.small else args.scenes, args.small)
+    fam = drawn_family(args.family, 2 if args.small else args.scenes, args.small)
     if args.small:
         runs = [bfe.full_run(args.work, c.name + "_train", fam.mesh, c.scene, fam.steps, fam.record_every) for c in fam.cases]
         model_path = args.work / "model.lcm"
         from licrom.learn.training import TrainConfig
         licrom.train(runs, model_path, TrainConfig(epochs=1, progress=False))
         args.model = model_path
-    model = licrom.Model.load(args.model)
+    model = licrom.Model.load(args.model or Path(f"out/converged/models/{args.family}.lcm"))
     values = BodyFrameBasis(fam.mesh, model, density=fam.cases[0].scene.material.density).values(fam.mesh.vertices)
     rows = []
     for case in fam.cases:
         rows.append(scene_row(model, fam, case, args.work, values))
         print(table(rows[-1:]).splitlines()[-1], flush=True)
-    (args.work / "more_scenes.json").write_text(json.dumps({"model": str(args.model), "rows": rows}, indent=1))
+    (args.work / f"more_scenes_{args.family}.json").write_text(json.dumps({"model": str(args.model), "rows": rows}, indent=1))
     met = sum(r["meets"] for r in rows)
     print(f"\n{table(rows)}\n\n{met} of {len(rows)} scenes meet every target; non-rigid {bfe._pct(min(r['nonrigid_error'] for r in rows))}-"
           f"{bfe._pct(max(r['nonrigid_error'] for r in rows))}, centre of mass {bfe._pct(min(r['com_error'] for r in rows))}-"
