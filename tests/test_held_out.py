@@ -37,15 +37,19 @@ def test_the_training_report_holds_each_held_out_run_replayed_with_the_defaults(
     assert lines[-2].startswith("  non-rigid error (target < 10 %): How far")
 
 
-def test_a_held_out_run_above_the_threshold_is_named_in_an_accuracy_warning(tiny_demo, monkeypatch):
+def test_a_held_out_run_above_the_target_is_named_and_its_estimate_flagged_above_the_threshold(tiny_demo, monkeypatch):
     out, _ = tiny_demo
     model = Model.load(out / "model.lcm")
     name = model.metadata["data"]["validation"][0]
     run = Trajectory.load(out / "data" / f"{name}.npz")
-    monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 0.0)  # every run misses
-    with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name}"):
+    monkeypatch.setattr(held_out, "NONRIGID_TARGET", 0.0)  # every run misses
+    monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 0.0)  # every estimate is flagged
+    with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name} \(non-rigid error [0-9.]+ % >= 0 %"):
         report = held_out.check_held_out(model, [(name, run)])
-    assert report["runs"][0]["nonrigid_error"] > 0.0
+    assert report["runs"][0]["nonrigid_error"] > 0.0 and report["runs"][0]["flagged"] and report["threshold"] == 0.0
+    monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 1.0)  # the estimate's threshold does not judge the true error
+    with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name}"):
+        assert not held_out.check_held_out(model, [(name, run)])["runs"][0]["flagged"]
 
 
 def test_runs_whose_frames_are_not_evenly_spaced_steps_are_skipped_with_the_reason(tiny_demo):
@@ -65,7 +69,7 @@ def test_a_held_out_run_that_misses_the_centre_of_mass_target_alone_is_named_too
     model = Model.load(out / "model.lcm")
     name = model.metadata["data"]["validation"][0]
     run = Trajectory.load(out / "data" / f"{name}.npz")
-    monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 1.0)  # the non-rigid error never misses
+    monkeypatch.setattr(held_out, "NONRIGID_TARGET", 1.0)  # the non-rigid error never misses
     monkeypatch.setattr(held_out, "COM_TARGET", 0.0)  # the centre of mass always does
     with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name} \(final centre of mass [0-9.]+ % of the size >= 0 %"):
         report = held_out.check_held_out(model, [(name, run)])

@@ -43,7 +43,7 @@ raised where replays of training runs on POD(r) miss the targets (:mod:`.dynamic
 Training ends by fitting the model's cubature and by running the model as a user runs it,
 ``ReducedSim(model, scene=scene)``, on each held-out run, against that run
 (:func:`check_held_out`, ``model.metadata["held_out"]``; an ``AccuracyWarning`` names
-every held-out run that misses a target: non-rigid error above ``ERROR_THRESHOLD``, 10 %, centre of
+every held-out run that misses a target: non-rigid error at or above 10 %, centre of
 mass at or above 2 % of the size, or stick/slip wrong).
 
 Where things live: :mod:`.config` (:class:`TrainConfig`), :mod:`.rank` (:func:`choose_rank`), :mod:`.dynamics` (:func:`check_dynamics`),
