@@ -46,7 +46,7 @@ import licrom
 import numpy as np
 from licrom import AffineBasis, Material, MeshBasis, ModelConfig, Plane, ReducedSim, Scene, StackedBasis, Trajectory, meshes
 from licrom._io import atomic_path
-from licrom.analysis.compare import compare, first_contact_frame, nonrigid_error
+from licrom.analysis.compare import COM_TARGET, NONRIGID_TARGET, compare, first_contact_frame, nonrigid_error
 from licrom.learn.training import TrainConfig
 from licrom.reduced.body import BodyFrameSim
 from licrom.rigid import body_frame_displacements, rigid_fit
@@ -500,6 +500,16 @@ COLUMNS: dict[str, Callable[[Setting, Case, Trajectory, int], tuple[Trajectory, 
 # --- report ---------------------------------------------------------------------------------
 def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.1f} %"
+
+
+def meets_defaults_targets(run: dict, floor: dict | None) -> bool:
+    """Whether a reduced run (``nonrigid_error``, ``com_error``, ``stick_slip_right``) meets the defaults' targets: non-rigid
+    < 10 %, centre of mass < 2 % of the size, stick/slip right; a chaotic scene (its noise ``floor`` above
+    :data:`CHAOTIC_FLOOR`) within 3x its floor instead."""
+    if floor is not None and max(floor["nonrigid_error"], floor["com_error"]) > CHAOTIC_FLOOR:
+        return (run["nonrigid_error"] <= max(NONRIGID_TARGET, 3 * floor["nonrigid_error"])
+                and run["com_error"] <= max(COM_TARGET, 3 * floor["com_error"]))
+    return run["nonrigid_error"] < NONRIGID_TARGET and run["com_error"] < COM_TARGET and run["stick_slip_right"]
 
 
 def targets(row: dict) -> tuple[float, float]:

@@ -38,7 +38,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 from licrom import Model, ReducedSim
 from licrom._io import atomic_path
-from licrom.analysis.compare import COM_TARGET, NONRIGID_TARGET
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.subspace.basis import RUN_BALANCE
@@ -145,11 +144,7 @@ def spearman(x: list[float], y: list[float]) -> float:
 
 
 def meets(row: dict, run: dict) -> bool:
-    if row.get("chaotic"):
-        floor = row["noise_floor"]
-        return (run["nonrigid_error"] <= max(NONRIGID_TARGET, 3 * floor["nonrigid_error"])
-                and run["com_error"] <= max(COM_TARGET, 3 * floor["com_error"]))
-    return run["nonrigid_error"] < NONRIGID_TARGET and run["com_error"] < COM_TARGET and run["stick_slip_right"]
+    return bfe.meets_defaults_targets(run, row["noise_floor"] if row.get("chaotic") else None)
 
 
 def report(rows: list[dict], models: dict[str, Model]) -> str:

@@ -30,7 +30,6 @@ from pathlib import Path
 import body_frame_experiments as bfe
 import licrom
 import numpy as np
-from licrom.analysis.compare import COM_TARGET, NONRIGID_TARGET
 from licrom.subspace.body_basis import BodyFrameBasis
 
 SEED = 2026
@@ -87,10 +86,7 @@ def scene_row(model: licrom.Model, fam: bfe.Family, case: bfe.Case, work: Path, 
            "learned_projection": bfe.body_projection_error(full, values), "nonrigid_error": m["nonrigid_error"], "com_error": m["com_error"],
            "stick_slip_right": m["stick_slip_right"], "estimate": float(reduced.error_estimate[-1]) if len(reduced.error_estimate) else float("nan"),
            "reduced_ms": 1e3 * float(np.median(reduced.step_seconds)), "full_ms": 1e3 * float(np.median(full.step_seconds))}
-    if chaotic:  # within 3x its noise floor
-        row["meets"] = bool(row["nonrigid_error"] <= max(NONRIGID_TARGET, 3 * row["floor_nonrigid"]) and row["com_error"] <= max(COM_TARGET, 3 * row["floor_com"]))
-    else:
-        row["meets"] = bool(row["nonrigid_error"] < NONRIGID_TARGET and row["com_error"] < COM_TARGET and row["stick_slip_right"])
+    row["meets"] = bool(bfe.meets_defaults_targets(row, floor))
     return row
 
 
