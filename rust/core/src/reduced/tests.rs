@@ -416,6 +416,41 @@ fn vertex_form_that_does_not_reproduce_the_jacobians_is_rejected() {
     assert!(err.contains("cubature_vertex_basis"), "{err}");
 }
 
+/// The material damping's energy `sum_p w_p eta/h |(F^T F - F_a^T F_a)/2|^2 / 2` at `q` anchored at `qa`, summed
+/// point by point (Jacobians as stored, in f32).
+fn naive_damping_energy(model: &BlockModel, q: &[f64], qa: &[f64], eta: f64) -> f64 {
+    let n = q.len();
+    let stored: Vec<f64> = model.terms.cubature_jacobians.iter().map(|&v| f64::from(v as f32)).collect();
+    stored
+        .chunks_exact(9 * n)
+        .zip(&model.terms.cubature_weights)
+        .map(|(g, w)| {
+            let (f, fa) = (deformation_gradient(g, q), deformation_gradient(g, qa));
+            let d = 0.5 * (f.transpose() * f - fa.transpose() * fa);
+            w * eta / model.scene.dt * 0.5 * d.norm_squared()
+        })
+        .sum()
+}
+
+/// Affine modes alone on one cubature point: every column of the Jacobians is constant over the points, so the
+/// packed groups are empty; the damping's anchor is still formed (it once panicked) and its energy is the naive one.
+#[test]
+fn material_damping_with_every_column_constant_matches_a_naive_sum() {
+    let eta = 400.0;
+    let damped_scene =
+        BlockScene { learned_modes: 0, cubature_points: 1, contact_points: 9, normal_damping: 5.0e3, seed: 3, viscosity: eta, ..Default::default() };
+    let model = damped_scene.build().unwrap();
+    let plain_model = BlockScene { viscosity: 0.0, ..damped_scene }.build().unwrap();
+    let (sys, plain) = (ReducedSystem::new(&model.inputs()).unwrap(), ReducedSystem::new(&plain_model.inputs()).unwrap());
+    let (start, q0, qdot) = sliding_start(&model, &sys);
+    let (plain_start, _, _) = sliding_start(&plain_model, &plain);
+    let mut rng = Rng::new(12);
+    let q: Vec<f64> = (0..sys.n_dofs()).map(|i| q0[i] + model.scene.dt * qdot[i] + 0.02 * rng.uniform()).collect();
+    let naive = naive_damping_energy(&model, &q, &q0, eta);
+    let diff = sys.energy(&start, &q) - plain.energy(&plain_start, &q);
+    assert!(naive > 0.0 && (diff - naive).abs() < 1e-10 * naive, "damping energy {diff} vs naive {naive}");
+}
+
 /// The material damping `sum_k w_k kappa/2 |D_k|^2` (`kappa = eta/h`, `D = (F^T F - C_a)/2`): its energy
 /// against a naive sum, its gradient against finite differences, its Hessian rows against finite
 /// differences at the anchor (where the Gauss-Newton part is the whole Hessian), and the vertex form
@@ -437,16 +472,7 @@ fn material_damping_matches_a_naive_sum_and_finite_differences() {
     let mut rng = Rng::new(12);
     let q: Vec<f64> = (0..n).map(|i| q0[i] + h * qdot[i] + 0.02 * rng.uniform()).collect();
     // Energy: the difference is the naive sum over the points (Jacobians as stored, in f32).
-    let stored: Vec<f64> = model.terms.cubature_jacobians.iter().map(|&v| f64::from(v as f32)).collect();
-    let naive: f64 = stored
-        .chunks_exact(9 * n)
-        .zip(&model.terms.cubature_weights)
-        .map(|(g, w)| {
-            let (f, fa) = (deformation_gradient(g, &q), deformation_gradient(g, &q0));
-            let d = 0.5 * (f.transpose() * f - fa.transpose() * fa);
-            w * eta / h * 0.5 * d.norm_squared()
-        })
-        .sum();
+    let naive = naive_damping_energy(&model, &q, &q0, eta);
     let diff = sys.energy(&start, &q) - plain.energy(&plain_start, &q);
     assert!(naive > 0.0 && (diff - naive).abs() < 1e-10 * naive, "damping energy {diff} vs naive {naive}");
     // Gradient of the whole E against finite differences.
