@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import pickle
 import warnings
+from pathlib import Path
 
 import licrom
 import licrom._core as core
@@ -25,6 +26,7 @@ HIERARCHY = {
     "FileFormatError": (errors.LicromError, OSError),
     "OutputError": (errors.LicromError, OSError),
     "ConcurrencyError": (errors.LicromError, RuntimeError),
+    "InternalError": (errors.LicromError, RuntimeError),
     "MissingDependencyError": (errors.LicromError, ImportError),
     "LicromWarning": (UserWarning,),
     "PhysicsWarning": (errors.LicromWarning,),
@@ -101,3 +103,21 @@ def test_require_optional():
     assert errors.require_optional("json", "x", "y").__name__ == "json"
     with pytest.raises(errors.MissingDependencyError, match=r"pip install 'licrom\[extra\]'"):
         errors.require_optional("licrom_no_such_module", "extra", "this output")
+
+
+BINDINGS = Path(__file__).resolve().parents[1] / "rust" / "python" / "src"
+
+
+def test_every_call_into_the_core_turns_a_panic_into_internal_error():
+    """The bindings call the core only through ``errors.rs``'s ``call_core`` / ``detached``, which catch a panic
+    (``licrom_core::error::guarded``, tested in the core) and raise InternalError: no other GIL release, and no
+    core result mapped on its own (a ``str.parse`` of a name cannot panic)."""
+    sources = sorted(BINDINGS.glob("*.rs"))
+    assert len(sources) > 5
+    for path in sources:
+        if path.name == "errors.rs":
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            assert "py.detach(" not in line, f"{path.name}:{number} releases the GIL without `detached`"
+            if ".py_err(py)" in line:
+                assert ".parse().py_err(py)" in line, f"{path.name}:{number} maps a core result without `call_core`"

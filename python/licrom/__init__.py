@@ -17,7 +17,21 @@ from . import errors
 from .analysis.compare import compare
 
 # The exception family, named here for type checkers; ``__all__`` takes it from ``errors.__all__``.
-from .errors import AccuracyWarning, ConcurrencyError, ConfigError, FileFormatError, LicromError, LicromWarning, MeshError, MissingDependencyError, OutputError, PhysicsWarning, ShapeError, SolverError
+from .errors import (
+    AccuracyWarning,
+    ConcurrencyError,
+    ConfigError,
+    FileFormatError,
+    InternalError,
+    LicromError,
+    LicromWarning,
+    MeshError,
+    MissingDependencyError,
+    OutputError,
+    PhysicsWarning,
+    ShapeError,
+    SolverError,
+)
 from .geometry.mesh import Mesh, MeshQuality
 from .records.trajectory import Trajectory
 from .scene.scene import ContactParams, InitialState, Material, Plane, Scene, SolverParams

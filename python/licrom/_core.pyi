@@ -31,6 +31,7 @@ __all__ = [
     "ConcurrencyError",
     "ConfigError",
     "FileFormatError",
+    "InternalError",
     "LicromError",
     "LicromWarning",
     "MeshError",
@@ -566,6 +567,13 @@ class ConcurrencyError(LicromError, RuntimeError):
 
     A simulation serves one thread at a time; give each thread its own simulation (they run in
     parallel), or guard a shared one with a ``threading.Lock``.
+    """
+
+class InternalError(LicromError, RuntimeError):
+    """A bug in licrom: an internal invariant of the Rust core failed (a panic, caught where the call entered the core).
+
+    The message holds the panic's; please report it with the call that raised it. The object that raised it
+    (a simulation, an estimate) may be left half updated: make a new one.
     """
 
 class MissingDependencyError(LicromError, ImportError):

@@ -58,6 +58,16 @@ pub enum LicromError {
         /// The input to blame (e.g. "F").
         input: &'static str,
     },
+    /// A bug: an internal invariant of the numerics failed (a panic, turned into this error by
+    /// [`guarded`] at the boundary).
+    #[error(
+        "internal error in licrom's core ({message}); this is a bug in licrom, please report it with the call that raised it; \
+         the object that raised it may be left in an undefined state: make a new one"
+    )]
+    Internal {
+        /// The panic's message.
+        message: String,
+    },
     /// NaN or inf appeared during the solve (energy, gradient, Hessian or iterate).
     #[error("the reduced step diverged: non-finite {what} at iteration {iteration}")]
     Diverged {
@@ -81,6 +91,20 @@ impl LicromError {
     pub fn invalid(name: &str, reason: impl Into<String>) -> Self {
         Self::InvalidParameter { name: name.to_owned(), reason: reason.into() }
     }
+}
+
+/// Runs `f`, a panic inside it (its threads' included) turned into [`LicromError::Internal`] with the
+/// panic's message: the boundary where a bug becomes an error that a caller can handle, never an
+/// abort or a foreign exception. The state `f` mutated may be half updated, which the error says.
+pub fn guarded<T>(f: impl FnOnce() -> Result<T>) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|payload| {
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic without a message".to_owned());
+        Err(LicromError::Internal { message })
+    })
 }
 
 /// Checks that every value of `values` is finite.
@@ -153,5 +177,40 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Silences the default hook's report for the panics these tests raise on purpose.
+    fn quietly<T>(f: impl FnOnce() -> T) -> T {
+        let hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(|_| {}));
+        let out = f();
+        std::panic::set_hook(hook);
+        out
+    }
+
+    #[test]
+    fn guarded_turns_a_panic_into_an_internal_error_with_its_message() {
+        let index = 7;
+        let out: Result<f64> = quietly(|| guarded(|| Ok([1.0, 2.0][index % 9])));
+        assert!(matches!(&out, Err(LicromError::Internal { message }) if message.contains("index out of bounds")), "{out:?}");
+        let out: Result<()> = quietly(|| guarded(|| panic!("static message")));
+        assert_eq!(out, Err(LicromError::Internal { message: "static message".to_owned() }));
+        let out: Result<()> = quietly(|| {
+            guarded(|| -> Result<()> {
+                std::thread::scope(|s| {
+                    s.spawn(|| panic!("in a worker"));
+                });
+                Ok(())
+            })
+        });
+        assert!(matches!(&out, Err(LicromError::Internal { message }) if message.contains("thread panicked")), "{out:?}");
+        assert!(out.unwrap_err().to_string().contains("this is a bug in licrom"));
+    }
+
+    #[test]
+    fn guarded_passes_results_and_errors_through() {
+        assert_eq!(guarded(|| Ok(3)), Ok(3));
+        let err: Result<i32> = guarded(|| Err(LicromError::invalid("x", "must be > 0, got -1")));
+        assert_eq!(err, Err(LicromError::invalid("x", "must be > 0, got -1")));
     }
 }

@@ -10,7 +10,7 @@ use pyo3::exceptions::PyBaseException;
 use pyo3::prelude::*;
 
 use crate::body_frame::BodyFrameCore;
-use crate::errors::{error, from_core, CoreResultExt, Kind};
+use crate::errors::{detached, error, from_core, Kind};
 use crate::reduced::ReducedCore;
 
 /// A simulation of either kind, held exclusively for the call.
@@ -103,7 +103,7 @@ pub fn step_many(
         .map(|(b, &record)| BatchItem { sim: b.stepper(), on_failure: if record { OnFailure::Record } else { OnFailure::Stop } })
         .collect();
     let steps = steps as usize;
-    let outcomes = py.detach(|| batch::step_many(&mut items, steps, threads)).py_err(py)?;
+    let outcomes = detached(py, || batch::step_many(&mut items, steps, threads))?;
     Ok(outcomes
         .into_iter()
         .map(|o| {

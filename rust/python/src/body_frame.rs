@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use std::sync::Mutex;
 
 use crate::arrays::{count, read, write, Dim};
-use crate::errors::{error, exclusive, CoreResultExt, Kind};
+use crate::errors::{call_core, detached, error, exclusive, CoreResultExt, Kind};
 use crate::inputs::{ContactArrays, ElasticArrays, VertexArgs};
 use crate::reduced::stats_dict;
 
@@ -95,7 +95,7 @@ impl BodyFrameCore {
         if !is_rotation(&Matrix3::from_row_slice(&rotation.data), ROTATION_TOLERANCE) {
             return Err(error(py, Kind::Shape, format!("rotation must be a rotation matrix (orthonormal, determinant +1, to {ROTATION_TOLERANCE})")));
         }
-        solver.make_pose(&center.data, &rotation.data, &q.data).py_err(py)
+        call_core(py, || solver.make_pose(&center.data, &rotation.data, &q.data))
     }
 }
 
@@ -159,7 +159,7 @@ impl BodyFrameCore {
             integrator,
         };
         let settings = BodyFrameSettings { tolerance, max_iterations };
-        let inner = py.detach(|| BodyFrameSystem::new(&inputs).and_then(|system| BodyFrameSolver::new(system, settings))).py_err(py)?;
+        let inner = detached(py, || BodyFrameSystem::new(&inputs).and_then(|system| BodyFrameSolver::new(system, settings)))?;
         Ok(Self { n: inner.system().n_modes(), inner: Mutex::new(inner) })
     }
 
@@ -193,7 +193,7 @@ impl BodyFrameCore {
         let v = read(velocity, "velocity", &[Dim::Is(3)])?;
         let w = read(angular_velocity, "angular_velocity", &[Dim::Is(3)])?;
         let qdot = read(qdot, "qdot", &[Dim::Is(self.n)])?;
-        solver.set_state(&pose, &v.data, &w.data, &qdot.data).py_err(py)
+        call_core(py, || solver.set_state(&pose, &v.data, &w.data, &qdot.data))
     }
 
     /// Replace the poses one, two and three steps back (nearest first; centres (3, 3), rotations
@@ -209,8 +209,8 @@ impl BodyFrameCore {
         let q = read(q, "q", &[Dim::Is(3), Dim::Is(self.n)])?;
         let n = self.n;
         let pose = |k: usize| solver.make_pose(&c.data[3 * k..3 * k + 3], &r.data[9 * k..9 * k + 9], &q.data[n * k..n * (k + 1)]);
-        let earlier = [pose(0).py_err(py)?, pose(1).py_err(py)?, pose(2).py_err(py)?];
-        solver.set_history(earlier).py_err(py)
+        let earlier = call_core(py, || Ok([pose(0)?, pose(1)?, pose(2)?]))?;
+        call_core(py, || solver.set_history(earlier))
     }
 
     /// Work counters since construction or :meth:`reset_stats`, as
@@ -222,7 +222,8 @@ impl BodyFrameCore {
 
     /// After a step that did not converge, take its last iterate as the new pose.
     fn accept_last_iterate(&self, py: Python<'_>) -> PyResult<()> {
-        exclusive(py, &self.inner)?.accept_last_iterate().py_err(py)
+        let mut solver = exclusive(py, &self.inner)?;
+        call_core(py, || solver.accept_last_iterate())
     }
 
     /// (3,) centre of mass in m.
@@ -253,7 +254,7 @@ impl BodyFrameCore {
     ///     ConfigError: ``steps_back`` is not 1, 2 or 3.
     fn previous_pose<'py>(&self, py: Python<'py>, steps_back: usize) -> PyResult<PoseArrays<'py>> {
         let solver = exclusive(py, &self.inner)?;
-        let pose = solver.previous_pose(steps_back).py_err(py)?;
+        let pose = call_core(py, || solver.previous_pose(steps_back))?;
         let (center, rotation, q) = (pose.center.as_slice().to_vec(), row_major(&pose.rotation), pose.q.clone());
         drop(solver);
         Ok((write(py, center, &[3])?, write(py, rotation, &[3, 3])?, write(py, q, &[self.n])?))
@@ -287,7 +288,7 @@ impl BodyFrameCore {
         let solver = exclusive(py, &self.inner)?;
         let c = solver.system().n_contacts();
         let mut out = vec![0.0; 3 * c];
-        solver.contact_forces(&mut out).py_err(py)?;
+        call_core(py, || solver.contact_forces(&mut out))?;
         write(py, out, &[c, 3])
     }
 
@@ -296,7 +297,7 @@ impl BodyFrameCore {
         let mut guard = exclusive(py, &self.inner)?;
         let pose = self.pose(py, &guard, center, rotation, q)?;
         let solver = &mut *guard;
-        py.detach(|| solver.energy(&pose)).py_err(py)
+        detached(py, || solver.energy(&pose))
     }
 
     /// (6 + n,) gradient in ``(c, omega, q)`` at the pose (omega: left rotation increment).
@@ -310,7 +311,7 @@ impl BodyFrameCore {
         let mut guard = exclusive(py, &self.inner)?;
         let pose = self.pose(py, &guard, center, rotation, q)?;
         let solver = &mut *guard;
-        let grad = py.detach(|| solver.gradient(&pose).map(<[f64]>::to_vec)).py_err(py)?;
+        let grad = detached(py, || solver.gradient(&pose).map(<[f64]>::to_vec))?;
         write(py, grad, &[6 + self.n])
     }
 
@@ -328,7 +329,7 @@ impl BodyFrameCore {
         let pose = self.pose(py, &guard, center, rotation, q)?;
         let big = 6 + self.n;
         let solver = &mut *guard;
-        let hess = py.detach(|| solver.hessian(&pose, exact).map(<[f64]>::to_vec)).py_err(py)?;
+        let hess = detached(py, || solver.hessian(&pose, exact).map(<[f64]>::to_vec))?;
         write(py, hess, &[big, big])
     }
 }

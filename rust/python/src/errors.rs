@@ -29,6 +29,8 @@ pub enum Kind {
     Solver,
     /// `ConcurrencyError`: one simulation used from two threads at once.
     Concurrency,
+    /// `InternalError`: a bug, a panic in the core caught at the boundary.
+    Internal,
 }
 
 /// A base of a class of the family: a built-in class, or a class defined before it.
@@ -53,7 +55,7 @@ const LICROM: Base = Base::Family("LicromError");
 /// The family, bases first. The warnings are not raised from Rust; they are here so that the
 /// whole family is defined in one place. The docstrings are the stubs' (`_core.pyi`;
 /// `tests/test_stubs.py` keeps the two equal).
-const FAMILY: [Spec; 12] = [
+const FAMILY: [Spec; 13] = [
     Spec {
         name: "LicromError",
         bases: &[Base::Builtin(|py| py.get_type::<PyException>())],
@@ -113,6 +115,15 @@ Attributes:
 
 A simulation serves one thread at a time; give each thread its own simulation (they run in
 parallel), or guard a shared one with a ``threading.Lock``.",
+        init: None,
+    },
+    Spec {
+        name: "InternalError",
+        bases: &[LICROM, Base::Builtin(|py| py.get_type::<PyRuntimeError>())],
+        doc: "A bug in licrom: an internal invariant of the Rust core failed (a panic, caught where the call entered the core).
+
+The message holds the panic's; please report it with the call that raised it. The object that raised it
+(a simulation, an estimate) may be left half updated: make a new one.",
         init: None,
     },
     Spec {
@@ -223,6 +234,7 @@ impl Kind {
             Kind::Config => "ConfigError",
             Kind::Solver => "SolverError",
             Kind::Concurrency => "ConcurrencyError",
+            Kind::Internal => "InternalError",
         }
     }
 }
@@ -249,6 +261,7 @@ pub fn from_core(py: Python<'_>, e: LicromError) -> PyErr {
         LicromError::ShapeMismatch { .. } | LicromError::NonFinite { .. } | LicromError::Overflow { .. } => Kind::Shape,
         LicromError::InvalidParameter { .. } | LicromError::SingularMass { .. } => Kind::Config,
         LicromError::NotConverged { .. } | LicromError::Diverged { .. } => Kind::Solver,
+        LicromError::Internal { .. } => Kind::Internal,
     };
     if let LicromError::NotConverged { iterations, residual } = e {
         let kwargs = PyDict::new(py);
@@ -257,6 +270,17 @@ pub fn from_core(py: Python<'_>, e: LicromError) -> PyErr {
         }
     }
     error(py, kind, e.to_string())
+}
+
+/// A call into the core, a panic there turned into `InternalError` ([`licrom_core::error::guarded`]): every
+/// call into the core goes through this or [`detached`], so that a bug reaches the user as a `LicromError`.
+pub fn call_core<T>(py: Python<'_>, f: impl FnOnce() -> licrom_core::Result<T>) -> PyResult<T> {
+    licrom_core::error::guarded(f).py_err(py)
+}
+
+/// [`call_core`] with the GIL released, for calls that compute.
+pub fn detached<T: Send>(py: Python<'_>, f: impl FnOnce() -> licrom_core::Result<T> + Send) -> PyResult<T> {
+    py.detach(|| licrom_core::error::guarded(f)).py_err(py)
 }
 
 /// `Result` of the core mapped to a Python result.

@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, read_indices, Array, Dim};
-use crate::errors::{error, CoreResultExt, Kind};
+use crate::errors::{call_core, error, Kind};
 
 /// The elastic term's arguments for n reduced coordinates: `cubature_jacobians`
 /// K x 9 x n, `cubature_weights` K, the vertex form ([`VertexForm`]) and the
@@ -39,7 +39,7 @@ impl ElasticArrays {
         (mu, lam, viscosity): (f64, f64, f64),
         n: usize,
     ) -> PyResult<Self> {
-        let material = StableNeoHookean::new(mu, lam).py_err(py)?;
+        let material = call_core(py, || StableNeoHookean::new(mu, lam))?;
         let weights = read(weights, "cubature_weights", &[Dim::Any("K")])?;
         let k = weights.shape[0];
         let jacobians = read(jacobians, "cubature_jacobians", &[Dim::Is(k), Dim::Is(9), Dim::Is(n)])?;
@@ -76,8 +76,9 @@ impl ContactArrays {
         let basis = read(basis, "contact_basis", &[Dim::Is(c), Dim::Is(3), Dim::Is(n)])?;
         let rest = read(rest, "contact_rest", &[Dim::Is(c), Dim::Is(3)])?;
         let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(5)])?;
-        let planes =
-            planes.data.chunks_exact(5).map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4])).collect::<Result<Vec<_>, _>>().py_err(py)?;
+        let planes = call_core(py, || {
+            planes.data.chunks_exact(5).map(|p| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], p[4])).collect::<Result<Vec<_>, _>>()
+        })?;
         Ok(Self { basis, rest, areas, planes, stiffness })
     }
 

@@ -5,7 +5,7 @@ use licrom_core::solver::line_search as ls;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::errors::{error, Kind};
+use crate::errors::{call_core, error, Kind};
 
 /// The reduced solvers' line search from ``phi(0) = e0`` with slope ``d0 < 0``.
 ///
@@ -25,18 +25,20 @@ pub fn line_search(e0: f64, d0: f64, phi: &Bound<'_, PyAny>) -> PyResult<Option<
         return Err(error(py, Kind::Config, format!("d0 must be a finite slope < 0 (a descent direction), got {d0}")));
     }
     let mut failure: Option<PyErr> = None;
-    let step = ls::line_search(e0, d0, |alpha| {
-        if failure.is_some() {
-            return (f64::NAN, f64::NAN);
-        }
-        match phi.call1((alpha,)).and_then(|r| r.extract::<(f64, f64)>()) {
-            Ok(value) => value,
-            Err(e) => {
-                failure = Some(e);
-                (f64::NAN, f64::NAN)
+    let step = call_core(py, || {
+        Ok(ls::line_search(e0, d0, |alpha| {
+            if failure.is_some() {
+                return (f64::NAN, f64::NAN);
             }
-        }
-    });
+            match phi.call1((alpha,)).and_then(|r| r.extract::<(f64, f64)>()) {
+                Ok(value) => value,
+                Err(e) => {
+                    failure = Some(e);
+                    (f64::NAN, f64::NAN)
+                }
+            }
+        }))
+    })?;
     match failure {
         Some(e) => Err(e),
         None => Ok(step.map(|s| (s.alpha, s.energy))),

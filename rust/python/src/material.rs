@@ -5,13 +5,13 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::CoreResultExt;
+use crate::errors::{call_core, detached};
 
 const F_DIMS: [Dim; 3] = [Dim::Any("p"), Dim::Is(3), Dim::Is(3)];
 
 /// Material and validated deformation gradients `(p, 3, 3)`.
 fn inputs(py: Python<'_>, f: &Bound<'_, PyAny>, mu: f64, lam: f64) -> PyResult<(StableNeoHookean, Vec<f64>, usize)> {
-    let material = StableNeoHookean::new(mu, lam).py_err(py)?;
+    let material = call_core(py, || StableNeoHookean::new(mu, lam))?;
     let f = read(f, "F", &F_DIMS)?;
     Ok((material, f.data, f.shape[0]))
 }
@@ -23,7 +23,7 @@ fn inputs(py: Python<'_>, f: &Bound<'_, PyAny>, mu: f64, lam: f64) -> PyResult<(
 pub fn snh_energy<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     let (material, fs, p) = inputs(py, F, mu, lam)?;
     let mut out = vec![0.0; p];
-    py.detach(|| material.energy_batch(&fs, &mut out)).py_err(py)?;
+    detached(py, || material.energy_batch(&fs, &mut out))?;
     write(py, out, &[p])
 }
 
@@ -34,7 +34,7 @@ pub fn snh_energy<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64
 pub fn snh_pk1<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     let (material, fs, p) = inputs(py, F, mu, lam)?;
     let mut out = vec![0.0; 9 * p];
-    py.detach(|| material.pk1_batch(&fs, &mut out)).py_err(py)?;
+    detached(py, || material.pk1_batch(&fs, &mut out))?;
     write(py, out, &[p, 3, 3])
 }
 
@@ -49,6 +49,6 @@ pub fn snh_pk1<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64) -
 pub fn snh_hessian<'py>(py: Python<'py>, F: &Bound<'py, PyAny>, mu: f64, lam: f64, project: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     let (material, fs, p) = inputs(py, F, mu, lam)?;
     let mut out = vec![0.0; 81 * p];
-    py.detach(|| material.hessian_batch(&fs, project, &mut out)).py_err(py)?;
+    detached(py, || material.hessian_batch(&fs, project, &mut out))?;
     write(py, out, &[p, 9, 9])
 }

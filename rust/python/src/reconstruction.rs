@@ -5,7 +5,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, write, Dim};
-use crate::errors::CoreResultExt;
+use crate::errors::{call_core, detached};
 
 /// Positions ``x = X + W q`` of N points.
 ///
@@ -29,7 +29,7 @@ impl Reconstruction {
         if n == 0 {
             return Err(crate::errors::error(py, crate::errors::Kind::Shape, "basis must have shape (N, 3, n) with n >= 1, got n = 0"));
         }
-        let inner = CoreReconstruction::new(basis.data, rest.data, n).py_err(py)?;
+        let inner = call_core(py, || CoreReconstruction::new(basis.data, rest.data, n))?;
         Ok(Self { inner })
     }
 
@@ -50,7 +50,7 @@ impl Reconstruction {
         let q = read(q, "q", &[Dim::Is(self.inner.n_dofs())])?;
         let points = self.inner.n_points();
         let mut out = vec![0.0; 3 * points];
-        py.detach(|| self.inner.positions(&q.data, &mut out)).py_err(py)?;
+        detached(py, || self.inner.positions(&q.data, &mut out))?;
         write(py, out, &[points, 3])
     }
 }

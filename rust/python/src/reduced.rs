@@ -10,7 +10,7 @@ use pyo3::prelude::*;
 use std::sync::Mutex;
 
 use crate::arrays::{count, read, write, Dim};
-use crate::errors::{error, exclusive, CoreResultExt, Kind};
+use crate::errors::{call_core, detached, error, exclusive, CoreResultExt, Kind};
 use crate::inputs::{ContactArrays, ElasticArrays, VertexArgs};
 
 /// Reduced model, state ``(q, qdot)`` and time stepper of one simulation.
@@ -134,7 +134,7 @@ impl ReducedCore {
         let inputs =
             ReducedInputs { mass: &mass.data, gravity_force: &gravity.data, elastic: elastic.inputs(), contact: contact.inputs(), dt, integrator };
         let settings = SolverSettings { elastic_hessian, ..SolverSettings::new(total_mass, tolerance, max_iterations, kind) };
-        let inner = py.detach(|| ReducedSystem::new(&inputs).and_then(|system| ReducedSolver::new(system, settings))).py_err(py)?;
+        let inner = detached(py, || ReducedSystem::new(&inputs).and_then(|system| ReducedSolver::new(system, settings)))?;
         Ok(Self { n: inner.system().n_dofs(), inner: Mutex::new(inner) })
     }
 
@@ -162,7 +162,8 @@ impl ReducedCore {
     fn set_state(&self, py: Python<'_>, q: &Bound<'_, PyAny>, qdot: &Bound<'_, PyAny>) -> PyResult<()> {
         let q = read(q, "q", &[Dim::Is(self.n)])?;
         let qdot = read(qdot, "qdot", &[Dim::Is(self.n)])?;
-        exclusive(py, &self.inner)?.set_state(&q.data, &qdot.data).py_err(py)
+        let mut solver = exclusive(py, &self.inner)?;
+        call_core(py, || solver.set_state(&q.data, &qdot.data))
     }
 
     /// Work counters since construction or :meth:`reset_stats`: ``steps``,
@@ -184,7 +185,8 @@ impl ReducedCore {
     /// Raises:
     ///     ConfigError: the previous call was not a step that failed to converge.
     fn accept_last_iterate(&self, py: Python<'_>) -> PyResult<()> {
-        exclusive(py, &self.inner)?.accept_last_iterate().py_err(py)
+        let mut solver = exclusive(py, &self.inner)?;
+        call_core(py, || solver.accept_last_iterate())
     }
 
     /// Incremental potential E(q) in J of a step starting from the current state.
@@ -192,7 +194,7 @@ impl ReducedCore {
         let q = read(q, "q", &[Dim::Is(self.n)])?;
         let mut guard = exclusive(py, &self.inner)?;
         let solver = &mut *guard;
-        py.detach(|| solver.energy(&q.data)).py_err(py)
+        detached(py, || solver.energy(&q.data))
     }
 
     /// (n,) gradient of E at ``q`` for a step starting from the current state.
@@ -201,7 +203,7 @@ impl ReducedCore {
         let q = read(q, "q", &[Dim::Is(n)])?;
         let mut guard = exclusive(py, &self.inner)?;
         let solver = &mut *guard;
-        let grad = py.detach(|| solver.gradient(&q.data).map(<[f64]>::to_vec)).py_err(py)?;
+        let grad = detached(py, || solver.gradient(&q.data).map(<[f64]>::to_vec))?;
         write(py, grad, &[n])
     }
 
@@ -216,7 +218,7 @@ impl ReducedCore {
         let q = read(q, "q", &[Dim::Is(n)])?;
         let mut guard = exclusive(py, &self.inner)?;
         let solver = &mut *guard;
-        let hess = py.detach(|| solver.hessian(&q.data, project).map(<[f64]>::to_vec)).py_err(py)?;
+        let hess = detached(py, || solver.hessian(&q.data, project).map(<[f64]>::to_vec))?;
         write(py, hess, &[n, n])
     }
 
@@ -228,7 +230,7 @@ impl ReducedCore {
         let solver = &*guard;
         let c = solver.system().n_contacts();
         let mut out = vec![0.0; 3 * c];
-        py.detach(|| solver.contact_forces(&mut out)).py_err(py)?;
+        detached(py, || solver.contact_forces(&mut out))?;
         write(py, out, &[c, 3])
     }
 }

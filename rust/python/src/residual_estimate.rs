@@ -5,7 +5,7 @@ use nalgebra::{Matrix3, Vector3};
 use pyo3::prelude::*;
 
 use crate::arrays::{read, read_indices, Dim};
-use crate::errors::{error, CoreResultExt, Kind};
+use crate::errors::{call_core, error, Kind};
 use crate::vertex_forces::VertexForces;
 
 /// The full model's residual at S sample vertices of a reduced state, with the sample
@@ -97,7 +97,7 @@ impl ResidualEstimate {
             total_mass,
             viscosity,
         };
-        let inner = CoreResidualEstimate::new(&inputs, forces.inner.clone()).py_err(py)?;
+        let inner = call_core(py, || CoreResidualEstimate::new(&inputs, forces.inner.clone()))?;
         Ok(Self { inner })
     }
 
@@ -116,7 +116,7 @@ impl ResidualEstimate {
     /// Begins a run from the (L, S, 3) sample positions (m) of the states before it, oldest first.
     fn start(&mut self, py: Python<'_>, history: &Bound<'_, PyAny>) -> PyResult<()> {
         let history = read(history, "history", &[Dim::Is(self.inner.history_length()), Dim::Is(self.inner.n_samples()), Dim::Is(3)])?;
-        self.inner.start(&history.data).py_err(py)
+        call_core(py, || self.inner.start(&history.data))
     }
 
     /// Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state.
@@ -129,7 +129,7 @@ impl ResidualEstimate {
         rotation: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
         let (q, pose) = state(py, q, center, rotation)?;
-        self.inner.record(&q, pose.as_ref().map(|(c, r)| (c, r))).py_err(py)
+        call_core(py, || self.inner.record(&q, pose.as_ref().map(|(c, r)| (c, r))))
     }
 
     /// The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
@@ -143,6 +143,6 @@ impl ResidualEstimate {
         rotation: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<f64> {
         let (q, pose) = state(py, q, center, rotation)?;
-        self.inner.evaluate(&q, pose.as_ref().map(|(c, r)| (c, r))).py_err(py)
+        call_core(py, || self.inner.evaluate(&q, pose.as_ref().map(|(c, r)| (c, r))))
     }
 }

@@ -17,10 +17,9 @@ macro_rules! solver_methods {
             ///         ``iterations`` and ``residual``) or non-finite values; the state is
             ///         left unchanged.
             fn step(&self, py: pyo3::Python<'_>) -> pyo3::PyResult<(usize, f64)> {
-                use $crate::errors::CoreResultExt;
                 let mut guard = $crate::errors::exclusive(py, &self.inner)?;
                 let solver = &mut *guard;
-                let report = py.detach(|| solver.step()).py_err(py)?;
+                let report = $crate::errors::detached(py, || solver.step())?;
                 Ok((report.iterations, report.residual))
             }
 

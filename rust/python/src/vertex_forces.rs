@@ -6,7 +6,7 @@ use numpy::PyArrayDyn;
 use pyo3::prelude::*;
 
 use crate::arrays::{read, read_indices, write, Dim};
-use crate::errors::CoreResultExt;
+use crate::errors::call_core;
 
 /// Elastic force ``f_v = -sum_t V_t P(F_t) g_{t,v}`` (N) on each of S sample vertices
 /// from the positions of the corners of their T one-ring tets, with
@@ -44,7 +44,7 @@ impl VertexForces {
         mu: f64,
         lam: f64,
     ) -> PyResult<Self> {
-        let material = StableNeoHookean::new(mu, lam).py_err(py)?;
+        let material = call_core(py, || StableNeoHookean::new(mu, lam))?;
         let volumes = read(volumes, "volumes", &[Dim::Any("T")])?;
         let t = volumes.shape[0];
         let corners = read_indices(corners, "corners", &[Dim::Is(t), Dim::Is(4)])?;
@@ -52,7 +52,7 @@ impl VertexForces {
         let owners = read_indices(owners, "owners", &[Dim::Is(t)])?;
         let own_corners = read_indices(own_corners, "own_corners", &[Dim::Is(t)])?;
         let rings = RingInputs { corners: &corners, gradients: &gradients.data, volumes: &volumes.data, owners: &owners, own_corners: &own_corners };
-        let inner = CoreVertexForces::new(n_points, n_samples, &rings, material).py_err(py)?;
+        let inner = call_core(py, || CoreVertexForces::new(n_points, n_samples, &rings, material))?;
         Ok(Self { inner })
     }
 
@@ -60,7 +60,7 @@ impl VertexForces {
     fn forces<'py>(&self, py: Python<'py>, positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let positions = read(positions, "positions", &[Dim::Is(self.inner.n_points()), Dim::Is(3)])?;
         let mut out = vec![0.0; 3 * self.inner.n_samples()];
-        self.inner.forces(&positions.data, &mut out).py_err(py)?;
+        call_core(py, || self.inner.forces(&positions.data, &mut out))?;
         write(py, out, &[self.inner.n_samples(), 3])
     }
 }
