@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 from licrom.cli.commands import main
+from licrom.learn.model import Model
 
 
 def test_mesh_command_generates_and_converts(tmp_path, capsys):
@@ -113,6 +114,15 @@ def test_unwritable_outputs_are_one_line_errors(data, tmp_path, capsys, monkeypa
     assert [p for p in out.rglob("*") if p.is_file()] == []
 
 
+def test_train_cubature_points_caps_the_fitted_cubature(data, tmp_path):
+    model_path = tmp_path / "m.lcm"
+    assert main(["train", str(data), "-o", str(model_path), "-r", "2", "--epochs", "1", "--points", "128", "--batch-frames", "4",
+                 "--width", "16", "--fourier", "0", "--val-fraction", "0", "--device", "cpu", "--cubature-points", "3", "-q"]) == 0
+    model = Model.load(model_path)
+    assert 1 <= model.cubature.count <= 3
+    assert model.metadata["cubature"]["max_count"] == 3
+
+
 def test_out_of_range_flags_are_refused_with_the_flag_and_the_range(tmp_path, capsys):
     assert main(["generate", str(tmp_path / "d"), "--slope", "95"]) == 2  # used to run at 85 deg
     assert "Invalid value for '--slope': 95.0 is not in the range 0<=x<90." in capsys.readouterr().err
@@ -214,7 +224,8 @@ def test_help_shows_every_default_one_way_and_as_the_configs_have_them():
     expected = {"--rank-tolerance": t.rank_tolerance, "--max-rank": t.max_rank, "--objective": t.objective, "--pod-weighting": t.pod_weighting,
                 "--epochs": t.epochs, "--lr": t.lr, "--nodes": t.nodes, "--join-timeout": t.join_timeout_s, "--batch-frames": t.batch_frames,
                 "--points": t.points_per_frame, "--val-fraction": t.val_fraction, "--width": m.field_width, "--layers": m.field_layers,
-                "--projection-weight": t.projection_weight, "--fourier": m.fourier_features, "--dynamics-max-rank": t.dynamics_max_rank}
+                "--projection-weight": t.projection_weight, "--fourier": m.fourier_features, "--dynamics-max-rank": t.dynamics_max_rank,
+                "--cubature-points": t.cubature_points}
     for option, value in expected.items():
         first = shown[option].strip("()")
         assert float(first) == float(value) if not isinstance(value, str) else first == value, (option, shown[option], value)

@@ -319,10 +319,13 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
 @click.option("--layers", type=int, default=None, show_default="5", help="Linear layers of the neural field W(X).")
 @click.option("--projection-weight", type=float, default=None, show_default="1; 0: plain LiCROM", help="Weight of the projection loss term.")
 @click.option("--fourier", type=int, default=None, show_default="32; 0: plain LiCROM", help="Random Fourier features of X fed to W(X).")
+@click.option("--cubature-points", type=click.IntRange(min=1), default=None, show_default="1000",
+              help="Most tets of the cubature fitted at the end; on 100k-tet meshes 3000 buys about a point of error at 1.5-2x the step "
+                   "(docs/results.md, section 32).")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, join_timeout, batch_frames,
-                  points, val_fraction, width, layers, projection_weight, fourier, resume, quiet) -> None:
+                  points, val_fraction, width, layers, projection_weight, fourier, cubature_points, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
     Prints the choice of r (with -r auto), the held-out errors and the learned subspace against
@@ -340,7 +343,8 @@ def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_ra
     tkw: dict = {"seed": seed, "device": device, "resume": resume, "progress": not quiet}
     for key, value in (("objective", objective), ("pod_weighting", pod_weighting), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
                        ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes), ("join_timeout_s", join_timeout),
-                       ("rank_tolerance", rank_tolerance), ("max_rank", max_rank), ("dynamics_max_rank", dynamics_max_rank)):
+                       ("rank_tolerance", rank_tolerance), ("max_rank", max_rank), ("dynamics_max_rank", dynamics_max_rank),
+                       ("cubature_points", cubature_points)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}

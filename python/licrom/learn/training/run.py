@@ -97,7 +97,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     if cubature.fit_error > cfg.cubature_tolerance:
         warnings.warn(f"the fitted cubature's force residual is {cubature.fit_error:.1e}, above its tolerance {cfg.cubature_tolerance:.0e}, "
                       f"with {cubature.count} of {model.mesh.n_tets} tets: the reduced elastic forces are that far off at the training "
-                      "poses (raise TrainConfig.cubature_points, or run with cubature='full' to see what the fit costs)",
+                      "poses (raise TrainConfig.cubature_points, licrom train --cubature-points, or run with cubature='full' to see what the fit costs)",
                       AccuracyWarning, stacklevel=3)
     model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
                                   "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "samples": len(samples),
