@@ -23,10 +23,14 @@ def demo_data(tiny_demo):
 
 
 def _choice_rule_holds(check: DynamicsCheck) -> None:
-    """r is the smallest level at which every run that meets at the cap meets; the projection's choice where none does."""
+    """r is the cap where some runs meet at the cap and others do not (chaotic motion); else the smallest level at which
+    every run meets; the projection's choice where none meets at the cap."""
     reproducible = [run for run in check.runs if run["reproducible"]]
     met = [r for r in check.levels if reproducible and all(any(row["r"] == r and row["meets"] for row in run["rows"]) for run in reproducible)]
-    assert check.rank == (met[0] if met else check.projection_rank)
+    if reproducible and len(reproducible) < len(check.runs):
+        assert check.rank == check.max_rank
+    else:
+        assert check.rank == (met[0] if met else check.projection_rank)
     assert check.raised == (check.rank > check.projection_rank)
 
 
@@ -65,11 +69,24 @@ def test_r_is_raised_to_the_first_level_where_every_reproducible_replay_meets(de
     raised = check_dynamics(demo_data, 2, max_rank=12, runs=2)
     assert raised.raised and raised.rank > 2 and all(run["reproducible"] for run in raised.runs)
     _choice_rule_holds(raised)
-    # nothing meets even at the cap: r stays, the runs are left out and the report says so
+    # nothing meets even at the cap: r stays and the report says so
     monkeypatch.setattr(dynamics, "_limits", lambda: (0.0, 0.0))
     none = check_dynamics(demo_data, 2, max_rank=12, runs=2)
     assert none.rank == 2 and not none.raised and not any(run["reproducible"] for run in none.runs)
-    assert "left out" in "\n".join(none.lines()) and "no replay meets" in none.lines()[-1]
+    assert "misses at the cap too" in "\n".join(none.lines()) and "no replay meets" in none.lines()[-1]
+
+
+def test_a_run_no_r_reproduces_beside_one_the_cap_does_takes_r_to_the_cap(demo_data, monkeypatch):
+    loose = check_dynamics(demo_data, 2, max_rank=12, runs=2)
+    at_cap = sorted(next(row["nonrigid_error"] for row in run["rows"] if row["r"] == 12) for run in loose.runs)
+    assert at_cap[0] < at_cap[1], "the two replays land apart at the cap"
+    # a non-rigid limit between the two replays at the cap: one is reproducible, the other is not (a stand-in for a tumble)
+    monkeypatch.setattr(dynamics, "_limits", lambda: (sum(at_cap) / 2, np.inf))
+    mixed = check_dynamics(demo_data, 2, max_rank=12, runs=2)
+    assert [run["reproducible"] for run in mixed.runs].count(True) == 1
+    assert mixed.rank == 12 and mixed.raised
+    _choice_rule_holds(mixed)
+    assert "chaotic" in mixed.lines()[-1] and "to the cap 12" in mixed.lines()[-1]
 
 
 def test_nothing_is_replayed_where_the_check_cannot_raise_r_or_does_not_apply(demo_data, tiny_demo, monkeypatch):
