@@ -432,13 +432,20 @@ fn naive_damping_energy(model: &BlockModel, q: &[f64], qa: &[f64], eta: f64) -> 
         .sum()
 }
 
-/// Affine modes alone on one cubature point: every column of the Jacobians is constant over the points, so the
-/// packed groups are empty; the damping's anchor is still formed (it once panicked) and its energy is the naive one.
-#[test]
-fn material_damping_with_every_column_constant_matches_a_naive_sum() {
-    let eta = 400.0;
+/// A block scene with material damping (viscosity `eta`) and its undamped twin, started sliding, at a random `q` near
+/// the damped run's next step: the two energies differ by the naive damping sum, checked here.
+struct DampedPair {
+    sys: ReducedSystem,
+    plain: ReducedSystem,
+    start: StepStart,
+    plain_start: StepStart,
+    q0: Vec<f64>,
+    q: Vec<f64>,
+}
+
+fn damped_pair_matching_the_naive_sum(learned_modes: usize, cubature_points: usize, eta: f64) -> DampedPair {
     let damped_scene =
-        BlockScene { learned_modes: 0, cubature_points: 1, contact_points: 9, normal_damping: 5.0e3, seed: 3, viscosity: eta, ..Default::default() };
+        BlockScene { learned_modes, cubature_points, contact_points: 9, normal_damping: 5.0e3, seed: 3, viscosity: eta, ..Default::default() };
     let model = damped_scene.build().unwrap();
     let plain_model = BlockScene { viscosity: 0.0, ..damped_scene }.build().unwrap();
     let (sys, plain) = (ReducedSystem::new(&model.inputs()).unwrap(), ReducedSystem::new(&plain_model.inputs()).unwrap());
@@ -446,9 +453,18 @@ fn material_damping_with_every_column_constant_matches_a_naive_sum() {
     let (plain_start, _, _) = sliding_start(&plain_model, &plain);
     let mut rng = Rng::new(12);
     let q: Vec<f64> = (0..sys.n_dofs()).map(|i| q0[i] + model.scene.dt * qdot[i] + 0.02 * rng.uniform()).collect();
+    // Energy: the difference is the naive sum over the points (Jacobians as stored, in f32).
     let naive = naive_damping_energy(&model, &q, &q0, eta);
     let diff = sys.energy(&start, &q) - plain.energy(&plain_start, &q);
     assert!(naive > 0.0 && (diff - naive).abs() < 1e-10 * naive, "damping energy {diff} vs naive {naive}");
+    DampedPair { sys, plain, start, plain_start, q0, q }
+}
+
+/// Affine modes alone on one cubature point: every column of the Jacobians is constant over the points, so the
+/// packed groups are empty; the damping's anchor is still formed (it once panicked) and its energy is the naive one.
+#[test]
+fn material_damping_with_every_column_constant_matches_a_naive_sum() {
+    damped_pair_matching_the_naive_sum(0, 1, 400.0);
 }
 
 /// The material damping `sum_k w_k kappa/2 |D_k|^2` (`kappa = eta/h`, `D = (F^T F - C_a)/2`): its energy
@@ -457,24 +473,8 @@ fn material_damping_with_every_column_constant_matches_a_naive_sum() {
 /// against the Jacobians.
 #[test]
 fn material_damping_matches_a_naive_sum_and_finite_differences() {
-    let eta = 400.0;
-    let damped_scene =
-        BlockScene { learned_modes: 3, cubature_points: 7, contact_points: 9, normal_damping: 5.0e3, seed: 3, viscosity: eta, ..Default::default() };
-    let model = damped_scene.build().unwrap();
-    let plain_model = BlockScene { viscosity: 0.0, ..damped_scene }.build().unwrap();
-    let sys = ReducedSystem::new(&model.inputs()).unwrap();
-    let plain = ReducedSystem::new(&plain_model.inputs()).unwrap();
+    let DampedPair { sys, plain, start, plain_start, q0, q } = damped_pair_matching_the_naive_sum(3, 7, 400.0);
     assert!(sys.elastic.damped() && !plain.elastic.damped());
-    let (start, q0, qdot) = sliding_start(&model, &sys);
-    let (plain_start, _, _) = sliding_start(&plain_model, &plain);
-    let n = sys.n_dofs();
-    let h = model.scene.dt;
-    let mut rng = Rng::new(12);
-    let q: Vec<f64> = (0..n).map(|i| q0[i] + h * qdot[i] + 0.02 * rng.uniform()).collect();
-    // Energy: the difference is the naive sum over the points (Jacobians as stored, in f32).
-    let naive = naive_damping_energy(&model, &q, &q0, eta);
-    let diff = sys.energy(&start, &q) - plain.energy(&plain_start, &q);
-    assert!(naive > 0.0 && (diff - naive).abs() < 1e-10 * naive, "damping energy {diff} vs naive {naive}");
     // Gradient of the whole E against finite differences.
     let mut ws = sys.workspace();
     sys.assemble(&start, &q, Hessian::Projected, &mut ws);
