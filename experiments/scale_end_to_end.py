@@ -5,12 +5,14 @@
     python experiments/scale_end_to_end.py --device cuda --azimuths 10 --paired --jobs 8 --work out/paired  # 20 runs, 10 azimuths
     python experiments/scale_end_to_end.py --section-only --work out/scale   # docs/results.md section 13
     python experiments/scale_end_to_end.py --small --work /tmp/scale          # a CPU smoke test, under a minute
+    python experiments/scale_end_to_end.py --family sphere --device cuda --time-step 0.0005 --integrator bdf2 --viscosity 400 --work out/ball  # the ball, 103536 tets
     python experiments/scale_end_to_end.py --bounds out/scale/model/cheese.lcm --work out/scale  # subspace bounds only
     python experiments/scale_end_to_end.py --cubatures out/scale/model/cheese.lcm --every-tet --own-pod --work out/scale  # cubature, dynamics
     python experiments/scale_end_to_end.py --speed out/scale/model/cheese.lcm --work out/speed  # speed alone, one run at a time
 
 The cheese family of ``experiments/body_frame_experiments.py`` (the same scenes and placement code)
-on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices):
+on ``licrom.meshes.cheese(resolution=42)`` (120378 tets, 23398 vertices), or with ``--family sphere`` its ball
+family on ``licrom.meshes.sphere(resolution=32)`` (103536 tets, 19789 vertices; 4 training runs, 1 held out):
 
 1. **generate**: the family's training runs (``--runs`` of its 20: the first ones, azimuth by
    azimuth; ``--azimuths N``: 4 runs at each of N azimuths evenly spaced from 0 deg in place of the
@@ -196,15 +198,30 @@ def full_runs(args, fam: bfe.Family, cases: list[bfe.Case]):
         yield case, Trajectory.load(path), info
 
 
-def cheese_family(args) -> bfe.Family:
-    """The cheese family on ``--resolution``, at ``--time-step``, ``--integrator`` and ``--viscosity`` where given."""
+FAMILY_TEXT = {
+    "cheese": ("The cheese family of section 10 (soft cheese, E = 20 kPa, 6 cm drop; scenes from "
+               "`body_frame_experiments.cheese_family`, same placement code)", "meshes.cheese"),
+    "sphere": ("The ball family of section 10 (soft ball of radius 5 cm, E = 20 kPa, thrown down a slope to bounce and "
+               "roll; scenes from `body_frame_experiments.sphere_family`, same placement code)", "meshes.sphere"),
+}
+"""Each family's description in the section, and the mesh function it runs on."""
+
+DEFAULT_RESOLUTION = {"cheese": 42, "sphere": 32}
+"""``--resolution`` where it is not given: 120378 cheese tets, 103536 ball tets."""
+
+
+def study_family(args) -> bfe.Family:
+    """``--family`` on ``--resolution``, at ``--time-step``, ``--integrator`` and ``--viscosity`` where given."""
+    if args.family == "sphere":
+        bfe.SPHERE_RESOLUTION = args.resolution
+        return bfe.physics_of(bfe.sphere_family(args.small), args)
     bfe.CHEESE_RESOLUTION = args.resolution
     return bfe.physics_of(bfe.cheese_family(args.small), args)
 
 
 def held_out_family(args) -> bfe.Family:
     (Path(args.work) / "runs").mkdir(parents=True, exist_ok=True)
-    return cheese_family(args)
+    return study_family(args)
 
 
 def pod_dynamics(full: Trajectory, case: bfe.Case, pod, steps: int, label: str, record_every: int = 1) -> dict:
@@ -340,6 +357,7 @@ def main_study(args) -> dict:
     (work / "runs").mkdir(parents=True, exist_ok=True)
     (work / "model").mkdir(parents=True, exist_ok=True)
     out = {"machine": platform.machine(), "python": platform.python_version(), "device": args.device, "resolution": args.resolution,
+           "family": args.family,
            "small": args.small, "date": time.strftime("%Y-%m-%d"), "stages": {}}
     try:
         import torch
@@ -353,7 +371,7 @@ def main_study(args) -> dict:
     t_all = time.perf_counter()
 
     t0 = time.perf_counter()
-    fam = cheese_family(args)
+    fam = study_family(args)
     if args.runs is None:
         args.runs = len(fam.training)
     mesh = fam.mesh
@@ -389,7 +407,7 @@ def main_study(args) -> dict:
         (work / "scale.json").write_text(json.dumps(out, indent=1))
 
     # 2. train
-    model_path = work / "model" / "cheese.lcm"
+    model_path = work / "model" / f"{fam.name}.lcm"
     # --gpus N trains with DDP, whose launcher starts this script again in N - 1 more processes.
     gpus = {} if args.gpus is None else {"devices": args.gpus, "join_timeout_s": 900.0}
     cfg = TrainConfig(epochs=1, progress=False, **gpus) if args.small else TrainConfig(progress=False, **gpus)
@@ -471,8 +489,10 @@ def section_title(res: dict) -> str:
     return PAIRED_TITLE if gen.get("paired") else CONVERGED_TITLE if gen.get("viscosity") else SECTION_TITLE
 
 
-def training_design(gen: dict, runs: int) -> str:
+def training_design(gen: dict, runs: int, family: str = "cheese") -> str:
     """The training runs of a study in words: how many, at which azimuths, which slopes and frictions."""
+    if family == "sphere":
+        return f"{runs} training runs downhill along x, slopes 20 and 30 deg, mu 0.2 and 0.5, thrown at 0.5 m/s along x and 1 m/s down"
     az = gen.get("training_azimuths") or list(bfe.TRAINING_AZIMUTHS)
     where = f"at azimuths {', '.join(f'{a:g}' for a in az)} deg"
     if gen.get("paired"):
@@ -496,19 +516,21 @@ def section(res: dict, title: str | None = None) -> str:
     given = res["stages"].get("train", {}).get("rank", {})
     design = (f" --rank {given['rank']}" if str(given.get("method", "")).startswith("given") else "")
     design += (f" --azimuths {len(az)}" if az and list(az) != list(FAMILY_AZIMUTHS) else "") + (" --paired" if gen.get("paired") else "")
+    family = res.get("family", "cheese")
+    text, mesh_fn = FAMILY_TEXT[family]
+    flag = "" if family == "cheese" else f" --family {family}"
     physics = (f" --time-step {gen['dt']:g} --integrator {gen['integrator']} --viscosity {gen['viscosity']:g}"
                if gen.get("viscosity") else "")
     out = [title or section_title(res), "",
-           f"`python experiments/scale_end_to_end.py --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}{design}{physics}` "
-           f"(issue 24, part 2) on {res.get('gpu', 'no GPU')}, {res.get('cpus')} CPU cores, {res['date']}. The cheese family of "
-           f"section 10 (soft cheese, E = 20 kPa, 6 cm drop; scenes from `body_frame_experiments.cheese_family`, same placement code) "
-           f"on `meshes.cheese(resolution={res['resolution']})`: {mesh['tets']} tets, {mesh['vertices']} vertices; {training_design(gen, len(tr))} "
+           f"`python experiments/scale_end_to_end.py{flag} --device {res['device']} --resolution {res['resolution']} --runs {len(tr)}{design}{physics}` "
+           f"(issue 24, part 2) on {res.get('gpu', 'no GPU')}, {res.get('cpus')} CPU cores, {res['date']}. {text} "
+           f"on `{mesh_fn}(resolution={res['resolution']})`: {mesh['tets']} tets, {mesh['vertices']} vertices; {training_design(gen, len(tr), family)} "
            f"and its {len(ho)} held-out runs, "
            f"{gen['steps']} steps of h = {gen['dt'] * 1e3:g} ms each"
            + (f" ({gen['integrator']}, material viscosity {gen['viscosity']:g} Pa s, a frame every {gen['record_every']} steps)"
               if gen.get("viscosity") else "") + f", full simulation on {res['device']}.", "",
            "| stage | time | size / memory |", "|---|---|---|",
-           f"| mesh and scenes (`meshes.cheese`, placement) | {mesh['s']:.1f} s | {mesh['tets']} tets, {mesh['vertices']} vertices |"]
+           f"| mesh and scenes (`{mesh_fn}`, placement) | {mesh['s']:.1f} s | {mesh['tets']} tets, {mesh['vertices']} vertices |"]
     if tr:
         where = ", ".join(sorted({g["device"] for g in tr}))
         busy = sum(g["setup_s"] + g["run_s"] + g["save_s"] for g in tr)
@@ -594,7 +616,9 @@ def section(res: dict, title: str | None = None) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="cuda", choices=("cuda", "cpu"), help="device of the full runs")
-    ap.add_argument("--resolution", type=int, default=42, help="meshes.cheese resolution (42: 120378 tets)")
+    ap.add_argument("--family", default="cheese", choices=tuple(FAMILY_TEXT), help="the object and its scenes")
+    ap.add_argument("--resolution", type=int, default=None,
+                    help="mesh resolution (default: 42 for the cheese, 120378 tets; 32 for the ball, 103536 tets)")
     ap.add_argument("--runs", type=int, default=None, help="training runs (the first of the family's; default: all)")
     ap.add_argument("--azimuths", type=int, default=None, metavar="N",
                     help="N training azimuths evenly spaced from 0 deg (4 runs each) in place of the family's 5")
@@ -630,6 +654,8 @@ def main() -> None:
                     help="also the stored cubature with SolverParams.reduced_tolerance = T m/s (--cubatures)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
+    if args.resolution is None:
+        args.resolution = DEFAULT_RESOLUTION[args.family]
     bfe.PAIRED_DESIGN = args.paired
     if args.azimuths is not None:
         bfe.TRAINING_AZIMUTHS = tuple(360.0 * k / args.azimuths for k in range(args.azimuths))
