@@ -297,7 +297,7 @@ def cubature_study(args) -> dict:
     variants: list[tuple[str, str | Cubature | None, float]] = [("stored", None, 0.0)]
     for count in args.cubature_counts:
         t0 = time.perf_counter()
-        fit = Cubature.fitted(model, model.cubature_samples, count=count, tolerance=args.cubature_tolerance)
+        fit = Cubature.fitted(model, model.cubature_samples, count=count, tolerance=args.cubature_tolerance, candidates=args.cubature_candidates)
         fit_s = time.perf_counter() - t0
         log(f"cubature refit at most {count} tets: {fit.count} tets, residual {fit.fit_error:.2e}, {fit_s:.1f} s")
         variants.append((f"refit {count}", fit, fit_s))
@@ -660,6 +660,8 @@ def main() -> None:
     ap.add_argument("--own-pod", action="store_true", help="also each held-out run on POD(r) of its own frames, every tet (--cubatures)")
     ap.add_argument("--reduced-tolerances", type=float, nargs="*", default=[], metavar="T",
                     help="also the stored cubature with SolverParams.reduced_tolerance = T m/s (--cubatures)")
+    ap.add_argument("--cubature-candidates", type=int, default=None, metavar="N",
+                    help="candidate tets of each refit (--cubatures; default: as many as the fit's memory holds)")
     ap.add_argument("--cubature-tolerance", type=float, default=1e-2, help="force residual at which a refit stops (--cubatures)")
     args = ap.parse_args()
     if args.resolution is None:

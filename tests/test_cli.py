@@ -117,10 +117,11 @@ def test_unwritable_outputs_are_one_line_errors(data, tmp_path, capsys, monkeypa
 def test_train_cubature_points_caps_the_fitted_cubature(data, tmp_path):
     model_path = tmp_path / "m.lcm"
     assert main(["train", str(data), "-o", str(model_path), "-r", "2", "--epochs", "1", "--points", "128", "--batch-frames", "4",
-                 "--width", "16", "--fourier", "0", "--val-fraction", "0", "--device", "cpu", "--cubature-points", "3", "-q"]) == 0
+                 "--width", "16", "--fourier", "0", "--val-fraction", "0", "--device", "cpu", "--cubature-points", "3",
+                 "--cubature-candidates", "40", "-q"]) == 0
     model = Model.load(model_path)
     assert 1 <= model.cubature.count <= 3
-    assert model.metadata["cubature"]["max_count"] == 3
+    assert model.metadata["cubature"]["max_count"] == 3 and model.metadata["cubature"]["candidates"] == 40
 
 
 def test_out_of_range_flags_are_refused_with_the_flag_and_the_range(tmp_path, capsys):

@@ -270,6 +270,52 @@ def test_training_warns_when_its_fitted_cubature_misses_the_tolerance(tiny_demo)
     assert model.cubature.count == 1 and model.metadata["cubature"]["fit_error"] > FIT_TOLERANCE
 
 
+def test_a_fit_draws_its_tets_from_the_candidates_given(tiny_demo):
+    from licrom import Model
+
+    model = Model.load(tiny_demo[0] / "model.lcm")
+    samples = model.cubature_samples
+    pool = np.sort(np.random.default_rng(0).choice(model.mesh.n_tets, size=6, replace=False))  # the fit's pool, seed 0
+    fit = Cubature.fitted(model, samples, count=50, candidates=6)
+    assert 1 <= fit.count <= 6 and set(fit.tets.tolist()) <= set(pool.tolist())
+    assert Cubature.fitted(model, samples, count=50, candidates=model.mesh.n_tets).fit_error < fit.fit_error
+    for bad in (0, -3, True, 2.5):
+        with pytest.raises(ConfigError, match="Cubature candidates must be an integer >= 1"):
+            Cubature.fitted(model, samples, candidates=bad)
+
+
+def test_default_candidates_fill_the_fit_memory_within_bounds():
+    from licrom.subspace.cubature import FIT_MEMORY, fit_candidates
+
+    assert fit_candidates(256, 256) == FIT_MEMORY // (8 * 256 * 256) == 2048
+    assert fit_candidates(1, 1) == 20000 and fit_candidates(10**6, 256) == 1000
+
+
+def test_training_names_the_candidate_pool_when_the_fit_stops_short(tiny_demo):
+    from licrom import AccuracyWarning, Model
+    from licrom.learn.training import TrainConfig
+    from licrom.learn.training.run import fit_cubature
+    from licrom.learn.training_data import TrainingData
+
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    data = TrainingData(out / "data", frame=model.frame)
+    with pytest.warns(AccuracyWarning, match=r"chosen from 2 candidates.*raise TrainConfig.cubature_candidates, licrom train --cubature-candidates"):
+        fit_cubature(model, data, TrainConfig(cubature_points=100, cubature_candidates=2))
+    assert model.cubature.count <= 2 and model.metadata["cubature"]["candidates"] == 2
+    with pytest.warns(AccuracyWarning, match=r"raise TrainConfig.cubature_points, licrom train --cubature-points"):
+        fit_cubature(model, data, TrainConfig(cubature_points=1))
+
+
+@pytest.mark.parametrize("bad", [0, -1, True, 2.5, "8"])
+def test_train_config_refuses_a_bad_candidate_count(bad):
+    from licrom.learn.training import TrainConfig
+
+    with pytest.raises(ConfigError, match=r"TrainConfig\.cubature_candidates must be an integer >= 1 or None"):
+        TrainConfig(cubature_candidates=bad)
+    assert TrainConfig(cubature_candidates=np.int64(8)).cubature_candidates == 8
+
+
 def test_reduced_forces_refuse_bad_shapes_and_foreign_tets():
     from licrom import Material
     from licrom.subspace.cubature import reduced_forces

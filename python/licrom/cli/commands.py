@@ -322,10 +322,13 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
 @click.option("--cubature-points", type=click.IntRange(min=1), default=None, show_default="1000",
               help="Most tets of the cubature fitted at the end; on 100k-tet meshes 3000 buys about a point of error at 1.5-2x the step "
                    "(docs/results.md, section 32).")
+@click.option("--cubature-candidates", type=click.IntRange(min=1), default=None, show_default="as many as 1 GiB holds",
+              help="Tets that fit chooses from; at high r on large meshes the pool, not --cubature-points, limits it "
+                   "(the 104k-tet ball at r = 250: 19 % force residual from 2001, 3.9 % from 8192; docs/results.md, section 34).")
 @click.option("--resume", is_flag=True, help="Continue from the last checkpoint beside the output file.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_rank, frame, objective, pod_weighting, epochs, lr, seed, device, gpus, nodes, join_timeout, batch_frames,
-                  points, val_fraction, width, layers, projection_weight, fourier, cubature_points, resume, quiet) -> None:
+                  points, val_fraction, width, layers, projection_weight, fourier, cubature_points, cubature_candidates, resume, quiet) -> None:
     """Train a LiCROM subspace on the trajectories in DATA (a directory of .npz files, or one file).
 
     Prints the choice of r (with -r auto), the held-out errors and the learned subspace against
@@ -344,7 +347,7 @@ def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_ra
     for key, value in (("objective", objective), ("pod_weighting", pod_weighting), ("epochs", epochs), ("lr", lr), ("batch_frames", batch_frames), ("points_per_frame", points),
                        ("val_fraction", val_fraction), ("projection_weight", projection_weight), ("devices", gpus), ("nodes", nodes), ("join_timeout_s", join_timeout),
                        ("rank_tolerance", rank_tolerance), ("max_rank", max_rank), ("dynamics_max_rank", dynamics_max_rank),
-                       ("cubature_points", cubature_points)):
+                       ("cubature_points", cubature_points), ("cubature_candidates", cubature_candidates)):
         if value is not None:
             tkw[key] = value
     mkw: dict = {"latent_dim": modes, "frame": frame}

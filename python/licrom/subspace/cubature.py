@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from ..learn.model import Model
     from ..records.trajectory import Trajectory
 
-__all__ = ["DEFAULT_CONTACT_POINTS", "FIT_TOLERANCE", "ContactPoints", "Cubature", "model_basis", "model_samples"]
+__all__ = ["DEFAULT_CONTACT_POINTS", "FIT_MEMORY", "FIT_TOLERANCE", "ContactPoints", "Cubature", "fit_candidates", "model_basis", "model_samples"]
 
 
 FIT_TOLERANCE = 1e-2
@@ -34,7 +34,18 @@ FIT_TOLERANCE = 1e-2
 
 
 FIT_MEMORY = 2**30
-"""Bytes of candidate forces :meth:`Cubature.fitted` may hold: on large meshes it draws fewer candidate tets."""
+"""Bytes of candidate forces :meth:`Cubature.fitted` may hold where no candidate count is given: on large meshes
+it draws fewer candidate tets (:func:`fit_candidates`)."""
+
+
+def fit_candidates(samples: int, width: int) -> int:
+    """Candidate tets :meth:`Cubature.fitted` draws by default for ``samples`` poses of ``width`` reduced
+    coordinates: as many as :data:`FIT_MEMORY` holds (8 bytes per sample and coordinate each), 1000-20000.
+
+    At high r on large meshes this is the fit's limit, not its count: the 104k-tet ball at r = 250 (256 poses)
+    draws 2001 candidates and stops at 812 tets with a 19 % force residual however many it may take; from 8192
+    candidates it reaches 3.9 % with 1858 (docs/results.md section 34)."""
+    return int(min(20000, max(1000, FIT_MEMORY // (8 * max(samples, 1) * width))))
 
 
 def _count(name: str, value: int, upper: int) -> int:
@@ -222,7 +233,11 @@ class Cubature:
         keep = norms > 1e-12 * max(norms.max(), 1e-300)
         if not keep.any():
             raise ConfigError("optimized cubature needs samples with non-zero elastic forces (all samples are at rest)")
-        a = (cols[keep] / norms[keep, None, None]).reshape(-1, len(pool))
+        if keep.all():  # in place: the columns are the fit's largest array (FIT_MEMORY bytes)
+            cols /= norms[:, None, None]
+            a = cols.reshape(-1, len(pool))
+        else:
+            a = (cols[keep] / norms[keep, None, None]).reshape(-1, len(pool))
         b = (target[keep] / norms[keep, None]).ravel()
         col_norm = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
         chosen: list[int] = []
@@ -297,7 +312,7 @@ class Cubature:
 
     @classmethod
     def fitted(cls, model: Model, samples: np.ndarray, mesh: Mesh | None = None, count: int = 1000, tolerance: float = FIT_TOLERANCE,
-               strain: str = "mesh") -> Cubature:
+               strain: str = "mesh", candidates: int | None = None) -> Cubature:
         """:meth:`optimized` cubature of ``model`` on ``mesh`` (default its own) for reduced coordinates ``samples``.
 
         The reduced coordinates of a pose mean the same on every mesh of the object (the
@@ -311,12 +326,16 @@ class Cubature:
             count: maximum number of cubature tets.
             tolerance: stop when the relative force residual falls below this.
             strain: as in :meth:`optimized`.
+            candidates: tets the fit chooses from (a random pool of the mesh's); None: as many as
+                :data:`FIT_MEMORY` holds (:func:`fit_candidates`). The fit holds ``8 * S * n`` bytes per candidate.
+
+        Raises:
+            ConfigError: ``candidates`` not an integer >= 1.
         """
         mesh = model.mesh if mesh is None else mesh
         q = np.asarray(samples)
         width = q.shape[1] if q.ndim == 2 else 1
-        # the fit holds every candidate's force for every sample: at most FIT_MEMORY bytes of them
-        candidates = int(min(20000, max(1000, FIT_MEMORY // (8 * max(len(q), 1) * width))))
+        candidates = fit_candidates(len(q), width) if candidates is None else _count("Cubature candidates", candidates, 2**31)
         return cls.optimized(mesh, model_basis(model, mesh), model.default_scene.material, samples, count=count, candidates=candidates,
                              tolerance=tolerance, strain=strain)
 

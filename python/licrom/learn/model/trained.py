@@ -450,7 +450,7 @@ class Model:
 
         On the model's own mesh this is :attr:`cubature`. On another mesh of the object it is
         refitted (:meth:`licrom.Cubature.fitted`) to the same training poses, whose reduced
-        coordinates carry over unchanged, with the tolerance and size of the stored fit; the
+        coordinates carry over unchanged, with the tolerance, size and candidate count of the stored fit; the
         result is kept for the next call with the same mesh object.
         """
         if self.cubature is None or self._cubature_samples is None:
@@ -464,8 +464,9 @@ class Model:
         from ...subspace.cubature import FIT_TOLERANCE, Cubature
 
         info = self.metadata.get("cubature", {})
+        given = info.get("candidates")
         refit = Cubature.fitted(self, self._cubature_samples, mesh, count=int(info.get("max_count", 1000)),
-                                tolerance=float(info.get("tolerance", FIT_TOLERANCE)))
+                                tolerance=float(info.get("tolerance", FIT_TOLERANCE)), candidates=None if given is None else int(given))
         self._cubature_cache = {id(mesh): (mesh, refit)}
         return refit
 

@@ -90,6 +90,9 @@ class TrainConfig:
         cubature_tolerance: relative force residual at which the cubature fitted at the end
             of training stops adding tets (:meth:`licrom.Cubature.fitted`).
         cubature_points: most tets of that cubature.
+        cubature_candidates: tets that fit chooses from, a random pool of the mesh's (None: as many as
+            :data:`licrom.subspace.cubature.FIT_MEMORY` holds, :func:`licrom.subspace.cubature.fit_candidates`).
+            Where the fit stops above its tolerance with fewer tets than ``cubature_points``, the pool is its limit.
         cubature_samples: most training poses (frames, evenly spaced over the runs) it is
             fitted to; the fit holds ``8 * samples * (modes + 6)`` bytes per candidate tet, at most
             :data:`licrom.subspace.cubature.FIT_MEMORY` (1 GiB) in all (fewer candidates on large meshes).
@@ -136,6 +139,7 @@ class TrainConfig:
     max_time_s: float | None = None
     cubature_tolerance: float = FIT_TOLERANCE
     cubature_points: int = 1000
+    cubature_candidates: int | None = None
     cubature_samples: int = 256
     rank_tolerance: float = DEFAULT_TOLERANCE
     max_rank: int = DEFAULT_MAX_RANK
@@ -161,6 +165,11 @@ class TrainConfig:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
             raise ConfigError(f"TrainConfig.dynamics_max_rank must be an integer >= 0 (0: no replays), got {v!r}")
         object.__setattr__(self, "dynamics_max_rank", int(v))
+        v = self.cubature_candidates
+        if v is not None:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ConfigError(f"TrainConfig.cubature_candidates must be an integer >= 1 or None (as many as the fit's memory holds), got {v!r}")
+            object.__setattr__(self, "cubature_candidates", int(v))
         if not isinstance(self.cubature_tolerance, (int, float)) or not 0.0 < self.cubature_tolerance < 1.0:
             raise ConfigError(f"TrainConfig.cubature_tolerance must be a number in (0, 1), got {self.cubature_tolerance!r}")
         tol = self.rank_tolerance

@@ -81,7 +81,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     ``cfg.cubature_tolerance`` and at most ``cfg.cubature_points`` tets. Its size, residual
     and time go to ``model.metadata["cubature"]``.
     """
-    from ...subspace.cubature import Cubature, model_samples
+    from ...subspace.cubature import Cubature, fit_candidates, model_samples
 
     t0 = time.perf_counter()
     frames = [f for f in (data.train, data.val) if len(f)]
@@ -92,15 +92,21 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     u = np.concatenate([f.full_displacements(data.rest, picks[(picks >= lo) & (picks < hi)] - lo)
                         for f, lo, hi in zip(frames, offsets[:-1], offsets[1:])])
     samples = model_samples(model, u)
-    cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance)
+    cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance, candidates=cfg.cubature_candidates)
     model.set_cubature(cubature, samples)
+    pool = min(model.mesh.n_tets, cfg.cubature_candidates or fit_candidates(*samples.shape))
     if cubature.fit_error > cfg.cubature_tolerance:
+        # a fit that stopped short of its count ran out of candidates that lower the residual: the pool is its limit
+        short = cubature.count < 0.9 * cfg.cubature_points and pool < model.mesh.n_tets
+        remedy = ("TrainConfig.cubature_candidates, licrom train --cubature-candidates" if short
+                  else "TrainConfig.cubature_points, licrom train --cubature-points")
         warnings.warn(f"the fitted cubature's force residual is {cubature.fit_error:.1e}, above its tolerance {cfg.cubature_tolerance:.0e}, "
-                      f"with {cubature.count} of {model.mesh.n_tets} tets: the reduced elastic forces are that far off at the training "
-                      "poses (raise TrainConfig.cubature_points, licrom train --cubature-points, or run with cubature='full' to see what the fit costs)",
+                      f"with {cubature.count} of {model.mesh.n_tets} tets ({cfg.cubature_points} allowed, chosen from {pool} candidates): the reduced "
+                      f"elastic forces are that far off at the training poses (raise {remedy}, or run with cubature='full' to see what the fit costs)",
                       AccuracyWarning, stacklevel=3)
     model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
-                                  "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "samples": len(samples),
+                                  "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "candidates": cfg.cubature_candidates,
+                                  "samples": len(samples),
                                   "fit_seconds": time.perf_counter() - t0}
 
 
