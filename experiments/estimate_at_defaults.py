@@ -53,7 +53,7 @@ def jobs(args) -> list[tuple[str, str, str, Path, dict]]:
         stem = path.stem
         if stem.endswith(("_nudged_x", "_nudged_down")):
             out.append((stem, stem.split("_")[0], "nudged tumbles", path, {}))
-        elif "_nudged" not in stem:
+        elif "_nudged" not in stem and not stem.endswith("_train"):  # a drawn family's own training runs (--small) are not held out
             out.append((stem, stem.split("_")[0], "defaults", path, {}))
     return out
 
