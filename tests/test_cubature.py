@@ -282,6 +282,11 @@ def test_a_fit_draws_its_tets_from_the_candidates_given(tiny_demo):
     for bad in (0, -3, True, 2.5):
         with pytest.raises(ConfigError, match="Cubature candidates must be an integer >= 1"):
             Cubature.fitted(model, samples, candidates=bad)
+    # a refit on another mesh draws from the pool the stored fit was given
+    model.metadata["cubature"]["candidates"] = 6
+    other = meshes.cheese(resolution=5)
+    pool = np.random.default_rng(0).choice(other.n_tets, size=6, replace=False)
+    assert set(model.cubature_for(other).tets.tolist()) <= set(pool.tolist())
 
 
 def test_default_candidates_fill_the_fit_memory_within_bounds():
