@@ -296,7 +296,7 @@ def test_default_candidates_fill_the_fit_memory_within_bounds():
     assert fit_candidates(1, 1) == 20000 and fit_candidates(10**6, 256) == 1000
 
 
-def test_training_names_the_candidate_pool_when_the_fit_stops_short(tiny_demo):
+def test_training_names_the_candidate_pool_where_it_is_a_subset(tiny_demo):
     from licrom import AccuracyWarning, Model
     from licrom.learn.training import TrainConfig
     from licrom.learn.training.run import fit_cubature
@@ -305,11 +305,14 @@ def test_training_names_the_candidate_pool_when_the_fit_stops_short(tiny_demo):
     out, _ = tiny_demo
     model = Model.load(out / "model.lcm")
     data = TrainingData(out / "data", frame=model.frame)
-    with pytest.warns(AccuracyWarning, match=r"chosen from 2 candidates.*raise TrainConfig.cubature_candidates, licrom train --cubature-candidates"):
+    with pytest.warns(AccuracyWarning, match=r"\(100 allowed, chosen from 2 candidates\).*raise TrainConfig\.cubature_points, licrom train "
+                      r"--cubature-points, or the candidates, TrainConfig\.cubature_candidates, licrom train --cubature-candidates"):
         fit_cubature(model, data, TrainConfig(cubature_points=100, cubature_candidates=2))
     assert model.cubature.count <= 2 and model.metadata["cubature"]["candidates"] == 2
-    with pytest.warns(AccuracyWarning, match=r"raise TrainConfig.cubature_points, licrom train --cubature-points"):
+    # every tet a candidate: no pool to raise
+    with pytest.warns(AccuracyWarning, match=rf"chosen from {model.mesh.n_tets} candidates\).*--cubature-points, or run") as caught:
         fit_cubature(model, data, TrainConfig(cubature_points=1))
+    assert "cubature-candidates" not in str(caught[0].message)
 
 
 @pytest.mark.parametrize("bad", [0, -1, True, 2.5, "8"])

@@ -96,13 +96,13 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     model.set_cubature(cubature, samples)
     pool = min(model.mesh.n_tets, cfg.cubature_candidates or fit_candidates(*samples.shape))
     if cubature.fit_error > cfg.cubature_tolerance:
-        # a fit that stopped short of its count ran out of candidates that lower the residual: the pool is its limit
-        short = cubature.count < 0.9 * cfg.cubature_points and pool < model.mesh.n_tets
-        remedy = ("TrainConfig.cubature_candidates, licrom train --cubature-candidates" if short
-                  else "TrainConfig.cubature_points, licrom train --cubature-points")
+        # Both limits are named: the fit ends at its count, or earlier when no candidate left lowers the residual
+        # (then the pool is the limit: the 104k-tet ball at r = 250), and its weights may drop some chosen tets.
         warnings.warn(f"the fitted cubature's force residual is {cubature.fit_error:.1e}, above its tolerance {cfg.cubature_tolerance:.0e}, "
                       f"with {cubature.count} of {model.mesh.n_tets} tets ({cfg.cubature_points} allowed, chosen from {pool} candidates): the reduced "
-                      f"elastic forces are that far off at the training poses (raise {remedy}, or run with cubature='full' to see what the fit costs)",
+                      "elastic forces are that far off at the training poses (raise TrainConfig.cubature_points, licrom train --cubature-points, "
+                      + ("or the candidates, TrainConfig.cubature_candidates, licrom train --cubature-candidates, " if pool < model.mesh.n_tets else "")
+                      + "or run with cubature='full' to see what the fit costs)",
                       AccuracyWarning, stacklevel=3)
     model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
                                   "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "candidates": cfg.cubature_candidates,
