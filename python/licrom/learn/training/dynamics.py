@@ -79,7 +79,9 @@ elastic pass, and a cubature fitted per r does not hold the replays there. Tried
 (docs/results.md section 28; POD(250) of its 16 training runs, 256 training poses, the fit's candidates cut to
 2048 tets by its memory bound, 622 tets chosen): every replayed run missed at r = 250 (14-145 % non-rigid), where
 the learned model at r = 120 with its own fit lands its held-out scenes at 4.7-7.9 %; on the 1.6k-tet cheese the
-same per-r fit moves the replays by up to 1.5x against every tet (it would choose 200 for the ball, 150 for the cheese)."""
+same per-r fit moves the replays by up to 1.5x against every tet (it would choose 200 for the ball, 150 for the cheese).
+What skipping costs: the 104k-tet ball keeps the projection's r = 60 and misses its held-out roll (13.7 % non-rigid,
+12.4 % of its size in centre of mass, section 34), which training's held-out check reports."""
 
 
 @dataclass(frozen=True)
