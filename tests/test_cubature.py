@@ -294,6 +294,9 @@ def test_default_candidates_fill_the_fit_memory_within_bounds():
 
     assert fit_candidates(256, 256) == FIT_MEMORY // (8 * 256 * 256) == 2048
     assert fit_candidates(1, 1) == 20000 and fit_candidates(10**6, 256) == 1000
+    for samples, width in ((0, 256), (256, 0), (-1, 4), (2.5, 4), (True, 4)):
+        with pytest.raises(ConfigError, match=r"fit_candidates (samples|width) must be an integer >= 1"):
+            fit_candidates(samples, width)
 
 
 def test_training_names_the_candidate_pool_where_it_is_a_subset(tiny_demo):

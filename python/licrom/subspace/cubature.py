@@ -44,8 +44,13 @@ def fit_candidates(samples: int, width: int) -> int:
 
     At high r on large meshes this is the fit's limit, not its count: the 104k-tet ball at r = 250 (256 poses)
     draws 2001 candidates and stops at 812 tets with a 19 % force residual however many it may take; from 8192
-    candidates it reaches 3.9 % with 1858 (docs/results.md section 34)."""
-    return int(min(20000, max(1000, FIT_MEMORY // (8 * max(samples, 1) * width))))
+    candidates it reaches 3.9 % with 1858 (docs/results.md section 34).
+
+    Raises:
+        ConfigError: ``samples`` or ``width`` not an integer >= 1.
+    """
+    per_candidate = 8 * _count("fit_candidates samples", samples, 2**62) * _count("fit_candidates width", width, 2**62)
+    return int(min(20000, max(1000, FIT_MEMORY // per_candidate)))
 
 
 def _count(name: str, value: int, upper: int) -> int:
@@ -335,7 +340,8 @@ class Cubature:
         mesh = model.mesh if mesh is None else mesh
         q = np.asarray(samples)
         width = q.shape[1] if q.ndim == 2 else 1
-        candidates = fit_candidates(len(q), width) if candidates is None else _count("Cubature candidates", candidates, 2**31)
+        # an empty sample set is refused by optimized(), with its shape
+        candidates = fit_candidates(max(len(q), 1), max(width, 1)) if candidates is None else _count("Cubature candidates", candidates, 2**31)
         return cls.optimized(mesh, model_basis(model, mesh), model.default_scene.material, samples, count=count, candidates=candidates,
                              tolerance=tolerance, strain=strain)
 
