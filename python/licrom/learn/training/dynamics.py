@@ -84,6 +84,12 @@ What skipping costs: the 104k-tet ball keeps the projection's r = 60 and misses 
 12.4 % of its size in centre of mass, section 34), which training's held-out check reports."""
 
 
+def _chaotic(meets_at_cap: list[bool]) -> bool:
+    """Some replays meet at the cap and others do not: chaotic motion beside reproducible runs, which takes r to the
+    cap (module docstring)."""
+    return any(meets_at_cap) and not all(meets_at_cap)
+
+
 @dataclass(frozen=True)
 class DynamicsCheck:
     """What the replays found and the r they ask for.
@@ -123,7 +129,7 @@ class DynamicsCheck:
             cells = ", ".join(f"r = {row['r']}: {100 * row['nonrigid_error']:.1f} % / {100 * row['com_error']:.2f} %"
                               + ("" if row["meets"] else " (misses)") for row in run["rows"])
             lines.append(f"  {run['run']}: {cells}" + ("" if run["reproducible"] else "; misses at the cap too: chaotic?"))
-        chaotic = any(r["reproducible"] for r in self.runs) and not all(r["reproducible"] for r in self.runs)
+        chaotic = _chaotic([r["reproducible"] for r in self.runs])
         verdict = (f"r raised from {self.projection_rank} to the cap {self.rank}: a run no r reproduces beside runs the cap does "
                    "(chaotic motion needs the most modes allowed)" if chaotic and self.raised
                    else f"r raised from {self.projection_rank} to {self.rank}" if self.raised
@@ -197,8 +203,8 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
     rows = {name: {cap: replay(name, run, cap)} for name, run in chosen}
     reproducible = [(name, run) for name, run in chosen if rows[name][cap]["meets"]]
     choice = rank
-    if reproducible and len(reproducible) < len(chosen):
-        choice = cap  # chaotic motion beside reproducible runs (module docstring)
+    if _chaotic([rows[name][cap]["meets"] for name, _ in chosen]):
+        choice = cap
     elif reproducible:
         for r in levels:
             for name, run in reproducible:
