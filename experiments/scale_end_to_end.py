@@ -288,21 +288,23 @@ def bounds_study(args) -> dict:
 
 def cubature_study(args) -> dict:
     """The held-out runs with the model ``args.cubatures``' stored cubature, refits of it to its stored training
-    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), the
+    poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), the stored
+    cubature with ``--contact-points`` subsets (a count of at least the boundary's vertices: every one), the
     stored cubature solved to other reduced tolerances (``--reduced-tolerances``), and
     on each run's own POD(r) (``--own-pod``) and the training runs' (``--training-pod``); to ``--work/cubatures.json``."""
     work = Path(args.work)
     fam = held_out_family(args)
     model = licrom.Model.load(args.cubatures)
-    variants: list[tuple[str, str | Cubature | None, float]] = [("stored", None, 0.0)]
+    variants: list[tuple[str, str | Cubature | None, float, int | None]] = [("stored", None, 0.0, None)]
     for count in args.cubature_counts:
         t0 = time.perf_counter()
         fit = Cubature.fitted(model, model.cubature_samples, count=count, tolerance=args.cubature_tolerance, candidates=args.cubature_candidates)
         fit_s = time.perf_counter() - t0
         log(f"cubature refit at most {count} tets: {fit.count} tets, residual {fit.fit_error:.2e}, {fit_s:.1f} s")
-        variants.append((f"refit {count}", fit, fit_s))
+        variants.append((f"refit {count}", fit, fit_s, None))
+    variants += [(f"stored, {n} contact points", None, 0.0, n) for n in args.contact_points]
     if args.every_tet:
-        variants.append(("every tet", "full", 0.0))
+        variants.append(("every tet", "full", 0.0, None))
     pods = [(f"training POD({model.n_learned}), every tet", training_pod(args, fam, model.n_learned))] if args.training_pod else []
     rows = []
 
@@ -310,8 +312,9 @@ def cubature_study(args) -> dict:
         (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
 
     for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
-        for label, cubature, fit_s in variants:
-            row = reduced_stage(model, case, full, fam.steps, cubature=cubature, projection=False, record_every=fam.record_every)
+        for label, cubature, fit_s, points in variants:
+            row = reduced_stage(model, case, full, fam.steps, contact_points=points, cubature=cubature, projection=False,
+                                record_every=fam.record_every)
             rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                          "full_step_ms_device": info["median_step_ms"]})
             save()

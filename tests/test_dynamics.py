@@ -98,6 +98,8 @@ def test_nothing_is_replayed_where_the_check_cannot_raise_r_or_does_not_apply(de
     monkeypatch.setattr(dynamics, "MAX_TETS", 10)
     big = check_dynamics(demo_data, 4, max_rank=12)
     assert big.method.startswith("not run (84 tets") and big.runs == () and dynamics_lines(big.to_dict())[0].startswith("dynamics check: not run")
+    assert big.too_large and not check_dynamics(world, 4, max_rank=12).too_large
+    assert f"-r {big.max_rank}" in dynamics.large_mesh_remedy(big.max_rank) and "above 10 tets" in dynamics.large_mesh_remedy(big.max_rank)
 
 
 def test_the_report_round_trips_through_its_dict(demo_data):

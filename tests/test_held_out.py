@@ -47,6 +47,8 @@ def test_a_held_out_run_above_the_target_is_named_and_its_estimate_flagged_above
     with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name} \(non-rigid error [0-9.]+ % >= 0 %"):
         report = held_out.check_held_out(model, [(name, run)])
     assert report["runs"][0]["nonrigid_error"] > 0.0 and report["runs"][0]["flagged"] and report["threshold"] == 0.0
+    with pytest.warns(AccuracyWarning, match=r"; give r \(-r 250\)$"):  # training's advice where the dynamics check did not run
+        held_out.check_held_out(model, [(name, run)], remedy="give r (-r 250)")
     monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 1.0)  # the estimate's threshold does not judge the true error
     with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name}"):
         assert not held_out.check_held_out(model, [(name, run)])["runs"][0]["flagged"]
@@ -79,3 +81,16 @@ def test_a_held_out_run_that_misses_the_centre_of_mass_target_alone_is_named_too
     with warnings.catch_warnings():
         warnings.simplefilter("error", AccuracyWarning)  # meets every target: no warning
         held_out.check_held_out(model, [(name, run)])
+
+
+def test_training_above_the_dynamics_checks_tet_limit_advises_r_and_epochs_for_a_missed_run(tiny_demo, monkeypatch):
+    from licrom.learn.model import ModelConfig
+    from licrom.learn.training import TrainConfig, dynamics, train
+
+    out, _ = tiny_demo
+    monkeypatch.setattr(dynamics, "MAX_TETS", 10)  # the 84-tet demo counts as large: the check does not run
+    monkeypatch.setattr(held_out, "NONRIGID_TARGET", 0.0)  # every held-out run misses
+    cfg = TrainConfig(epochs=1, batch_frames=4, points_per_frame=128, encoder_points=64, val_points=64, progress=False, extension=0.0)
+    with pytest.warns(AccuracyWarning, match=r"does not run above 10 tets: give r \(-r \d+\) and train longer \(--epochs 800\)"):
+        model = train(out / "data", None, cfg, ModelConfig(latent_dim="auto"))
+    assert model.metadata["rank"]["dynamics"]["too_large"]

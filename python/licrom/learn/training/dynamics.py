@@ -44,7 +44,8 @@ from ...subspace.cubature import Cubature
 from ..training_data import TrainingData
 from .held_out import run_cadence
 
-__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "MARGIN", "MAX_TETS", "DynamicsCheck", "check_dynamics", "spread_runs"]
+__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
+           "check_dynamics", "large_mesh_remedy", "spread_runs"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -80,8 +81,26 @@ elastic pass, and a cubature fitted per r does not hold the replays there. Tried
 2048 tets by its memory bound, 622 tets chosen): every replayed run missed at r = 250 (14-145 % non-rigid), where
 the learned model at r = 120 with its own fit lands its held-out scenes at 4.7-7.9 %; on the 1.6k-tet cheese the
 same per-r fit moves the replays by up to 1.5x against every tet (it would choose 200 for the ball, 150 for the cheese).
+A quadrature that needs no fit (well-spread tets weighted with the volumes of their Voronoi cells) did not hold them
+either: on the 1074-tet ball at r = 250 one of half its tets moved a replay from 0.4 % to 15 % non-rigid (section 35).
 What skipping costs: the 104k-tet ball keeps the projection's r = 60 and misses its held-out roll (13.7 % non-rigid,
-12.4 % of its size in centre of mass, section 34), which training's held-out check reports."""
+12.4 % of its size in centre of mass, section 34), which training's held-out check reports with
+:func:`large_mesh_remedy`."""
+
+
+LARGE_MESH_EPOCHS = 800
+"""Epochs the advice for a mesh above :data:`MAX_TETS` names (:func:`large_mesh_remedy`): on the 104k-tet ball at
+r = 250, 300 epochs (the default's 200 and its extension) left the learned subspace at 1.42x POD(250) and the held-out
+roll at 8.8 % non-rigid / 9.4 % of the size in centre of mass; 800 (1200 with the extension) at 1.26x and 4.8 % / 1.3 %,
+within the targets (docs/results.md section 35)."""
+
+
+def large_mesh_remedy(cap: int) -> str:
+    """What to do where a model of a mesh above :data:`MAX_TETS` tets misses its held-out runs: the check that would
+    raise r did not run, so give r at the check's ``cap`` and train longer (training's held-out warning says it)."""
+    return (f"the dynamics check, which raises r where the motion needs more modes, does not run above {MAX_TETS} tets: give r "
+            f"(-r {cap}) and train longer (--epochs {LARGE_MESH_EPOCHS}), which brought the 104k-tet ball's held-out roll "
+            "within its targets (docs/results.md section 35)")
 
 
 def _chaotic(meets_at_cap: list[bool]) -> bool:
@@ -104,6 +123,7 @@ class DynamicsCheck:
         raised: r was raised above the projection's choice.
         method: ``"replayed"``, or why nothing was replayed.
         seconds: wall time of the check.
+        too_large: not run because the mesh has more than :data:`MAX_TETS` tets (:func:`large_mesh_remedy`).
     """
 
     rank: int
@@ -114,6 +134,7 @@ class DynamicsCheck:
     raised: bool
     method: str
     seconds: float
+    too_large: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -166,15 +187,15 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
     start = time.perf_counter()
     cap = min(int(max_rank), len(data.train), 3 * data.mesh.n_vertices)
 
-    def unchecked(why: str) -> DynamicsCheck:
-        return DynamicsCheck(rank, rank, cap, (), (), False, why, time.perf_counter() - start)
+    def unchecked(why: str, too_large: bool = False) -> DynamicsCheck:
+        return DynamicsCheck(rank, rank, cap, (), (), False, why, time.perf_counter() - start, too_large)
 
     if cap <= rank:
         return unchecked(f"not run (cap {cap} at or below r = {rank})")
     if data.frame != "body":
         return unchecked("not run (world-frame models)")
     if data.mesh.n_tets > MAX_TETS:
-        return unchecked(f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic pass)")
+        return unchecked(f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic pass)", True)
     candidates = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
     if not candidates:
         return unchecked("not run (no training run of evenly spaced frames)")

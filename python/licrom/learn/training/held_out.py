@@ -27,10 +27,15 @@ from ...reduced.base import ReducedSim
 from ...reduced.error_estimate import ERROR_THRESHOLD
 from ..model import Model
 
-__all__ = ["HELD_OUT_RUNS", "check_held_out", "held_out_lines"]
+__all__ = ["HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines"]
 
 HELD_OUT_RUNS = 8
 """Held-out runs checked at most (the first ones of the split): each costs a reduced run and a comparison."""
+
+
+REMEDY = "train with more runs like them, or allow more modes (--max-rank, --rank-tolerance, --dynamics-max-rank)"
+"""What the held-out warning advises by default; training passes another where the dynamics check did not run
+(:func:`licrom.learn.training.dynamics.large_mesh_remedy`)."""
 
 
 def run_cadence(run: Trajectory) -> tuple[int, int] | None:
@@ -43,13 +48,14 @@ def run_cadence(run: Trajectory) -> tuple[int, int] | None:
     return steps, steps // frames
 
 
-def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_runs: int = HELD_OUT_RUNS) -> dict[str, Any]:
+def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_runs: int = HELD_OUT_RUNS, remedy: str = REMEDY) -> dict[str, Any]:
     """Run ``ReducedSim(model, scene=run.scene)`` on each held-out run and compare it with the run.
 
     Args:
         model: the trained model (with its fitted cubature).
         runs: ``(name, full run)`` of the held-out runs.
         max_runs: runs checked at most.
+        remedy: the advice the warning ends with where a run misses.
 
     Returns:
         ``{"runs": [per run: name, nonrigid_error, com_error, stick_slip_right, estimate, flagged,
@@ -88,8 +94,8 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
     if misses:
         shown = "; ".join(f"{r['run']} ({', '.join(what)}; estimated non-rigid {100 * r['estimate']:.1f} %)" for r, what in misses)
         warnings.warn(
-            f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; train with more "
-            "runs like them, or allow more modes (--max-rank, --rank-tolerance, --dynamics-max-rank)", AccuracyWarning, stacklevel=3)
+            f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; {remedy}",
+            AccuracyWarning, stacklevel=3)
     return {"runs": rows, "worst_nonrigid_error": worst, "threshold": ERROR_THRESHOLD}
 
 

@@ -23,9 +23,9 @@ from ..model.finalize import finalize_basis
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
-from .dynamics import check_dynamics
+from .dynamics import check_dynamics, large_mesh_remedy
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
-from .held_out import check_held_out
+from .held_out import REMEDY, check_held_out
 from .lightning import _lightning_classes
 from .objectives import _refit_output_layer, pod_targets
 from .rank import RankChoice, choose_rank
@@ -433,7 +433,8 @@ def train(
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
     fit_cubature(model, tdata, cfg)
     if tdata.held_out and trainer.is_global_zero:
-        model.metadata["held_out"] = check_held_out(model, tdata.held_out)
+        remedy = large_mesh_remedy(dynamics.max_rank) if dynamics is not None and dynamics.too_large else REMEDY
+        model.metadata["held_out"] = check_held_out(model, tdata.held_out, remedy=remedy)
     if paths is not None and trainer.is_global_zero:
         model.save(paths["model"])
         if rows:
