@@ -99,7 +99,24 @@ def test_nothing_is_replayed_where_the_check_cannot_raise_r_or_does_not_apply(de
     big = check_dynamics(demo_data, 4, max_rank=12)
     assert big.method.startswith("not run (84 tets") and big.runs == () and dynamics_lines(big.to_dict())[0].startswith("dynamics check: not run")
     assert big.too_large and not check_dynamics(world, 4, max_rank=12).too_large
-    assert f"-r {big.max_rank}" in dynamics.large_mesh_remedy(big.max_rank) and "above 10 tets" in dynamics.large_mesh_remedy(big.max_rank)
+    # nothing replayed, r to the cap: what the 104k-tet ball needed
+    assert big.rank == big.max_rank == 12 and big.raised and big.projection_rank == 4 and "to the cap 12" in big.method
+    given = dynamics.large_mesh_remedy(big.max_rank, 4, dynamics.LARGE_MESH_EPOCHS)
+    assert f"-r {big.max_rank}" in given and "above 10 tets" in given and f"--epochs {dynamics.LARGE_MESH_EPOCHS}" in given
+    assert dynamics.large_mesh_remedy(big.max_rank, 12, 300) == given
+    spent = dynamics.large_mesh_remedy(big.max_rank, 12, dynamics.LARGE_MESH_EPOCHS)
+    assert "-r " not in spent and "training runs" in spent and "--cubature-points" in spent
+
+
+def test_epochs_by_default_grow_above_the_checks_tet_limit(monkeypatch):
+    assert TrainConfig().epochs == "auto" and TrainConfig(epochs=7).epochs == 7
+    for bad in (0, -3, 2.5, True, "many"):
+        with pytest.raises(ConfigError, match="epochs must be an integer >= 1 or 'auto'"):
+            TrainConfig(epochs=bad)
+    assert dynamics.default_epochs(dynamics.MAX_TETS) == dynamics.DEFAULT_EPOCHS
+    assert dynamics.default_epochs(dynamics.MAX_TETS + 1) == dynamics.LARGE_MESH_EPOCHS > dynamics.DEFAULT_EPOCHS
+    monkeypatch.setattr(dynamics, "MAX_TETS", 10)
+    assert dynamics.default_epochs(84) == dynamics.LARGE_MESH_EPOCHS
 
 
 def test_the_report_round_trips_through_its_dict(demo_data):

@@ -90,7 +90,14 @@ def test_training_above_the_dynamics_checks_tet_limit_advises_r_and_epochs_for_a
     out, _ = tiny_demo
     monkeypatch.setattr(dynamics, "MAX_TETS", 10)  # the 84-tet demo counts as large: the check does not run
     monkeypatch.setattr(held_out, "NONRIGID_TARGET", 0.0)  # every held-out run misses
-    cfg = TrainConfig(epochs=1, batch_frames=4, points_per_frame=128, encoder_points=64, val_points=64, progress=False, extension=0.0)
+    cfg = TrainConfig(epochs=1, batch_frames=4, points_per_frame=128, encoder_points=64, val_points=64, progress=False, extension=0.0,
+                      dynamics_max_rank=30)  # the cap r goes to: above the projection's choice, within what 1 epoch learns
     with pytest.warns(AccuracyWarning, match=r"does not run above 10 tets: give r \(-r \d+\) and train longer \(--epochs 800\)"):
         model = train(out / "data", None, cfg, ModelConfig(latent_dim="auto"))
-    assert model.metadata["rank"]["dynamics"]["too_large"]
+    assert model.metadata["rank"]["dynamics"]["too_large"], model.metadata["rank"]
+    assert model.n_learned == model.metadata["rank"]["dynamics"]["max_rank"]  # r to the cap where nothing is replayed
+    # at the large-mesh defaults (r at the cap, their epochs) only the data and the cubature are left to advise
+    monkeypatch.setattr(dynamics, "LARGE_MESH_EPOCHS", 1)
+    with pytest.warns(AccuracyWarning, match=r"r is at the dynamics check's cap \(\d+\) and training ran 1 epochs or more.*add training runs"):
+        model = train(out / "data", None, dataclasses.replace(cfg, epochs="auto"), ModelConfig(latent_dim="auto"))
+    assert model.metadata["train_config"]["epochs"] == 1

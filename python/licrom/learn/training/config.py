@@ -40,7 +40,8 @@ class TrainConfig:
             modes the gentle ones need) or
             ``"frame"`` (every frame counts the same: plain POD, the best subspace for the
             frames' summed squared error).
-        epochs: passes over the training frames.
+        epochs: passes over the training frames, or ``"auto"``: 200, and 800 on a mesh above 5000 tets
+            (:func:`licrom.learn.training.dynamics.default_epochs`).
         batch_frames: frames per optimisation step (each frame is one point cloud).
         points_per_frame: points sampled per step, shared by the frames of the step
             (the loss points; the field is evaluated once per step).
@@ -110,7 +111,7 @@ class TrainConfig:
 
     objective: str = "pod"
     pod_weighting: str = "run"
-    epochs: int = 200
+    epochs: int | str = "auto"
     batch_frames: int = 16
     points_per_frame: int = 2048
     encoder_points: int = 512
@@ -147,7 +148,12 @@ class TrainConfig:
     extension: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes",
+        if self.epochs != "auto":
+            v = self.epochs
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ConfigError(f"TrainConfig.epochs must be an integer >= 1 or 'auto', got {v!r}")
+            object.__setattr__(self, "epochs", int(v))
+        for name in ("batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes",
                      "cubature_points", "cubature_samples", "max_rank"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:

@@ -19,6 +19,11 @@ motion in the data, and it takes r to the cap: such a run's outcome amplifies ev
 On the box (docs/results.md section 33) the tip-overs' replays met at r = 120 and the training tumble's at no r, and its
 drawn held-out tumbles came within 3x their noise floors at POD(120) / POD(200) / POD(250) in 2 / 3 / 4 of 4. Where no
 run meets at the cap, the replays say nothing about r and it stays.
+
+Above :data:`MAX_TETS` tets nothing is replayed (no quadrature there holds the replays without the full elastic pass),
+and r goes to the cap: the one mesh measured at that size, the 104k-tet ball, needed it (docs/results.md section 35),
+and a model that is too rich costs speed where one that is too poor costs the run. Training then also runs
+:data:`LARGE_MESH_EPOCHS` epochs by default (:func:`default_epochs`).
 """
 
 from __future__ import annotations
@@ -44,8 +49,8 @@ from ...subspace.cubature import Cubature
 from ..training_data import TrainingData
 from .held_out import run_cadence
 
-__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
-           "check_dynamics", "large_mesh_remedy", "spread_runs"]
+__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DEFAULT_EPOCHS", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
+           "check_dynamics", "default_epochs", "large_mesh_remedy", "spread_runs", "too_large"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -83,24 +88,46 @@ the learned model at r = 120 with its own fit lands its held-out scenes at 4.7-7
 same per-r fit moves the replays by up to 1.5x against every tet (it would choose 200 for the ball, 150 for the cheese).
 A quadrature that needs no fit (well-spread tets weighted with the volumes of their Voronoi cells) did not hold them
 either: on the 1074-tet ball at r = 250 one of half its tets moved a replay from 0.4 % to 15 % non-rigid (section 35).
-What skipping costs: the 104k-tet ball keeps the projection's r = 60 and misses its held-out roll (13.7 % non-rigid,
-12.4 % of its size in centre of mass, section 34), which training's held-out check reports with
-:func:`large_mesh_remedy`."""
+What skipping cost before r went to the cap there: the 104k-tet ball kept the projection's r = 60 and missed its
+held-out roll (13.7 % non-rigid, 12.4 % of its size in centre of mass, section 34)."""
 
 
 LARGE_MESH_EPOCHS = 800
-"""Epochs the advice for a mesh above :data:`MAX_TETS` names (:func:`large_mesh_remedy`): on the 104k-tet ball at
-r = 250, 300 epochs (the default's 200 and its extension) left the learned subspace at 1.42x POD(250) and the held-out
-roll at 8.8 % non-rigid / 9.4 % of the size in centre of mass; 800 (1200 with the extension) at 1.26x and 4.8 % / 1.3 %,
-within the targets (docs/results.md section 35)."""
+"""Training epochs by default on a mesh above :data:`MAX_TETS` tets (``TrainConfig.epochs="auto"``): on the 104k-tet
+ball at r = 250, 300 epochs (the small meshes' 200 and its extension) left the learned subspace at 1.42x POD(250) and
+the held-out roll at 8.8 % non-rigid / 9.4 % of the size in centre of mass; 800 (1200 with the extension) at 1.26x and
+4.8 % / 1.3 %, within the targets (docs/results.md section 35). A training step samples the same 2048 points a frame on
+any mesh: one point per ten vertices there, 4-14 a vertex on the 1k-tet meshes."""
 
 
-def large_mesh_remedy(cap: int) -> str:
-    """What to do where a model of a mesh above :data:`MAX_TETS` tets misses its held-out runs: the check that would
-    raise r did not run, so give r at the check's ``cap`` and train longer (training's held-out warning says it)."""
+DEFAULT_EPOCHS = 200
+"""Training epochs by default on a mesh of at most :data:`MAX_TETS` tets (``TrainConfig.epochs="auto"``): the 1k-tet
+meshes' learned subspaces end within 1.000-1.002x of their POD with them (docs/results.md section 35)."""
+
+
+def default_epochs(n_tets: int) -> int:
+    """``TrainConfig.epochs="auto"`` on a mesh of ``n_tets`` tets: :data:`DEFAULT_EPOCHS`, or :data:`LARGE_MESH_EPOCHS`
+    above :data:`MAX_TETS`."""
+    return LARGE_MESH_EPOCHS if too_large(n_tets) else DEFAULT_EPOCHS
+
+
+def too_large(n_tets: int) -> bool:
+    """A mesh of ``n_tets`` tets is above :data:`MAX_TETS`: not replayed, r to the cap, :data:`LARGE_MESH_EPOCHS`."""
+    return n_tets > MAX_TETS
+
+
+def large_mesh_remedy(cap: int, rank: int, epochs: int) -> str:
+    """What to do where a model of a mesh above :data:`MAX_TETS` tets, trained at r = ``rank`` for ``epochs`` epochs,
+    misses its held-out runs (training's held-out warning says it): the check that would raise r did not run. Where r
+    is already at the check's ``cap`` and training ran :data:`LARGE_MESH_EPOCHS` or more, the data or the cubature are
+    what is left."""
+    if rank >= cap and epochs >= LARGE_MESH_EPOCHS:
+        return (f"r is at the dynamics check's cap ({cap}) and training ran {LARGE_MESH_EPOCHS} epochs or more, the large-mesh "
+                f"defaults where the check does not run (above {MAX_TETS} tets): add training runs nearer the missed scene, or fit a "
+                "larger cubature (--cubature-points 3000)")
     return (f"the dynamics check, which raises r where the motion needs more modes, does not run above {MAX_TETS} tets: give r "
-            f"(-r {cap}) and train longer (--epochs {LARGE_MESH_EPOCHS}), which brought the 104k-tet ball's held-out roll "
-            "within its targets (docs/results.md section 35)")
+            f"(-r {cap}) and train longer (--epochs {LARGE_MESH_EPOCHS}), the large-mesh defaults, which brought the 104k-tet "
+            "ball's held-out roll within its targets (docs/results.md section 35)")
 
 
 def _chaotic(meets_at_cap: list[bool]) -> bool:
@@ -194,8 +221,11 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
         return unchecked(f"not run (cap {cap} at or below r = {rank})")
     if data.frame != "body":
         return unchecked("not run (world-frame models)")
-    if data.mesh.n_tets > MAX_TETS:
-        return unchecked(f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic pass)", True)
+    if too_large(data.mesh.n_tets):
+        return DynamicsCheck(cap, rank, cap, (), (), True,
+                             f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic "
+                             f"pass); r raised from {rank} to the cap {cap}, which the 104k-tet ball's held-out roll needed",
+                             time.perf_counter() - start, True)
     candidates = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
     if not candidates:
         return unchecked("not run (no training run of evenly spaced frames)")

@@ -23,7 +23,7 @@ from ..model.finalize import finalize_basis
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
-from .dynamics import check_dynamics, large_mesh_remedy
+from .dynamics import check_dynamics, default_epochs, large_mesh_remedy, too_large
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
 from .held_out import REMEDY, check_held_out
 from .lightning import _lightning_classes
@@ -291,6 +291,8 @@ def train(
         tdata = TrainingData(data, val_fraction=cfg.val_fraction, seed=cfg.seed, val_indices=cfg.val_indices,
                              affine=mcfg.affine, frame_stride=cfg.frame_stride, frame=mcfg.frame)
     tdata.check_deformation()
+    if cfg.epochs == "auto":
+        cfg = dataclasses.replace(cfg, epochs=default_epochs(tdata.mesh.n_tets))
     t_data = time.perf_counter() - t_start
     rank = dynamics = None
     if mcfg.latent_dim == "auto":
@@ -433,7 +435,10 @@ def train(
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
     fit_cubature(model, tdata, cfg)
     if tdata.held_out and trainer.is_global_zero:
-        remedy = large_mesh_remedy(dynamics.max_rank) if dynamics is not None and dynamics.too_large else REMEDY
+        remedy = REMEDY
+        if tdata.frame == "body" and too_large(tdata.mesh.n_tets):
+            cap = dynamics.max_rank if dynamics is not None else cfg.dynamics_max_rank
+            remedy = large_mesh_remedy(cap, int(mcfg.latent_dim), int(cfg.epochs))
         model.metadata["held_out"] = check_held_out(model, tdata.held_out, remedy=remedy)
     if paths is not None and trainer.is_global_zero:
         model.save(paths["model"])
