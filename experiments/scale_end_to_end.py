@@ -23,7 +23,8 @@ family on ``licrom.meshes.sphere(resolution=32)`` (103536 tets, 19789 vertices; 
 2. **train**: ``licrom.train(run_files, path)`` with its defaults (r chosen from the data, cubature
    fitted and stored); wall time, the training and cubature fit times and the rank choice from
    ``model.metadata``, the peak GPU memory (``torch.cuda.max_memory_allocated``);
-3. **reduce**: ``ReducedSim(model, scene=held_out_scene)`` for each held-out scene: setup time (with
+3. **reduce**: ``ReducedSim(model, scene=held_out_scene)`` for each held-out scene (the family's, and ``--drawn N``
+   more drawn as ``more_scenes.py`` draws them; ``--noise-floor``: each also run in full dropped 0.1 mm higher): setup time (with
    its largest parts by a profile), per-step time (median), non-rigid error and final centre of
    mass against the full run of the same scene (``licrom.analysis.compare.compare``), the online error
    estimate, and the learned subspace's projection error of the run;
@@ -74,6 +75,7 @@ from licrom.subspace.cubature import ContactPoints, Cubature
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
+import more_scenes
 
 FAMILY_AZIMUTHS = bfe.TRAINING_AZIMUTHS  # the family's own, before --azimuths replaces them
 SECTION_TITLE = "## 13. End to end at 120k tets"
@@ -391,12 +393,15 @@ def main_study(args) -> dict:
     out["stages"]["mesh"] = {"s": time.perf_counter() - t0, "tets": int(mesh.n_tets), "vertices": int(mesh.n_vertices)}
     log(f"mesh and scenes: {mesh.n_tets} tets, {mesh.n_vertices} vertices in {out['stages']['mesh']['s']:.1f} s")
     train_cases = [recording_failures(c) for c in fam.training[: args.runs]]
-    held_cases = [recording_failures(c) for c in fam.held_out[: args.held]]
+    rng = np.random.default_rng(more_scenes.SEED)
+    drawn = [more_scenes.drawn_case(args.family, fam, rng, k) for k in range(args.drawn)]
+    held_cases = [recording_failures(c) for c in [*fam.held_out[: args.held], *drawn]]
+    floor_cases = [dataclasses.replace(c, name=c.name + "_nudged", scene=bfe.nudged(c.scene)) for c in held_cases] if args.noise_floor else []
     steps = fam.steps
 
     # 1. generate
     t0 = time.perf_counter()
-    cases = train_cases + held_cases
+    cases = train_cases + held_cases + floor_cases
     first_process = os.environ.get("LOCAL_RANK", "0") == "0"
     if not first_process:
         # Another process of a DDP training, started again by its launcher once the first reached the fit: the runs
@@ -410,7 +415,9 @@ def main_study(args) -> dict:
                  for i, case in enumerate(cases)]
         generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
     files, gen = zip(*(generated[i] for i in range(len(cases))))
-    train_files, held_files = list(files[: len(train_cases)]), list(files[len(train_cases):])
+    train_files = list(files[: len(train_cases)])
+    held_files = list(files[len(train_cases): len(train_cases) + len(held_cases)])
+    floor_files = dict(zip([c.name for c in held_cases], files[len(train_cases) + len(held_cases):]))
     out["stages"]["generate"] = {"s": time.perf_counter() - t0, "runs": list(gen), "steps": steps, "dt": fam.cases[0].scene.dt,
                                  "integrator": fam.cases[0].scene.integrator, "viscosity": fam.cases[0].scene.material.viscosity,
                                  "record_every": fam.record_every,
@@ -450,6 +457,10 @@ def main_study(args) -> dict:
     for case, p in zip(held_cases, held_files):
         full = Trajectory.load(p)
         rows.append(reduced_stage(model, case, full, steps, record_every=fam.record_every))
+        if case.name in floor_files:  # the full run against itself dropped 0.1 mm higher
+            floor = bfe.run_metrics(full, Trajectory.load(floor_files[case.name]))
+            rows[-1].update(floor=floor["nonrigid_error"], floor_com=floor["com_error"])
+            log(f"  noise floor of {case.name}: non-rigid {bfe._pct(floor['nonrigid_error'])}, COM {bfe._pct(floor['com_error'])}")
         (work / "scale.json").write_text(json.dumps({**out, "held_out": rows}, indent=1, default=str))
     out["stages"]["reduce"] = {"model_load_s": load_s, "rows": rows}
     sample_rows = []
@@ -640,6 +651,10 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1,
                     help="full runs generated at once, in processes that take the machine's GPUs in turn (licrom.executors)")
     ap.add_argument("--held", type=int, default=4, help="held-out runs (of 4)")
+    ap.add_argument("--drawn", type=int, default=0, metavar="N",
+                    help="also N drawn held-out scenes of the family (more_scenes.drawn_case, its seed: the first N of its draws)")
+    ap.add_argument("--noise-floor", action="store_true",
+                    help="also each held-out scene dropped 0.1 mm higher in full: its noise floor beside the reduced run's error")
     ap.add_argument("--impact-window", type=float, default=IMPACT_WINDOW,
                     help="s of impact frames kept in the training runs (licrom generate's default; 0: none, as sections 13-23)")
     ap.add_argument("--contact-points", type=int, nargs="*", default=[], metavar="N",
