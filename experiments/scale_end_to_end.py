@@ -193,11 +193,35 @@ def recording_failures(case: bfe.Case) -> bfe.Case:
     return dataclasses.replace(case, scene=case.scene.replace(solver=SolverParams(on_failure="record")))
 
 
-def full_runs(args, fam: bfe.Family, cases: list[bfe.Case]):
-    """Each of ``cases`` (recording failures) with its full run (generated on ``--device``, cached) and its timing."""
-    for case in map(recording_failures, cases):
-        path, info = generate(case, fam.mesh, fam.steps, args.device, Path(args.work) / "runs", fam.record_every)
-        yield case, Trajectory.load(path), info
+def held_cases(args, fam: bfe.Family) -> list[bfe.Case]:
+    """The family's first ``--held`` held-out scenes and ``--drawn`` drawn ones, recording failures."""
+    rng = np.random.default_rng(more_scenes.SEED)
+    drawn = [more_scenes.drawn_case(args.family, fam, rng, k) for k in range(args.drawn)]
+    return [recording_failures(c) for c in [*fam.held_out[: args.held], *drawn]]
+
+
+def floor_case(case: bfe.Case) -> bfe.Case:
+    """``case`` dropped 0.1 mm higher: its noise floor's run."""
+    return dataclasses.replace(case, name=case.name + "_nudged", scene=bfe.nudged(case.scene))
+
+
+def full_runs(args, fam: bfe.Family, cases: list[bfe.Case], floors: bool = True):
+    """Each of ``cases`` (recording failures) with its full run, its timing and (``--noise-floor`` and ``floors``) its
+    noise floor (generated on ``--device``, ``--jobs`` at once, cached)."""
+    cases = list(map(recording_failures, cases))
+    floors = floors and args.noise_floor
+    runs = [*cases, *map(floor_case, cases)] if floors else cases
+    devices = local_devices(args.device, args.jobs)
+    tasks = [(c, fam.mesh, fam.steps, devices[i % len(devices)], Path(args.work) / "runs", fam.record_every) for i, c in enumerate(runs)]
+    generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
+    for i, case in enumerate(cases):
+        path, info = generated[i]
+        full = Trajectory.load(path)
+        if floors:
+            floor = bfe.run_metrics(full, Trajectory.load(generated[len(cases) + i][0]))
+            info = {**info, "floor": floor["nonrigid_error"], "floor_com": floor["com_error"]}
+            log(f"  noise floor of {case.name}: non-rigid {bfe._pct(floor['nonrigid_error'])}, COM {bfe._pct(floor['com_error'])}")
+        yield case, full, info
 
 
 FAMILY_TEXT = {
@@ -260,7 +284,7 @@ def training_pod(args, fam: bfe.Family, r: int):
     """POD(r) of the first ``--runs`` training runs' body-frame frames from first contact on, run-balanced as training
     balances them (generated on ``--device``, cached): what the learned modes are trained towards."""
     frames, masses = [], None
-    for _, run, _ in full_runs(args, fam, fam.training[: args.runs]):
+    for _, run, _ in full_runs(args, fam, fam.training[: args.runs], floors=False):
         masses = bfe.masses_of(run)
         frames.append(bfe.body_displacements(run)[bfe.contact_start(run):])
     t0 = time.perf_counter()
@@ -276,7 +300,7 @@ def bounds_study(args) -> dict:
     model = licrom.Model.load(args.bounds)
     values = BodyFrameBasis(fam.mesh, model, density=fam.cases[0].scene.material.density).values(fam.mesh.vertices)
     rows = []
-    for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
+    for case, full, info in full_runs(args, fam, held_cases(args, fam)):
         t0 = time.perf_counter()
         row = {"name": case.name, "kind": case.kind, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
                "learned_projection": bfe.body_projection_error(full, values), "own_pod_projection": own_pod_projection(full, model.n_learned),
@@ -313,12 +337,12 @@ def cubature_study(args) -> dict:
     def save() -> None:
         (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
 
-    for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
+    for case, full, info in full_runs(args, fam, held_cases(args, fam)):
         for label, cubature, fit_s, points in variants:
-            row = reduced_stage(model, case, full, fam.steps, contact_points=points, cubature=cubature, projection=False,
+            row = reduced_stage(model, case, full, fam.steps, contact_points=points, cubature=cubature, projection=label == "stored",
                                 record_every=fam.record_every)
             rows.append({**row, "variant": label, "fit_s": fit_s, "tets": int(fam.mesh.n_tets), "r": int(model.n_learned),
-                         "full_step_ms_device": info["median_step_ms"]})
+                         "full_step_ms_device": info["median_step_ms"], "floor": info.get("floor"), "floor_com": info.get("floor_com")})
             save()
         for tol in args.reduced_tolerances:
             tight = dataclasses.replace(case, scene=case.scene.replace(solver=dataclasses.replace(case.scene.solver, reduced_tolerance=tol)))
@@ -346,7 +370,7 @@ def speed_study(args) -> dict:
 
     out = {"model": str(args.speed), "device": args.device, "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
            "cpus": os.cpu_count(), "date": time.strftime("%Y-%m-%d"), "rows": []}
-    for case, full, info in full_runs(args, fam, fam.held_out[: args.held]):
+    for case, full, info in full_runs(args, fam, held_cases(args, fam)):
         row = reduced_stage(model, case, full, fam.steps, projection=False, record_every=fam.record_every)
         row.update(full_device=info["device"], full_device_step_ms=info["median_step_ms"], speedup_device=info["median_step_ms"] / row["median_step_ms"])
         out["rows"].append(row)
@@ -393,15 +417,13 @@ def main_study(args) -> dict:
     out["stages"]["mesh"] = {"s": time.perf_counter() - t0, "tets": int(mesh.n_tets), "vertices": int(mesh.n_vertices)}
     log(f"mesh and scenes: {mesh.n_tets} tets, {mesh.n_vertices} vertices in {out['stages']['mesh']['s']:.1f} s")
     train_cases = [recording_failures(c) for c in fam.training[: args.runs]]
-    rng = np.random.default_rng(more_scenes.SEED)
-    drawn = [more_scenes.drawn_case(args.family, fam, rng, k) for k in range(args.drawn)]
-    held_cases = [recording_failures(c) for c in [*fam.held_out[: args.held], *drawn]]
-    floor_cases = [dataclasses.replace(c, name=c.name + "_nudged", scene=bfe.nudged(c.scene)) for c in held_cases] if args.noise_floor else []
+    held = held_cases(args, fam)
+    floor_cases = list(map(floor_case, held)) if args.noise_floor else []
     steps = fam.steps
 
     # 1. generate
     t0 = time.perf_counter()
-    cases = train_cases + held_cases + floor_cases
+    cases = train_cases + held + floor_cases
     first_process = os.environ.get("LOCAL_RANK", "0") == "0"
     if not first_process:
         # Another process of a DDP training, started again by its launcher once the first reached the fit: the runs
@@ -416,8 +438,8 @@ def main_study(args) -> dict:
         generated = dict(run_tasks(generate, tasks, jobs=args.jobs))
     files, gen = zip(*(generated[i] for i in range(len(cases))))
     train_files = list(files[: len(train_cases)])
-    held_files = list(files[len(train_cases): len(train_cases) + len(held_cases)])
-    floor_files = dict(zip([c.name for c in held_cases], files[len(train_cases) + len(held_cases):]))
+    held_files = list(files[len(train_cases): len(train_cases) + len(held)])
+    floor_files = dict(zip([c.name for c in held], files[len(train_cases) + len(held):]))
     out["stages"]["generate"] = {"s": time.perf_counter() - t0, "runs": list(gen), "steps": steps, "dt": fam.cases[0].scene.dt,
                                  "integrator": fam.cases[0].scene.integrator, "viscosity": fam.cases[0].scene.material.viscosity,
                                  "record_every": fam.record_every,
@@ -454,7 +476,7 @@ def main_study(args) -> dict:
     model = licrom.Model.load(model_path)
     load_s = time.perf_counter() - t0
     rows = []
-    for case, p in zip(held_cases, held_files):
+    for case, p in zip(held, held_files):
         full = Trajectory.load(p)
         rows.append(reduced_stage(model, case, full, steps, record_every=fam.record_every))
         if case.name in floor_files:  # the full run against itself dropped 0.1 mm higher
@@ -465,14 +487,14 @@ def main_study(args) -> dict:
     out["stages"]["reduce"] = {"model_load_s": load_s, "rows": rows}
     sample_rows = []
     for count in args.contact_points:
-        for case, p in zip(held_cases, held_files):
+        for case, p in zip(held, held_files):
             sample_rows.append(reduced_stage(model, case, Trajectory.load(p), steps, contact_points=count, record_every=fam.record_every))
             out["stages"]["contact_sample"] = sample_rows
             (work / "scale.json").write_text(json.dumps(out, indent=1, default=str))
 
     # 4. the full step on the CPU
-    if args.cpu_steps and held_cases:
-        case = held_cases[0]
+    if args.cpu_steps and held:
+        case = held[0]
         t0 = time.perf_counter()
         sim = licrom.FullSim(mesh, case.scene, device="cpu")
         setup = time.perf_counter() - t0
