@@ -92,7 +92,8 @@ class TrainConfig:
             of training stops adding tets (:meth:`licrom.Cubature.fitted`).
         cubature_points: most tets of that cubature.
         cubature_candidates: tets that fit chooses from, a random pool of the mesh's (None: as many as
-            :data:`licrom.subspace.cubature.FIT_MEMORY` holds, :func:`licrom.subspace.cubature.fit_candidates`).
+            :data:`licrom.subspace.cubature.FIT_MEMORY` holds, :func:`licrom.subspace.cubature.fit_candidates`, and 8192
+            on a mesh above 5000 tets, :func:`licrom.learn.training.dynamics.fit_pool`).
             Where the fit stops above its tolerance with fewer tets than ``cubature_points``, the pool is its limit.
         cubature_samples: most training poses (frames, evenly spaced over the runs) it is
             fitted to; the fit holds ``8 * samples * (modes + 6)`` bytes per candidate tet, at most

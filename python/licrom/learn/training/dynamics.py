@@ -23,7 +23,8 @@ run meets at the cap, the replays say nothing about r and it stays.
 Above :data:`MAX_TETS` tets nothing is replayed (no quadrature there holds the replays without the full elastic pass),
 and r goes to the cap: the one mesh measured at that size, the 104k-tet ball, needed it (docs/results.md section 35),
 and a model that is too rich costs speed where one that is too poor costs the run. Training then also runs
-:data:`LARGE_MESH_EPOCHS` epochs by default (:func:`default_epochs`).
+:data:`LARGE_MESH_EPOCHS` epochs by default (:func:`default_epochs`) and fits its cubature from
+:data:`LARGE_MESH_CANDIDATES` candidate tets (:func:`fit_pool`).
 """
 
 from __future__ import annotations
@@ -49,8 +50,8 @@ from ...subspace.cubature import Cubature
 from ..training_data import TrainingData
 from .held_out import run_cadence
 
-__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DEFAULT_EPOCHS", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
-           "check_dynamics", "default_epochs", "large_mesh_remedy", "spread_runs", "too_large"]
+__all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DEFAULT_EPOCHS", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_CANDIDATES", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
+           "check_dynamics", "default_epochs", "fit_pool", "large_mesh_remedy", "spread_runs", "too_large"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -100,6 +101,14 @@ the held-out roll at 8.8 % non-rigid / 9.4 % of the size in centre of mass; 800 
 any mesh: one point per ten vertices there, 4-14 a vertex on the 1k-tet meshes."""
 
 
+LARGE_MESH_CANDIDATES = 8192
+"""Candidate tets of the cubature fitted at the end of training on a mesh above :data:`MAX_TETS` tets, where
+``TrainConfig.cubature_candidates`` is None (below, as many as ``licrom.subspace.cubature.FIT_MEMORY`` holds). At
+r = 250 that memory (1 GiB) holds about 2000 candidates, and the pool limits the fit: the 104k-tet ball's 1200-epoch
+model, fitted from them, stops at 665 tets with a 26 % force residual and lands its held-out roll 3.6 % of its size
+off in centre of mass; from 8192 candidates (4.3 GB at r = 250 with 256 poses) 735 tets at 12 % land it at 1.3 %
+(non-rigid 6.5 / 4.8 %; a drawn roll 7.4 / 4.1 % and 1.3 / 1.9 %; docs/results.md section 36)."""
+
 DEFAULT_EPOCHS = 200
 """Training epochs by default on a mesh of at most :data:`MAX_TETS` tets (``TrainConfig.epochs="auto"``): the 1k-tet
 meshes' learned subspaces end within 1.000-1.002x of their POD with them (docs/results.md section 35)."""
@@ -109,6 +118,14 @@ def default_epochs(n_tets: int) -> int:
     """``TrainConfig.epochs="auto"`` on a mesh of ``n_tets`` tets: :data:`DEFAULT_EPOCHS`, or :data:`LARGE_MESH_EPOCHS`
     above :data:`MAX_TETS`."""
     return LARGE_MESH_EPOCHS if too_large(n_tets) else DEFAULT_EPOCHS
+
+
+def fit_pool(n_tets: int, candidates: int | None) -> int | None:
+    """The candidate tets the end-of-training cubature fit draws: ``candidates`` where given (``TrainConfig.cubature_candidates``),
+    else :data:`LARGE_MESH_CANDIDATES` on a mesh above :data:`MAX_TETS` and None (the fit's memory bound) below."""
+    if candidates is not None:
+        return candidates
+    return LARGE_MESH_CANDIDATES if too_large(n_tets) else None
 
 
 def too_large(n_tets: int) -> bool:

@@ -23,7 +23,7 @@ from ..model.finalize import finalize_basis
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
-from .dynamics import check_dynamics, default_epochs, large_mesh_remedy, too_large
+from .dynamics import check_dynamics, default_epochs, fit_pool, large_mesh_remedy, too_large
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
 from .held_out import REMEDY, check_held_out
 from .lightning import _lightning_classes
@@ -92,9 +92,10 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     u = np.concatenate([f.full_displacements(data.rest, picks[(picks >= lo) & (picks < hi)] - lo)
                         for f, lo, hi in zip(frames, offsets[:-1], offsets[1:])])
     samples = model_samples(model, u)
-    cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance, candidates=cfg.cubature_candidates)
+    candidates = fit_pool(model.mesh.n_tets, cfg.cubature_candidates)
+    cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance, candidates=candidates)
     model.set_cubature(cubature, samples)
-    pool = min(model.mesh.n_tets, cfg.cubature_candidates or fit_candidates(*samples.shape))
+    pool = min(model.mesh.n_tets, candidates or fit_candidates(*samples.shape))
     if cubature.fit_error > cfg.cubature_tolerance:
         # Both limits are named: the fit ends at its count, or earlier when no candidate left lowers the residual
         # (then the pool is the limit: the 104k-tet ball at r = 250), and its weights may drop some chosen tets.
@@ -105,7 +106,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
                       + "or run with cubature='full' to see what the fit costs)",
                       AccuracyWarning, stacklevel=3)
     model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
-                                  "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "candidates": cfg.cubature_candidates,
+                                  "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "candidates": candidates,
                                   "samples": len(samples),
                                   "fit_seconds": time.perf_counter() - t0}
 
