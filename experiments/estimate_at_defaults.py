@@ -15,7 +15,9 @@ every held-out scene whose full run is cached at a converged truth, and compares
 It prints, for each threshold, flagged runs of those above 15 % true error and false alarms of the flags, on the
 defaults' runs (section 16's and the drawn ones), with the naive and every-tet runs, and on the nudged tumbles; then
 Spearman's rho pooled, within each family and without the chaotic tumbles; then the same with each estimate
-scaled by its model's held-out ratio (:func:`held_out_ratio`, a calibration tried and dropped). Rows go to ``--out`` (JSON); with
+scaled by its model's held-out ratio (:func:`held_out_ratio`, a calibration tried and dropped), and each estimate times
+``1 + a x`` the reduced run's re-contacts after landing (:func:`recontacts`, a chaos term tried offline for
+:data:`CHAOS_WEIGHTS`). Rows go to ``--out`` (JSON); with
 ``--families``, only those families' runs are run again and the others are read from ``--out``.
 """
 
@@ -38,6 +40,22 @@ THRESHOLDS = (0.15, 0.10, 0.08, 0.07, 0.065, 0.05)
 
 BAD = 0.15
 """True non-rigid error above which a run must be flagged (issue 23's rule)."""
+
+TOUCH = 0.02
+"""Clearance to the nearest plane, over the body's size, under which a frame counts as touching (:func:`recontacts`)."""
+
+CHAOS_WEIGHTS = (0.0, 0.02, 0.05, 0.1, 0.5)
+"""Weights ``a`` of the chaos term tried offline: each estimate times ``1 + a x`` its run's re-contacts."""
+
+
+def recontacts(run: licrom.Trajectory) -> int:
+    """Times ``run`` comes back to touching a plane (lowest vertex within :data:`TOUCH` of the size) after its
+    first landing, over its recorded frames: a bounce or a tumble's next face, each a point where nearby starts part."""
+    x = run.rest_positions[None] + run.displacements
+    clear = np.min([x @ np.asarray(p.normal) + p.offset for p in run.scene.planes], axis=0).min(axis=1)
+    touching = clear < TOUCH * float(np.ptp(run.rest_positions, axis=0).max())
+    first = int(np.argmax(touching))
+    return int(np.sum(~touching[first:-1] & touching[first + 1:])) if touching.any() else 0
 
 
 def jobs(args) -> list[tuple[str, str, str, Path, dict]]:
@@ -94,7 +112,17 @@ def report(rows: dict[str, dict], ratios: dict[str, float]) -> str:
     shown = ", ".join(f"{f} {ratios.get(f, 1.0):.2f}" for f in families)
     lines += [f"Each estimate scaled by its model's held-out ratio ({shown}): rho {rho(scaled):.2f}, without the tumbles "
               f"{rho([r for r in scaled if 'tumble' not in r['name']]):.2f}; at {100 * ERROR_THRESHOLD:g} %: {flags(scaled, ERROR_THRESHOLD)}."]
+    counted = [r for r in defaults if "recontacts" in r]
+    if counted:
+        sweep = "; ".join(f"a = {a:g}: rho {rho(chaos(counted, a)):.2f}, at {100 * ERROR_THRESHOLD:g} % {flags(chaos(counted, a), ERROR_THRESHOLD)}"
+                          for a in CHAOS_WEIGHTS)
+        lines += [f"A chaos term tried ({len(counted)} runs; each estimate times 1 + a x its re-contacts after landing): {sweep}."]
     return "\n".join(lines)
+
+
+def chaos(rows: list[dict], a: float) -> list[dict]:
+    """``rows`` with each estimate times ``1 + a x`` its run's re-contacts (:func:`recontacts`)."""
+    return [{**r, "estimate": r["estimate"] * (1.0 + a * r["recontacts"])} for r in rows]
 
 
 def main() -> None:
@@ -121,8 +149,9 @@ def main() -> None:
         reduced = licrom.ReducedSim(model, scene=full.scene, **mesh, **cub).run(steps, record_every=steps // (full.n_frames - 1))
         c = compare(full, reduced)
         rows[key] = {"name": path.stem, "family": family, "set": which, "true": float(c.nonrigid_error), "com": float(c.final_com_error),
-                     "estimate": float(reduced.error_estimate[-1]), "r": model.n_learned}
-        print(f"{key}: true {100 * c.nonrigid_error:.1f} %, estimate {100 * reduced.error_estimate[-1]:.1f} %", flush=True)
+                     "estimate": float(reduced.error_estimate[-1]), "r": model.n_learned, "recontacts": recontacts(reduced)}
+        print(f"{key}: true {100 * c.nonrigid_error:.1f} %, estimate {100 * reduced.error_estimate[-1]:.1f} %, "
+              f"re-contacts {rows[key]['recontacts']}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:
         tmp.write_text(json.dumps(rows, indent=1))
