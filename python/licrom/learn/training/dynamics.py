@@ -105,9 +105,9 @@ LARGE_MESH_CANDIDATES = 8192
 """Candidate tets of the cubature fitted at the end of training on a mesh above :data:`MAX_TETS` tets, where
 ``TrainConfig.cubature_candidates`` is None (below, as many as ``licrom.subspace.cubature.FIT_MEMORY`` holds). At
 r = 250 that memory (1 GiB) holds about 2000 candidates, and the pool limits the fit: the 104k-tet ball's 1200-epoch
-model, fitted from them, stops at 665 tets with a 26 % force residual and lands its held-out roll 3.6 % of its size
-off in centre of mass; from 8192 candidates (4.3 GB at r = 250 with 256 poses) 735 tets at 12 % land it at 1.3 %
-(non-rigid 6.5 / 4.8 %; a drawn roll 7.4 / 4.1 % and 1.3 / 1.9 %; docs/results.md section 36)."""
+model, fitted from them, stops at 665 tets with a 26 % force residual and lands its held-out roll at 6.5 % non-rigid
+and 3.6 % of its size in centre of mass; from 8192 candidates (4.3 GB at r = 250 with 256 poses) 735 tets at 12 % land
+it at 4.8 % and 1.3 %, and a drawn roll at 4.1 % and 1.9 % (7.4 % and 1.3 % from 2048; docs/results.md section 36)."""
 
 DEFAULT_EPOCHS = 200
 """Training epochs by default on a mesh of at most :data:`MAX_TETS` tets (``TrainConfig.epochs="auto"``): the 1k-tet
