@@ -218,10 +218,16 @@ def full_runs(args, fam: bfe.Family, cases: list[bfe.Case], floors: bool = True)
         path, info = generated[i]
         full = Trajectory.load(path)
         if floors:
-            floor = bfe.run_metrics(full, Trajectory.load(generated[len(cases) + i][0]))
-            info = {**info, "floor": floor["nonrigid_error"], "floor_com": floor["com_error"]}
-            log(f"  noise floor of {case.name}: non-rigid {bfe._pct(floor['nonrigid_error'])}, COM {bfe._pct(floor['com_error'])}")
+            info = {**info, **noise_floor(case, full, generated[len(cases) + i][0])}
         yield case, full, info
+
+
+def noise_floor(case: bfe.Case, full: Trajectory, nudged: Path) -> dict:
+    """``{"floor", "floor_com"}``: non-rigid error and final centre of mass of ``case``'s full run against its run
+    dropped 0.1 mm higher (the file ``nudged``)."""
+    m = bfe.run_metrics(full, Trajectory.load(nudged))
+    log(f"  noise floor of {case.name}: non-rigid {bfe._pct(m['nonrigid_error'])}, COM {bfe._pct(m['com_error'])}")
+    return {"floor": m["nonrigid_error"], "floor_com": m["com_error"]}
 
 
 FAMILY_TEXT = {
@@ -479,10 +485,8 @@ def main_study(args) -> dict:
     for case, p in zip(held, held_files):
         full = Trajectory.load(p)
         rows.append(reduced_stage(model, case, full, steps, record_every=fam.record_every))
-        if case.name in floor_files:  # the full run against itself dropped 0.1 mm higher
-            floor = bfe.run_metrics(full, Trajectory.load(floor_files[case.name]))
-            rows[-1].update(floor=floor["nonrigid_error"], floor_com=floor["com_error"])
-            log(f"  noise floor of {case.name}: non-rigid {bfe._pct(floor['nonrigid_error'])}, COM {bfe._pct(floor['com_error'])}")
+        if case.name in floor_files:
+            rows[-1].update(noise_floor(case, full, floor_files[case.name]))
         (work / "scale.json").write_text(json.dumps({**out, "held_out": rows}, indent=1, default=str))
     out["stages"]["reduce"] = {"model_load_s": load_s, "rows": rows}
     sample_rows = []

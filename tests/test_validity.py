@@ -29,6 +29,7 @@ def test_determinants_and_penetration_match_numpy(rng):
     q = rng.normal(size=(3, 2))
     expected = np.linalg.det(np.eye(3) + np.einsum("pck,fk->fpc", g, q).reshape(3, 4, 3, 3)).min(axis=1)
     np.testing.assert_allclose(cubature_min_det(g, q), expected, rtol=1e-12)
+    assert cubature_min_det(g, q[:0]).shape == (0,)  # a run with no frames recorded
     planes = np.array([[0.0, 0, 1, 0.01, 0.5], [1.0, 0, 0, 0.2, 0.5]])
     assert penetration(MESH.vertices, planes) == pytest.approx(0.04)
     assert penetration(MESH.vertices, np.zeros((0, 5))) == 0.0

@@ -231,8 +231,8 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
     start = time.perf_counter()
     cap = min(int(max_rank), len(data.train), 3 * data.mesh.n_vertices)
 
-    def unchecked(why: str, too_large: bool = False) -> DynamicsCheck:
-        return DynamicsCheck(rank, rank, cap, (), (), False, why, time.perf_counter() - start, too_large)
+    def unchecked(why: str) -> DynamicsCheck:
+        return DynamicsCheck(rank, rank, cap, (), (), False, why, time.perf_counter() - start)
 
     if cap <= rank:
         return unchecked(f"not run (cap {cap} at or below r = {rank})")
