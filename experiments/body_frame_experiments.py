@@ -246,6 +246,10 @@ FAMILIES: dict[str, Callable[[bool], Family]] = {"cheese": cheese_family, "box":
 
 
 # --- full runs ------------------------------------------------------------------------------
+NUDGED = "_nudged"
+"""Name suffix of a scene's noise-floor run (the same scene, :func:`nudged`)."""
+
+
 def nudged(scene: Scene) -> Scene:
     """The same scene with the object dropped ``NUDGE`` higher (the noise floor's run)."""
     init = scene.initial
@@ -679,7 +683,7 @@ def held_out_row(setting: Setting, case: Case, work: Path, columns: list[str], s
     """Noise floor, subspace bounds and reduced runs of one held-out run (and its filmstrip into ``figs``)."""
     fam, mesh = setting.family, setting.mesh
     full = full_run(work, case.name, mesh, case.scene, fam.steps)
-    floor = run_metrics(full, full_run(work, case.name + "_nudged", mesh, nudged(case.scene), fam.steps))
+    floor = run_metrics(full, full_run(work, case.name + NUDGED, mesh, nudged(case.scene), fam.steps))
     own_d = body_displacements(full)[contact_start(full):]
     bounds = {}
     for r in pod_sizes:

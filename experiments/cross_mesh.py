@@ -76,7 +76,7 @@ def truths(cache: Path, fam: bfe.Family, cases: list[bfe.Case], steps: int) -> d
     """Each case's full run and its noise-floor run (dropped 0.1 mm higher) on the family's mesh, cached under ``cache``."""
     every = fam.record_every
     return {c.name: (bfe.full_run(cache, c.name, fam.mesh, c.scene, steps, every),
-                     bfe.full_run(cache, c.name + "_nudged", fam.mesh, bfe.nudged(c.scene), steps, every)) for c in cases}
+                     bfe.full_run(cache, c.name + bfe.NUDGED, fam.mesh, bfe.nudged(c.scene), steps, every)) for c in cases}
 
 
 def difference(ref: Samples, other: Samples, weights: np.ndarray, start: int, size: float) -> dict:

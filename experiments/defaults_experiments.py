@@ -81,7 +81,7 @@ def family_rows(name: str, model: Model, work: Path, small: bool) -> list[dict]:
     rows = []
     for case in cases:
         full = bfe.full_run(work, case.name, fam.mesh, case.scene, fam.steps, every)
-        floor = bfe.run_metrics(full, bfe.full_run(work, case.name + "_nudged", fam.mesh, bfe.nudged(case.scene), fam.steps, every))
+        floor = bfe.run_metrics(full, bfe.full_run(work, case.name + bfe.NUDGED, fam.mesh, bfe.nudged(case.scene), fam.steps, every))
         chaotic = max(floor["nonrigid_error"], floor["com_error"]) > bfe.CHAOTIC_FLOOR
         bounds = {"learned": bfe.body_projection_error(full, setting.body_basis(model).values(fam.mesh.vertices)),
                   "pod": bfe.body_projection_error(full, setting.body_basis(setting.body_pod(r, RUN_BALANCE)).values(fam.mesh.vertices))}
@@ -224,7 +224,7 @@ def main() -> None:
             for c in fam.cases:
                 bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every)
                 if c.held_out:
-                    bfe.full_run(work, c.name + "_nudged", fam.mesh, bfe.nudged(c.scene), fam.steps, fam.record_every)
+                    bfe.full_run(work, c.name + bfe.NUDGED, fam.mesh, bfe.nudged(c.scene), fam.steps, fam.record_every)
         return
     rows, models = [], {}
     for name in args.families:

@@ -76,7 +76,7 @@ def drawn_family(family: str, count: int, small: bool) -> bfe.Family:
 
 def scene_row(model: licrom.Model, fam: bfe.Family, case: bfe.Case, work: Path, values: np.ndarray) -> dict:
     full = bfe.full_run(work, case.name, fam.mesh, case.scene, fam.steps, fam.record_every)
-    floor = bfe.run_metrics(full, bfe.full_run(work, case.name + "_nudged", fam.mesh, bfe.nudged(case.scene), fam.steps, fam.record_every))
+    floor = bfe.run_metrics(full, bfe.full_run(work, case.name + bfe.NUDGED, fam.mesh, bfe.nudged(case.scene), fam.steps, fam.record_every))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the estimate's warning is a column of the table
         reduced = licrom.ReducedSim(model, scene=case.scene).run(fam.steps, record_every=fam.record_every)

@@ -202,7 +202,7 @@ def held_cases(args, fam: bfe.Family) -> list[bfe.Case]:
 
 def floor_case(case: bfe.Case) -> bfe.Case:
     """``case`` dropped 0.1 mm higher: its noise floor's run."""
-    return dataclasses.replace(case, name=case.name + "_nudged", scene=bfe.nudged(case.scene))
+    return dataclasses.replace(case, name=case.name + bfe.NUDGED, scene=bfe.nudged(case.scene))
 
 
 def full_runs(args, fam: bfe.Family, cases: list[bfe.Case], floors: bool = True):
@@ -557,8 +557,8 @@ def section(res: dict, title: str | None = None) -> str:
     runs = gen["runs"]
     tr = [g for g in runs if not g["held_out"]]
     # The held-out scenes' runs, and apart from them (--noise-floor) the same scenes dropped higher.
-    ho = [g for g in runs if g["held_out"] and not g["name"].endswith("_nudged")]
-    floors = [g for g in runs if g["held_out"] and g["name"].endswith("_nudged")]
+    ho = [g for g in runs if g["held_out"] and not g["name"].endswith(bfe.NUDGED)]
+    floors = [g for g in runs if g["held_out"] and g["name"].endswith(bfe.NUDGED)]
     mesh = st["mesh"]
     cub, rank = train.get("cubature", {}), train.get("rank", {})
     rows = red["rows"]
