@@ -105,7 +105,7 @@ def test_nothing_is_replayed_where_the_check_cannot_raise_r_or_does_not_apply(de
     assert f"-r {big.max_rank}" in given and "above 10 tets" in given and f"--epochs {dynamics.LARGE_MESH_EPOCHS}" in given
     assert dynamics.large_mesh_remedy(big.max_rank, 12, 300) == given
     spent = dynamics.large_mesh_remedy(big.max_rank, 12, dynamics.LARGE_MESH_EPOCHS)
-    assert "-r " not in spent and "training runs" in spent and "--cubature-points" in spent
+    assert "-r " not in spent and "training runs" in spent and "--cubature-points" in spent and "against a full run" in spent
 
 
 def test_epochs_and_the_fits_candidates_by_default_grow_above_the_checks_tet_limit(monkeypatch):

@@ -137,11 +137,14 @@ def large_mesh_remedy(cap: int, rank: int, epochs: int) -> str:
     """What to do where a model of a mesh above :data:`MAX_TETS` tets, trained at r = ``rank`` for ``epochs`` epochs,
     misses its held-out runs (training's held-out warning says it): the check that would raise r did not run. Where r
     is already at the check's ``cap`` and training ran :data:`LARGE_MESH_EPOCHS` or more, the data or the cubature are
-    what is left."""
+    what is left: a larger fit lowered the 104k-tet ball's non-rigid error, but its centre of mass landed either side
+    of the target with the fit's own error, from one training to the next (docs/results.md sections 38-39)."""
     if rank >= cap and epochs >= LARGE_MESH_EPOCHS:
         return (f"r is at the dynamics check's cap ({cap}) and training ran {LARGE_MESH_EPOCHS} epochs or more, the large-mesh "
-                f"defaults where the check does not run (above {MAX_TETS} tets): add training runs nearer the missed scene, or fit a "
-                "larger cubature (--cubature-points 3000)")
+                f"defaults where the check does not run (above {MAX_TETS} tets): add training runs nearer the missed scene; a larger "
+                "cubature (--cubature-points 3000) lowers the non-rigid error, while a rolling body's centre of mass at this size "
+                "lands either side of its target with the fit's own error (docs/results.md section 39): check the scenes you rely "
+                "on against a full run (licrom compare)")
     return (f"the dynamics check, which raises r where the motion needs more modes, does not run above {MAX_TETS} tets: give r "
             f"(-r {cap}) and train longer (--epochs {LARGE_MESH_EPOCHS}), the large-mesh defaults, which brought the 104k-tet "
             "ball's held-out roll within its targets (docs/results.md section 35)")
