@@ -30,7 +30,6 @@ from licrom.analysis.compare import compare
 from licrom.errors import LicromWarning
 from licrom.learn.training.held_out import run_cadence
 from licrom.rigid import body_frame_displacements, rigid_fit, rotation_angle
-from licrom.subspace.cubature import Cubature
 
 UNDEFORMED = 1e-6
 """A frame whose mass-weighted body-frame deformation is below this fraction of the size is undeformed (round-off of
@@ -86,14 +85,13 @@ def main() -> None:
     if max(frames) > last or min(frames) < 0:
         ap.error(f"--frames must lie in 0..{last}, got {frames}")
     masses = model.mesh.vertex_masses(model.default_scene.material.density)
-    cubatures = {"the model's cubature": None} | ({"every tet": Cubature.full(model.mesh)} if args.every_tet else {})
+    cubatures = {"the model's cubature": None} | ({"every tet": "full"} if args.every_tet else {})
     print(f"{args.run.name} with {args.model}: {full.n_frames} frames, {cadence[0]} steps")
     for label, cubature in cubatures.items():
         start = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LicromWarning)  # the figures below say how far off the run is
-            sim = ReducedSim(model, scene=full.scene) if cubature is None else ReducedSim(model, scene=full.scene, cubature=cubature)
-            reduced = sim.run(cadence[0], record_every=cadence[1])
+            reduced = ReducedSim(model, scene=full.scene, cubature=cubature).run(cadence[0], record_every=cadence[1])
         c = compare(full, reduced)
         print(f"== {label} ({time.perf_counter() - start:.0f} s): non-rigid {100 * c.nonrigid_error:.1f} %, "
               f"centre of mass {100 * c.final_com_error:.2f} % of the size, estimate {100 * c.error_estimate:.1f} %")
