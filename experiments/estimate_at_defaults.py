@@ -1,6 +1,6 @@
 """The online error estimate on the defaults' own runs: its ranking (Spearman's rho) and its flags (results section 29).
 
-    python experiments/estimate_at_defaults.py --models out/impact/models [--families box] [--out out/est_frames/defaults.json] [--contact-samples]
+    python experiments/estimate_at_defaults.py --models out/impact/models [--families box] [--out out/est_frames/defaults.json]
 
 Runs ``ReducedSim(model, scene=...)`` (the model's defaults: its fitted cubature) of ``--models/FAMILY.lcm`` on
 every held-out scene whose full run is cached at a converged truth, and compares its last error estimate
@@ -17,8 +17,7 @@ defaults' runs (section 16's and the drawn ones), with the naive and every-tet r
 Spearman's rho pooled, within each family and without the chaotic tumbles; then the same with each estimate
 scaled by its model's held-out ratio (:func:`held_out_ratio`, a calibration tried and dropped), and each estimate times
 ``1 + a x`` the reduced run's re-contacts after landing (:func:`recontacts`, a chaos term tried offline for
-:data:`CHAOS_WEIGHTS`). ``--contact-samples`` runs the estimate with the samples that touch a plane counted
-(:data:`licrom.reduced.error_estimate.CONTACT_SAMPLES`). Rows go to ``--out`` (JSON); with
+:data:`CHAOS_WEIGHTS`). Rows go to ``--out`` (JSON); with
 ``--families``, only those families' runs are run again and the others are read from ``--out``.
 """
 
@@ -33,7 +32,6 @@ import licrom
 import numpy as np
 from licrom._io import atomic_path
 from licrom.analysis.compare import compare
-from licrom.reduced import error_estimate
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from scipy.stats import spearmanr
 
@@ -143,10 +141,8 @@ def main() -> None:
     ap.add_argument("--drawn", type=Path, default=Path("out/more_scenes/full"), help="section 25's full runs")
     ap.add_argument("--families", nargs="*", default=None, help="run only these families again (the rest read from --out)")
     ap.add_argument("--out", type=Path, default=Path("out/est_frames/defaults.json"))
-    ap.add_argument("--contact-samples", action="store_true", help="count the samples that touch a plane, with their contact force")
     args = ap.parse_args()
     warnings.simplefilter("ignore", licrom.AccuracyWarning)
-    error_estimate.CONTACT_SAMPLES = args.contact_samples
     rows = json.loads(args.out.read_text()) if args.families is not None and args.out.exists() else {}
     models: dict[str, licrom.Model] = {}
     for key, family, which, path, kw in jobs(args):
