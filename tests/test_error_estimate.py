@@ -33,12 +33,9 @@ def mesh() -> licrom.Mesh:
     return meshes.cheese(resolution=4)
 
 
-@pytest.mark.parametrize("contact", [False, True])
 @pytest.mark.parametrize("integrator", ["backward_euler", "bdf2"])
-def test_full_space_basis_has_no_residual(mesh, integrator, contact, monkeypatch):
-    # The residual is that of the run's own integrator (BDF2's reads four states back); with the contact
-    # samples counted, that of the solvers' contact and friction model too (lagged normal force, slip anchor).
-    monkeypatch.setattr(licrom.reduced.error_estimate, "CONTACT_SAMPLES", contact)
+def test_full_space_basis_has_no_residual(mesh, integrator):
+    # The residual is that of the run's own integrator (BDF2's reads four states back).
     scene = _scene(mesh).replace(integrator=integrator)
     sim = ReducedSim(MeshBasis.identity(mesh), mesh, scene, cubature=Cubature.full(mesh))
     traj = sim.run(STEPS)
@@ -46,17 +43,6 @@ def test_full_space_basis_has_no_residual(mesh, integrator, contact, monkeypatch
     assert np.all(np.isfinite(traj.error_estimate))
     # The full space solves the full equations: only the Newton tolerance is left.
     assert traj.error_estimate[-1] < 1e-4
-
-
-def test_touching_samples_count_with_their_contact_force(mesh, monkeypatch):
-    # A sample in contact that is left out has no say; counted with the model's contact force it adds to the
-    # residual of a subspace that misses the landing, and the estimate changes.
-    scene = _scene(mesh)
-    estimates = {}
-    for contact in (False, True):
-        monkeypatch.setattr(licrom.reduced.error_estimate, "CONTACT_SAMPLES", contact)
-        estimates[contact] = _bend_sim(mesh, scene).run(STEPS).error_estimate[-1]
-    assert np.isfinite(estimates[True]) and estimates[True] != estimates[False]
 
 
 def _bend_sim(mesh, scene) -> BodyFrameSim:

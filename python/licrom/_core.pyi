@@ -439,10 +439,6 @@ class ResidualEstimate:
         total_mass: the body's mass in kg, > 0.
         viscosity: the material's Kelvin-Voigt viscosity in Pa s, >= 0 (default 0): the force of its
             damping joins the elastic one, its anchor from the recorded states before the step.
-        contact: None (samples that touch a plane are left out), or ``(areas, frictions, k_n, k_d, k_f)``: the
-            samples' (S,) shares of the boundary area in m^2, the planes' (P,) Coulomb coefficients and the
-            contact stiffnesses per unit area (N/m^3, N s/m^3, N s/m^3); touching samples then count, with the
-            contact and friction force of the solvers' model in their residual.
     """
 
     def __new__(
@@ -459,7 +455,6 @@ class ResidualEstimate:
         step: float,
         total_mass: float,
         viscosity: float = 0.0,
-        contact: tuple[_Float64Array, _Float64Array, float, float, float] | None = None,
     ) -> Self: ...
     @property
     def n_samples(self) -> int:
@@ -472,9 +467,8 @@ class ResidualEstimate:
     def record(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> None:
         """Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state."""
     def evaluate(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> float:
-        """The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches (every
-        sample with ``contact``), at ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes
-        the newest state."""
+        """The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
+        ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes the newest state."""
 
 @final
 class VertexForces:

@@ -53,7 +53,7 @@ from ..geometry.mesh import Mesh
 from ..geometry.points import farthest_points
 from ..scene.scene import Scene
 
-__all__ = ["CONTACT_SAMPLES", "EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "SAMPLE_COUNT", "TARGET_WEIGHTS",
+__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "SAMPLE_COUNT", "TARGET_WEIGHTS",
            "ErrorMonitor", "normalising_inverse", "sample_vertices", "warn_estimate"]
 
 TARGET_WEIGHTS = {"backward_euler": (2.0, -1.0), "bdf2": (24 / 9, -22 / 9, 8 / 9, -1 / 9)}
@@ -65,11 +65,6 @@ EFFECTIVE_STEP = {"backward_euler": 1.0, "bdf2": 2 / 3}
 
 SAMPLE_COUNT = 48
 """Vertices where the residual is evaluated."""
-
-CONTACT_SAMPLES = False
-"""Whether samples that touch a plane count, with the contact and friction force of the model in their residual and
-its curvature in their normalising block (``licrom._core.ResidualEstimate``'s ``contact``), or are left out of that
-frame."""
 
 ERROR_STRIDE = 10
 """Steps between two evaluations of the residual. The run-level estimate is a sum over the
@@ -160,7 +155,6 @@ class ErrorMonitor:
         scene: the scene (material, gravity, dt, integrator, planes).
         count: sample size (all vertices on meshes with fewer).
         stride: steps between two evaluations, an integer >= 1.
-        contact: whether samples that touch a plane count (:data:`CONTACT_SAMPLES`).
 
     Attributes:
         vertices: (s,) the sample vertices.
@@ -172,7 +166,7 @@ class ErrorMonitor:
     """
 
     def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, count: int = SAMPLE_COUNT,
-                 stride: int = ERROR_STRIDE, contact: bool | None = None) -> None:
+                 stride: int = ERROR_STRIDE) -> None:
         for name, value in (("sample count", count), ("stride", stride)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ConfigError(f"the error estimate's {name} must be an integer >= 1, got {value!r}")
@@ -203,19 +197,11 @@ class ErrorMonitor:
         stiffness = np.zeros((len(self.vertices), 3, 3))
         np.add.at(stiffness, owner, block)
         normaliser = normalising_inverse(stiffness, self._m / h**2)
-        planes = scene.plane_array()
-        touching = None
-        if CONTACT_SAMPLES if contact is None else contact:
-            areas = np.zeros(mesh.n_vertices)
-            areas[mesh.boundary_vertices] = mesh.boundary_vertex_areas
-            c = scene.contact
-            touching = (np.ascontiguousarray(areas[self.vertices]), np.ascontiguousarray(planes[:, 4]), c.normal_stiffness,
-                        c.normal_damping, c.friction_stiffness)
         # The residual in the core: as a dozen numpy calls after each solver step it cost a third of a step.
         self._residual = _core.ResidualEstimate(self._forces, np.ascontiguousarray(values[self.near]), np.ascontiguousarray(rest[self.near]),
                                                 self._own, self._m, normaliser, np.asarray(scene.gravity, dtype=np.float64),
-                                                np.ascontiguousarray(planes[:, :4]), self._target, h, self._total_mass,
-                                                scene.material.viscosity, touching)
+                                                np.ascontiguousarray(scene.plane_array()[:, :4]), self._target, h, self._total_mass,
+                                                scene.material.viscosity)
         self._step = 0
         self._evaluations: list[tuple[int, float, float]] = []
 

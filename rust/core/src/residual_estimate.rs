@@ -14,16 +14,9 @@
 //! `error_estimate.normalising_inverse`),
 //!
 //! and the step's value is `M sum_s m_s |du_s|^2 / sum_s m_s` over the samples
-//! that no plane touches now or at the step's start, M the body's mass.
-//!
-//! With [`SampleContact`] the samples that touch a plane count too: their
-//! residual takes the contact and friction force of the model the solvers use
-//! ([`ContactModel::evaluate`], the sample's share `a_s` of the boundary area,
-//! the normal force lagged from the step's start, slip from the integrator's
-//! anchor `x^t + w (x^t - x^{t-1})`), and their normalising block the contact's
-//! curvature, `du_s = (B_s + H_c)^-1 r_s`: a sticking point held by the
-//! friction's stiffness moves little for its residual, as in the full model.
-//! A sample of no boundary area (inside the body) never touches. Positions are `x = c + R (rest + W q)` (world-frame models: c = 0,
+//! that no plane touches now or at the step's start (contact forces are not
+//! part of the residual; friction is lagged from the start), M the body's
+//! mass. Positions are `x = c + R (rest + W q)` (world-frame models: c = 0,
 //! R = I). The Python side (`python/licrom/reduced/error_estimate.py`) turns
 //! these values into the run's estimate.
 //!
@@ -33,7 +26,6 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::contact::{ContactModel, Plane};
 use crate::error::{check_finite, check_output, check_positive, LicromError, Result};
 use crate::reconstruction::Reconstruction;
 use crate::vertex_forces::VertexForces;
@@ -64,19 +56,6 @@ pub struct EstimateInputs<'a> {
     pub total_mass: f64,
     /// The material's Kelvin-Voigt viscosity eta, Pa s (>= 0).
     pub viscosity: f64,
-    /// Contact forces at the samples that touch a plane (None: such samples are left out).
-    pub contact: Option<SampleContact<'a>>,
-}
-
-/// The contact model at the samples ([`EstimateInputs::contact`]).
-#[derive(Debug, Clone, Copy)]
-pub struct SampleContact<'a> {
-    /// Each sample's share of the boundary area, s, m^2 (>= 0; 0 inside the body).
-    pub areas: &'a [f64],
-    /// Coulomb coefficient of each plane, p (>= 0).
-    pub frictions: &'a [f64],
-    /// Stiffnesses per unit area, with the integrator's effective step as its dt.
-    pub model: ContactModel,
 }
 
 /// A rigid placement `x = c + R y` (body-frame models) or none (world frame).
@@ -97,9 +76,7 @@ pub struct ResidualEstimate {
     masses: Vec<f64>,
     normaliser: Vec<Matrix3<f64>>,
     gravity: Vector3<f64>,
-    planes: Vec<Plane>,
-    /// The contact model and each sample's boundary area, where touching samples count.
-    contact: Option<(ContactModel, Vec<f64>)>,
+    planes: Vec<(Vector3<f64>, f64)>,
     target: Vec<f64>,
     h2: f64,
     total_mass: f64,
@@ -133,8 +110,7 @@ impl ResidualEstimate {
     /// From the inputs and the ring forces of the samples (its points the near
     /// vertices, its samples these), after checking shapes, indices and values.
     pub fn new(inputs: &EstimateInputs<'_>, forces: VertexForces) -> Result<Self> {
-        let EstimateInputs { near_basis, near_rest, own, masses, normaliser, gravity, planes, target, step, total_mass, viscosity, contact } =
-            *inputs;
+        let EstimateInputs { near_basis, near_rest, own, masses, normaliser, gravity, planes, target, step, total_mass, viscosity } = *inputs;
         crate::error::check_non_negative("viscosity", viscosity)?;
         let (u, s) = (forces.n_points(), forces.n_samples());
         if near_rest.len() != 3 * u {
@@ -169,24 +145,6 @@ impl ResidualEstimate {
         }
         check_positive("step", step)?;
         check_positive("total_mass", total_mass)?;
-        let n_planes = planes.len() / 4;
-        let frictions = match contact {
-            Some(c) => {
-                if c.areas.len() != s {
-                    return Err(LicromError::shape("contact areas", format!("({s},)"), format!("{} values", c.areas.len())));
-                }
-                if c.frictions.len() != n_planes {
-                    return Err(LicromError::shape("contact frictions", format!("({n_planes},)"), format!("{} values", c.frictions.len())));
-                }
-                if let Some(&a) = c.areas.iter().find(|&&a| !(a.is_finite() && a >= 0.0)) {
-                    return Err(LicromError::invalid("contact areas", format!("must be finite and >= 0, got {a}")));
-                }
-                c.frictions.to_vec()
-            }
-            None => vec![0.0; n_planes],
-        };
-        let planes =
-            planes.chunks_exact(4).zip(frictions).map(|(p, mu)| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], mu)).collect::<Result<Vec<_>>>()?;
         let sample_basis: Vec<f64> = own.iter().flat_map(|&v| &near_basis[3 * n * v..3 * n * (v + 1)]).copied().collect();
         let sample_rest: Vec<f64> = own.iter().flat_map(|&v| &near_rest[3 * v..3 * v + 3]).copied().collect();
         let points = |basis: Vec<f64>, rest: &[f64]| (n > 0).then(|| Reconstruction::new(basis, rest.to_vec(), n)).transpose();
@@ -201,8 +159,7 @@ impl ResidualEstimate {
             masses: masses.to_vec(),
             normaliser: normaliser.chunks_exact(9).map(Matrix3::from_row_slice).collect(),
             gravity: Vector3::from(gravity),
-            planes,
-            contact: contact.map(|c| (c.model, c.areas.to_vec())),
+            planes: planes.chunks_exact(4).map(|p| (Vector3::new(p[0], p[1], p[2]), p[3])).collect(),
             target: target.to_vec(),
             h2: step * step,
             total_mass,
@@ -310,25 +267,9 @@ impl ResidualEstimate {
                 .zip(&self.history)
                 .fold(Vector3::zeros(), |acc, (w, h)| acc + *w * Vector3::from_column_slice(&h[3 * s..3 * s + 3]));
             let m = self.masses[s];
-            let mut residual = m * (x - predicted) / self.h2 - m * self.gravity - f;
-            let touches = self.planes.iter().any(|p| p.gap(&x).min(p.gap(&before)) < 0.0);
-            let du = match (&self.contact, touches) {
-                (_, false) => Some(self.normaliser[s] * residual),
-                (None, true) => None,
-                (Some((model, areas)), true) => {
-                    // Slip from the integrator's anchor, the normal force lagged from the step's start.
-                    let anchor = before + self.weight * (before - Vector3::from_column_slice(&self.history[1][3 * s..3 * s + 3]));
-                    let mut block = self.normaliser[s].try_inverse().unwrap_or_else(Matrix3::zeros);
-                    for plane in &self.planes {
-                        let lagged = model.lagged_normal_force(plane, areas[s], &before);
-                        let eval = model.evaluate(plane, areas[s], lagged, &x, &anchor);
-                        residual += eval.gradient;
-                        block += eval.hessian.matrix();
-                    }
-                    block.try_inverse().map(|inverse| inverse * residual)
-                }
-            };
-            if let Some(du) = du {
+            let residual = m * (x - predicted) / self.h2 - m * self.gravity - f;
+            let du = self.normaliser[s] * residual;
+            if self.planes.iter().all(|(normal, offset)| normal.dot(&x).min(normal.dot(&before)) + offset >= 0.0) {
                 sum += m * du.norm_squared();
                 counted += m;
             }
@@ -393,49 +334,8 @@ mod tests {
             step: 0.01,
             total_mass: 5.0,
             viscosity,
-            contact: None,
         };
         ResidualEstimate::new(&inputs, forces).unwrap()
-    }
-
-    /// [`one_tet`] with the contact model at its sample (area 0.01 m^2, k_n = 1e5 N/m^3, no damping, k_f = 1e3 N s/m^3)
-    /// against `planes` of friction `mu`.
-    fn one_tet_in_contact(planes: &[f64], mu: f64) -> ResidualEstimate {
-        let mut est = one_tet(planes);
-        let frictions = vec![mu; planes.len() / 4];
-        est.planes = planes.chunks_exact(4).zip(frictions).map(|(p, mu)| Plane::new(Vector3::new(p[0], p[1], p[2]), p[3], mu).unwrap()).collect();
-        est.contact = Some((ContactModel::new(1.0e5, 0.0, 1.0e3, 0.01).unwrap(), vec![0.01]));
-        est
-    }
-
-    /// A sample resting at the depth where the penalty carries its weight is in balance: no residual. Moved along x
-    /// from the step's start, the friction's stick force joins its residual and the friction's curvature its block.
-    #[test]
-    fn a_touching_sample_counts_with_its_contact_force() {
-        // k_n a depth = m g: depth 19.62 mm below the plane z >= 1 + depth.
-        let depth = 2.0 * 9.81 / (1.0e5 * 0.01);
-        let plane = [0.0, 0.0, 1.0, -(1.0 + depth)];
-        let mut est = one_tet_in_contact(&plane, 0.5);
-        est.start(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]).unwrap();
-        assert!(est.evaluate(&[0.0], None).unwrap() < 1e-20);
-        // The mode moves the sample along x by 1 mm from the step's start: with c = a k_f / h = 1e3 N/m, c |delta| = 1 N
-        // is below the Coulomb limit 0.5 m g = 9.81 N, so it sticks. The residual is the inertia of the move, the
-        // elastic force and the friction's stick force; the block gains the friction's curvature c along x and y.
-        let mut est = one_tet_in_contact(&plane, 0.5);
-        est.start(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]).unwrap();
-        let value = est.evaluate(&[1e-3], None).unwrap();
-        let mut force = vec![0.0; 3];
-        est.forces.forces(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1e-3, 0.0, 1.0], &mut force).unwrap();
-        let x = Vector3::new(1e-3, 0.0, 1.0);
-        let inertia = 2.0 * (x - Vector3::new(0.0, 0.0, 1.0)) / 1e-4;
-        let residual = inertia - Vector3::from_column_slice(&force) + Vector3::new(1.0e3 * 1e-3, 0.0, 0.0);
-        let block: Matrix3<f64> = Matrix3::identity() * 1e3 + Matrix3::from_diagonal(&Vector3::new(1.0e3, 1.0e3, 1.0e3));
-        let du: Vector3<f64> = block.try_inverse().unwrap() * residual;
-        assert!(rel_err(&[value], &[5.0 * du.norm_squared()], 0.0) < 1e-12, "{value}");
-        // Without the contact model the same sample is left out.
-        let mut est = one_tet(&plane);
-        est.start(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]).unwrap();
-        assert_eq!(est.evaluate(&[1e-3], None).unwrap(), 0.0);
     }
 
     /// The material damping enters once the state before the step is recorded (a run's first

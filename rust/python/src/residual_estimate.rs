@@ -1,7 +1,6 @@
 //! The online error estimate's residual at a vertex sample.
 
-use licrom_core::contact::ContactModel;
-use licrom_core::residual_estimate::{EstimateInputs, ResidualEstimate as CoreResidualEstimate, SampleContact};
+use licrom_core::residual_estimate::{EstimateInputs, ResidualEstimate as CoreResidualEstimate};
 use nalgebra::{Matrix3, Vector3};
 use pyo3::prelude::*;
 
@@ -27,10 +26,6 @@ use crate::vertex_forces::VertexForces;
 ///     total_mass: the body's mass in kg, > 0.
 ///     viscosity: the material's Kelvin-Voigt viscosity in Pa s, >= 0 (default 0): the force of its
 ///         damping joins the elastic one, its anchor from the recorded states before the step.
-///     contact: None (samples that touch a plane are left out), or ``(areas, frictions, k_n, k_d, k_f)``: the
-///         samples' (S,) shares of the boundary area in m^2, the planes' (P,) Coulomb coefficients and the
-///         contact stiffnesses per unit area (N/m^3, N s/m^3, N s/m^3); touching samples then count, with the
-///         contact and friction force of the solvers' model in their residual.
 #[pyclass(module = "licrom._core")]
 pub struct ResidualEstimate {
     inner: CoreResidualEstimate,
@@ -62,7 +57,7 @@ fn state(
 #[pymethods]
 impl ResidualEstimate {
     #[new]
-    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, normaliser, gravity, planes, target, step, total_mass, viscosity = 0.0, contact = None))]
+    #[pyo3(signature = (forces, near_basis, near_rest, own, masses, normaliser, gravity, planes, target, step, total_mass, viscosity = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -78,7 +73,6 @@ impl ResidualEstimate {
         step: f64,
         total_mass: f64,
         viscosity: f64,
-        contact: Option<(Bound<'_, PyAny>, Bound<'_, PyAny>, f64, f64, f64)>,
     ) -> PyResult<Self> {
         let u = forces.inner.n_points();
         let s = forces.inner.n_samples();
@@ -90,15 +84,6 @@ impl ResidualEstimate {
         let gravity = read(gravity, "gravity", &[Dim::Is(3)])?;
         let planes = read(planes, "planes", &[Dim::Any("P"), Dim::Is(4)])?;
         let target = read(target, "target", &[Dim::Any("L")])?;
-        let contact = match contact {
-            Some((areas, frictions, kn, kd, kf)) => {
-                let areas = read(&areas, "contact areas", &[Dim::Is(s)])?;
-                let frictions = read(&frictions, "frictions", &[Dim::Is(planes.shape[0])])?;
-                let model = call_core(py, || ContactModel::new(kn, kd, kf, step))?;
-                Some((areas, frictions, model))
-            }
-            None => None,
-        };
         let inputs = EstimateInputs {
             near_basis: &near_basis.data,
             near_rest: &near_rest.data,
@@ -111,11 +96,6 @@ impl ResidualEstimate {
             step,
             total_mass,
             viscosity,
-            contact: contact.as_ref().map(|(areas, frictions, model)| SampleContact {
-                areas: &areas.data,
-                frictions: &frictions.data,
-                model: *model,
-            }),
         };
         let inner = call_core(py, || CoreResidualEstimate::new(&inputs, forces.inner.clone()))?;
         Ok(Self { inner })
@@ -152,9 +132,8 @@ impl ResidualEstimate {
         call_core(py, || self.inner.record(&q, pose.as_ref().map(|(c, r)| (c, r))))
     }
 
-    /// The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches (every
-    /// sample with ``contact``), at ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes
-    /// the newest state.
+    /// The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
+    /// ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes the newest state.
     #[pyo3(signature = (q, center=None, rotation=None))]
     fn evaluate(
         &mut self,
