@@ -250,10 +250,11 @@ NUDGED = "_nudged"
 """Name suffix of a scene's noise-floor run (the same scene, :func:`nudged`)."""
 
 
-def nudged(scene: Scene) -> Scene:
-    """The same scene with the object dropped ``NUDGE`` higher (the noise floor's run)."""
+def nudged(scene: Scene, offset: tuple[float, float, float] = (0.0, 0.0, NUDGE)) -> Scene:
+    """The same scene with the object's start moved by ``offset`` (m; by default dropped ``NUDGE`` higher: the noise
+    floor's run)."""
     init = scene.initial
-    return scene.replace(initial=dataclasses.replace(init, translation=tuple(np.add(init.translation, (0.0, 0.0, NUDGE)))))
+    return scene.replace(initial=dataclasses.replace(init, translation=tuple(np.add(init.translation, offset))))
 
 
 def _close(a, b) -> bool:

@@ -1,6 +1,7 @@
 """The defaults on held-out scenes no earlier section ran: drawn slopes, azimuths, friction and throws.
 
     python experiments/more_scenes.py [--family cheese] [--model out/converged/models/cheese.lcm] [--scenes 8] [--work out/more_scenes] [--small]
+    python experiments/more_scenes.py --family box --scenes 16 --nudged-tumbles 4  # and the first 4 tumbles' nudged full runs
 
 Section 16 judges the defaults on a few held-out scenes of each family, one of each kind. This draws ``--scenes``
 more of the same kinds (seeded, placed as the family places its runs), :data:`DRAWS`:
@@ -18,6 +19,9 @@ row per scene: the noise floor (the full run against itself dropped 0.1 mm highe
 final centre of mass over the size and stick/slip against the full run, its error estimate and median step,
 and whether it meets the targets (non-rigid < 10 %, centre of mass < 2 %, stick/slip right). Full runs are
 cached under ``--work``; ``--small`` runs two scenes of 20 steps on the tiny cheese with a 1-epoch model.
+``--nudged-tumbles N`` also runs in full the first N drawn tumbles moved 0.1 mm along x and dropped 0.1 mm lower
+(:data:`NUDGED_TUMBLES`; the moves along y repeat their scenes, the slope being level along y): the further held-out
+tumbles of results section 29, which ``experiments/estimate_at_defaults.py`` reads from ``--work/full``.
 """
 
 from __future__ import annotations
@@ -65,6 +69,10 @@ def drawn_case(family: str, fam: bfe.Family, rng: np.random.Generator, k: int) -
                                                                 velocity=(speed, 0.0, 0.0), angular_velocity=(0.0, spin, 0.0)))
 
 
+NUDGED_TUMBLES = {"_nudged_x": (bfe.NUDGE, 0.0, 0.0), "_nudged_down": (0.0, 0.0, -bfe.NUDGE)}
+"""Name suffix and start offset (m) of each nudged companion of a drawn tumble (``--nudged-tumbles``)."""
+
+
 def drawn_family(family: str, count: int, small: bool) -> bfe.Family:
     """``family``'s mesh and stepping with ``count`` drawn held-out scenes (seeded by :data:`SEED`), at the converged truth
     (``small``: the tiny mesh at the family's own step, where 20 steps see it land)."""
@@ -108,6 +116,7 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=8, help="scenes drawn")
     ap.add_argument("--work", type=Path, default=Path("out/more_scenes"))
     ap.add_argument("--small", action="store_true", help="tiny cheese, 2 scenes of 20 steps, a 1-epoch model trained here")
+    ap.add_argument("--nudged-tumbles", type=int, default=0, help="full runs of the first N drawn tumbles, each start moved 0.1 mm (NUDGED_TUMBLES)")
     args = ap.parse_args()
     bfe.CHEESE_RESOLUTION = 10
     fam = drawn_family(args.family, 2 if args.small else args.scenes, args.small)
@@ -123,6 +132,9 @@ def main() -> None:
     for case in fam.cases:
         rows.append(scene_row(model, fam, case, args.work, values))
         print(table(rows[-1:]).splitlines()[-1], flush=True)
+    for case in [c for c in fam.cases if "tumble" in c.name][: args.nudged_tumbles]:
+        for suffix, offset in NUDGED_TUMBLES.items():
+            bfe.full_run(args.work, case.name + suffix, fam.mesh, bfe.nudged(case.scene, offset), fam.steps, fam.record_every)
     (args.work / f"more_scenes_{args.family}.json").write_text(json.dumps({"model": str(args.model), "rows": rows}, indent=1))
     met = sum(r["meets"] for r in rows)
     print(f"\n{table(rows)}\n\n{met} of {len(rows)} scenes meet every target; non-rigid {bfe._pct(min(r['nonrigid_error'] for r in rows))}-"
