@@ -34,11 +34,11 @@ size over the deformation's wavelength. With interior vertices alone, the raw ra
 cheese (all 32 of its interior vertices) stayed at 3-4 % for true errors of 38-103 %
 (r = 2..8); with the surface included it follows them (13-19 % at r = 2). Samples
 inside a plane, now or at the start of the step (friction is lagged), feel contact forces
-that are not modelled, and are left out of that frame. (Counting them, with the solvers' contact and friction
-force in their residual and its curvature in their block, was measured and not kept: it ranked POD subspaces
-better and the defaults' learned models worse, reading a tipped box's clean runs 4.8x high, docs/results.md
-section 40.) The sample's basis rows, one-ring
-shape gradients and volumes are taken once; an evaluated step costs one product with the basis
+that are not modelled, and are left out of that frame. (Counting them, with the solvers' contact
+and friction force in their residual and its curvature in their block, was measured and not kept:
+it ranked POD subspaces better and the defaults' learned models worse, reading a tipped box's clean
+runs 4.8x high, docs/results.md section 40.) The sample's basis rows, one-ring shape gradients and
+volumes are taken once; an evaluated step costs one product with the basis
 rows of the rings' vertices and one pass over the ring tets, both in the core
 (``licrom._core.ResidualEstimate``, which also keeps the sample positions of the steps before).
 """
