@@ -351,7 +351,7 @@ class Model:
             raise ShapeError(f"q must have shape ({self.n_modes},) or (f, {self.n_modes}), got {qa.shape}")
         if not np.isfinite(qa).all():
             raise ShapeError("q holds NaN or inf; reconstruct needs finite reduced coordinates")
-        return np.einsum("nic,...c->...ni", basis, qa)
+        return (qa @ basis.reshape(-1, self.n_modes).T).reshape(*qa.shape[:-1], *basis.shape[:2])
 
     # --- encoder ------------------------------------------------------------------------
     def _split_affine(self, x: np.ndarray, u: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

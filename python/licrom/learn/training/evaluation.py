@@ -134,7 +134,7 @@ def _projection_error2(residuals: np.ndarray, basis: np.ndarray, masses: np.ndar
     err = 0.0
     for f0 in range(0, len(residuals), chunk_frames):
         u = np.asarray(residuals[f0 : f0 + chunk_frames], dtype=np.float64)
-        d = u - np.einsum("nic,fc->fni", basis, projector.project(u))
+        d = u - (projector.project(u) @ basis.reshape(-1, basis.shape[2]).T).reshape(u.shape)  # BLAS, not einsum's loops
         err += float(np.einsum("fni,fni,n->", d, d, masses))
     return err
 

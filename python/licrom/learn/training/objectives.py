@@ -42,7 +42,9 @@ def pod_targets(data: TrainingData, count: int, weighting: str = "run") -> tuple
         raise ConfigError(f"the 'pod' objective needs latent_dim <= the number of training frames ({len(res)}): {exc}") from exc
     m = data.mesh.vertex_masses(1.0)
     modes = basis.modes * np.sqrt(m.sum())  # (n, 3, r): sum_v m_v |phi_v|^2 = m_total
-    latents = np.einsum("fni,n,nic->fc", res.astype(np.float64), m, modes) / (m.sum() * data.u_scale)
+    # One matrix product (BLAS): numpy's einsum of the three operands looped over them, 76 s at 120k tets.
+    weighted_modes = (modes * m[:, None, None]).reshape(-1, count)  # (3n, count)
+    latents = (res.reshape(len(res), -1).astype(np.float64) @ weighted_modes) / (m.sum() * data.u_scale)
     # sqrt(variance): the modes that carry more of the data count more, the small ones still
     # count (uniform weights left 2.1x, sqrt 1.6x, variance 2.1x the POD error on the demo data
     # at width 60, before the exact output-layer fit).

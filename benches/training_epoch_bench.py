@@ -1,0 +1,85 @@
+"""Time a training epoch: its steps and what follows them (validation, checkpoint), on synthetic runs of any size.
+
+The runs are smooth synthetic deformations of the procedural cheese (no simulation), so the figures are the
+training's own cost at a given mesh size, frame count and r, independent of the physics. The printed hash of the
+trained network's weights lets two versions of the code be checked for the same training, bit for bit.
+
+    python benches/training_epoch_bench.py --resolution 12 --epochs 4               # the 1.6k-tet cheese, CPU
+    python benches/training_epoch_bench.py --resolution 42 --rank 250 --device cuda  # 120k tets, on a GPU
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from licrom import Scene, Trajectory, meshes
+from licrom.learn.model import ModelConfig
+from licrom.learn.training import TrainConfig, train
+from licrom.learn.training_data import TrainingData
+
+
+def synthetic_runs(resolution: int, runs: int, frames: int, seed: int = 0) -> list[Trajectory]:
+    """``runs`` runs of ``frames`` frames on the cheese: a drift plus six smooth fields with random time courses."""
+    mesh = meshes.cheese(resolution=resolution)
+    x = (mesh.vertices - mesh.vertices.mean(axis=0)) / np.ptp(mesh.vertices, axis=0).max()
+    fields = np.stack([np.sin(np.pi * (k + 1) * x[:, [k % 3]]) * np.roll(x, k, axis=1) for k in range(6)])  # (6, n, 3)
+    rng = np.random.default_rng(seed)
+    dt = 0.01
+    t = np.arange(frames) * dt
+    out = []
+    for _ in range(runs):
+        amp = 2e-3 * np.sin(np.outer(t, rng.uniform(5, 40, 6)) + rng.uniform(0, 2 * np.pi, 6))  # (frames, 6) m
+        u = np.einsum("fk,kni->fni", amp, fields) + np.outer(t, rng.normal(0, 0.05, 3))[:, None, :]
+        v = np.gradient(u, dt, axis=0)
+        out.append(Trajectory(mesh.vertices, mesh.tets, u, v, t, Scene(dt=dt)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--resolution", type=int, default=12, help="meshes.cheese resolution (12: 1.6k tets, 42: 120k)")
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--frames", type=int, default=200, help="frames of each run")
+    ap.add_argument("--rank", type=int, default=120, help="r (ModelConfig.latent_dim)")
+    ap.add_argument("--epochs", type=int, default=4)
+    ap.add_argument("--points", type=int, default=2048, help="TrainConfig.points_per_frame")
+    ap.add_argument("--val-every", default=None, help="TrainConfig.val_every (default: the config's)")
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--save", action="store_true", help="write the model, its loss curves and a checkpoint every epoch "
+                    "(as `licrom train` does) to a temporary folder")
+    args = ap.parse_args()
+
+    t0 = time.perf_counter()
+    runs = synthetic_runs(args.resolution, args.runs, args.frames)
+    data = TrainingData(runs, val_fraction=0.2, seed=0, frame="body")
+    print(f"{data.mesh.n_tets} tets, {data.mesh.n_vertices} vertices; {len(data.train)} training frames, "
+          f"{len(data.val)} validation frames; data {time.perf_counter() - t0:.1f} s")
+    extra = {} if args.val_every is None else {"val_every": args.val_every if args.val_every == "auto" else int(args.val_every)}
+    cfg = TrainConfig(epochs=args.epochs, points_per_frame=args.points, device=args.device, progress=False, extension=0,
+                      cubature_points=50, cubature_candidates=256, **extra)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(), tempfile.TemporaryDirectory() as tmp:
+        warnings.simplefilter("ignore")
+        model = train(data, Path(tmp) / "bench.lcm" if args.save else None, cfg, ModelConfig(latent_dim=args.rank))
+    total = time.perf_counter() - t0
+    rows = model.metadata["history"][1:] or model.metadata["history"]  # the first epoch warms up
+    steps = np.mean([r["train_seconds"] for r in rows])
+    after = np.mean([r["epoch_seconds"] - r["train_seconds"] for r in rows])
+    batches = -(-len(data.train) // cfg.batch_frames)
+    weights = torch.cat([p.detach().double().flatten().cpu() for p in model.net.parameters()]).numpy()
+    print(f"device {model.metadata['accelerator']}, r = {args.rank}, {args.points} points a frame: "
+          f"steps {steps:.3f} s an epoch ({1e3 * steps / batches:.2f} ms a step, {batches} steps), "
+          f"after them {after:.3f} s an epoch; fit {model.metadata['fit_seconds']:.1f} s for {args.epochs} epochs, "
+          f"train() {total:.1f} s in all")
+    print(f"weights sha256 {hashlib.sha256(weights.tobytes()).hexdigest()[:16]}")
+
+
+if __name__ == "__main__":
+    main()
