@@ -52,6 +52,9 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=2048, help="TrainConfig.points_per_frame")
     ap.add_argument("--val-every", default=None, help="TrainConfig.val_every (default: the config's)")
     ap.add_argument("--device", default="auto")
+    ap.add_argument("--bare", type=int, default=0, metavar="N",
+                    help="also time N training steps without Lightning (the module's step, backward, Adam) and count "
+                         "their kernel launches")
     ap.add_argument("--save", action="store_true", help="write the model, its loss curves and a checkpoint every epoch "
                     "(as `licrom train` does) to a temporary folder")
     args = ap.parse_args()
@@ -79,6 +82,44 @@ def main() -> None:
           f"after them {after:.3f} s an epoch; fit {model.metadata['fit_seconds']:.1f} s for {args.epochs} epochs, "
           f"train() {total:.1f} s in all")
     print(f"weights sha256 {hashlib.sha256(weights.tobytes()).hexdigest()[:16]}")
+    if args.bare:
+        bare_steps(data, cfg, ModelConfig(latent_dim=args.rank), args.bare)
+
+
+def bare_steps(data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, steps: int) -> None:
+    """The training step without Lightning's loop: what the step's own operations cost, and how many kernels it launches."""
+    from licrom.learn.training.lightning import _lightning_classes
+
+    device = torch.device("cuda" if cfg.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
+    module = _lightning_classes()["LicromModule"](mcfg.to_dict(), cfg.to_dict())
+    module.net.set_normalization(data.x_center, data.x_scale, data.u_scale)
+    module.attach(data)
+    module.to(device)
+    opt = torch.optim.Adam(module.net.parameters(), lr=cfg.lr)
+    g = torch.Generator().manual_seed(0)
+    batches = [torch.randperm(len(data.train), generator=g)[: cfg.batch_frames].to(device) for _ in range(steps)]
+
+    def run() -> float:
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        t = time.perf_counter()
+        for i, b in enumerate(batches):
+            loss = module.training_step(b, i)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        return (time.perf_counter() - t) / steps
+
+    run()  # warm-up
+    seconds = min(run() for _ in range(3))
+    with torch.profiler.profile() as prof:
+        run()
+    launches = sum(e.count for e in prof.key_averages() if e.key in ("cudaLaunchKernel", "cudaLaunchKernelExC"))
+    ops = sum(e.count for e in prof.key_averages() if e.key.startswith("aten::"))
+    print(f"bare steps: {1e3 * seconds:.2f} ms a step (best of 3 rounds of {steps}); {launches / steps:.0f} kernel launches "
+          f"and {ops / steps:.0f} aten calls a step")
 
 
 if __name__ == "__main__":
