@@ -87,7 +87,7 @@ class BodyFrameSim(ReducedSim):
         self._xbar = mesh.vertices - center_of_mass(mesh.vertices, self._masses)
         self._values = check_basis_output("values", basis.values(mesh.vertices), (n, 3, k))
         t, w = rigid_momenta(self._values, self._xbar, self._masses)
-        size = np.sqrt(np.einsum("v,vik,vik->", self._masses, self._values, self._values) / (total * max(k, 1)))
+        size = np.sqrt(self._masses @ np.einsum("vik,vik->v", self._values, self._values) / (total * max(k, 1)))
         if k and max(np.abs(t).max(), np.abs(w).max() * mesh.size) > _ORTHOGONALITY * max(size, 1e-300):
             raise ConfigError(
                 "the modes carry linear or angular momentum on this mesh: wrap the basis in "
@@ -102,7 +102,7 @@ class BodyFrameSim(ReducedSim):
         self._core = _core.BodyFrameCore(
             total_mass=total,
             inertia_moments=np.einsum("v,vi,vj->ij", self._masses, self._xbar, self._xbar),
-            mode_moments=np.ascontiguousarray(np.einsum("v,vik,vj->kij", self._masses, self._values, self._xbar)),
+            mode_moments=np.ascontiguousarray((a.T @ (self._masses[:, None] * self._xbar)).reshape(3, k, 3).transpose(1, 0, 2)),
             mode_products=np.ascontiguousarray(products),
             gravity=np.asarray(scene.gravity, dtype=np.float64),
             **native_inputs(self, strain, self._xbar),

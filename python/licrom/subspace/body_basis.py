@@ -48,9 +48,16 @@ def rigid_momenta(values: np.ndarray, xbar: np.ndarray, masses: np.ndarray) -> t
     """Per column k of (n, 3, k) values: the mean ``t_k`` and the infinitesimal rotation
     ``w_k`` of the mass-weighted least-squares fit ``W^k ~ t_k + w_k x Xbar``."""
     total = masses.sum()
-    t = np.einsum("v,vik->ki", masses, values) / total
-    moment = np.einsum("v,vik->ki", masses, np.cross(xbar[:, :, None], values, axis=1))
+    t = (masses @ values.reshape(len(masses), -1)).reshape(3, -1).T / total
+    # sum_v m_v Xbar_v x W_v^k, one matrix-vector product per term (np.cross copied (n, 3, k) twice: 0.45 s at 120k tets)
+    mx = masses[:, None] * xbar
+    moment = np.stack([mx[:, a] @ values[:, b] - mx[:, b] @ values[:, a] for a, b in ((1, 2), (2, 0), (0, 1))], axis=1)
     return t, np.linalg.solve(_inertia_tensor(xbar, masses), moment.T).T
+
+
+def _rotation_fields(w: np.ndarray, xbar: np.ndarray) -> np.ndarray:
+    """(p, 3, k) ``w_k x Xbar_p`` for (k, 3) ``w`` and (p, 3) ``Xbar``."""
+    return np.stack([np.outer(xbar[:, b], w[:, a]) - np.outer(xbar[:, a], w[:, b]) for a, b in ((1, 2), (2, 0), (0, 1))], axis=1)
 
 
 class BodyFrameBasis:
@@ -98,8 +105,7 @@ class BodyFrameBasis:
         """(p, 3) rest points -> (p, 3, n) orthogonalised mode values."""
         p = check_points(points)
         xbar = p - self.center
-        rigid = self._t.T[None] + np.cross(self._w[None], xbar[:, None], axis=2).transpose(0, 2, 1)
-        return self._raw_values(p) - rigid
+        return self._raw_values(p) - (self._t.T[None] + _rotation_fields(self._w, xbar))
 
     def jacobians(self, points: np.ndarray) -> np.ndarray:
         """(p, 3) rest points -> (p, 3, 3, n) ``dW_ic/dX_j`` of the orthogonalised modes."""

@@ -137,6 +137,7 @@ class Model:
         self._net32 = net  # as trained (float32), kept for saving
         self._build_eval_net()
         self._vertex_cache: dict[str, Any] = {}
+        self._own_values: np.ndarray | None = None
         self.cubature: Cubature | None = None
         self._cubature_samples: np.ndarray | None = None
         self._cubature_cache: dict[int, tuple[Mesh, Cubature]] = {}
@@ -273,6 +274,18 @@ class Model:
         For a body-frame model these are the r learned body-frame displacement fields.
         """
         x = check_points(points)
+        if x.shape == self.mesh.vertices.shape and np.array_equal(x, self.mesh.vertices):
+            # The model's own vertices: every reduced simulation of it asks for them, and a network pass at all of
+            # them takes 1 s at 120k tets and r = 250. Kept once, shared with the projector's cache.
+            return self._own_vertex_values().copy()
+        return self._values_at(x)
+
+    def _own_vertex_values(self) -> np.ndarray:
+        if self._own_values is None:
+            self._own_values = self._values_at(self.mesh.vertices)
+        return self._own_values
+
+    def _values_at(self, x: np.ndarray) -> np.ndarray:
         out = np.empty((len(x), 3, self.n_modes))
         if self.n_affine:
             out[:, :, :N_AFFINE] = affine_values(x)
@@ -313,7 +326,7 @@ class Model:
         hit = self._vertex_cache.get(key)
         if hit is not None and hit[0] is m:
             return hit
-        basis = self.values(m.vertices)  # (n, 3, k)
+        basis = self._own_vertex_values() if mesh is None else self._values_at(m.vertices)  # (n, 3, k)
         entry = (m, basis, SubspaceProjector(basis, m.vertex_masses(1.0)))  # relative weights: a homogeneous density cancels
         if mesh is None or len(self._vertex_cache) < 4:
             self._vertex_cache[key] = entry
