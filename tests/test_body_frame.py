@@ -7,7 +7,7 @@ from licrom.errors import PhysicsWarning
 from licrom.reduced.body import BodyFrameSim
 from licrom.rigid import center_of_mass
 from licrom.subspace.basis import AffineBasis
-from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.body_basis import BodyFrameBasis, rigid_momenta
 from licrom.subspace.cubature import Cubature
 from scipy.spatial.transform import Rotation
 
@@ -180,6 +180,18 @@ def test_basis_carries_no_momentum_on_an_anisotropic_body():
     d = 1e-6
     fd = np.stack([(basis.values(p + d * e) - basis.values(p - d * e)) / (2 * d) for e in np.eye(3)], axis=2)
     np.testing.assert_allclose(basis.jacobians(p), fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_rigid_momenta_recover_a_rigid_field():
+    rng = np.random.default_rng(1)
+    xbar = rng.normal(size=(40, 3))
+    m = rng.uniform(0.5, 2.0, 40)
+    xbar -= (m @ xbar) / m.sum()  # about the centre of mass, as rigid_momenta assumes
+    t, w = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    field = t.T[None] + np.cross(w[None], xbar[:, None], axis=2).transpose(0, 2, 1)  # (n, 3, k): t_k + w_k x Xbar
+    got_t, got_w = rigid_momenta(field, xbar, m)
+    np.testing.assert_allclose(got_t, t, atol=1e-12)
+    np.testing.assert_allclose(got_w, w, atol=1e-12)
 
 
 def test_transfer_to_a_finer_mesh_keeps_the_pose():

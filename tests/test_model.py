@@ -118,6 +118,16 @@ def test_values_shape_and_affine_block(mesh, rng):
     assert np.abs(v[:, :, 12:]).max() > 0
 
 
+def test_values_at_the_model_vertices_are_kept_and_handed_out_as_copies(mesh):
+    model = _random_model(mesh, r=3)
+    fresh = model.values_and_jacobians(mesh.vertices)[0]  # a network pass of its own
+    first = model.values(mesh.vertices)
+    np.testing.assert_array_equal(first, fresh)
+    first[:] = 0.0  # the caller's array: the model's stays as it was
+    np.testing.assert_array_equal(model.values(mesh.vertices), fresh)
+    np.testing.assert_allclose(model.reconstruct(np.ones(model.n_modes)), fresh.sum(axis=2), rtol=1e-12, atol=1e-15)
+
+
 @pytest.mark.parametrize("fourier", [0, 8])
 def test_jacobians_match_finite_differences(mesh, rng, fourier):
     model = _random_model(mesh, r=4, fourier=fourier)
