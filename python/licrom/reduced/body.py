@@ -43,6 +43,18 @@ _KEPT_SHAPES = 4  # body shapes kept by q: BDF2 velocities read three poses, plu
 _FRAME_BLOCK = 64  # recorded frames whose body shapes are rebuilt in one matrix product (BodyFrameSim._frames)
 
 
+def _mass_products(a: np.ndarray, masses: np.ndarray) -> np.ndarray:
+    """``a^T diag(m) a`` of (n, c) ``a`` by a symmetric rank-n update (half a general product's work: 0.25 s at 120k
+    tets and r = 250), exactly symmetric."""
+    from scipy.linalg.blas import dsyrk
+
+    if a.shape[1] == 0:
+        return np.zeros((0, 0))
+    b = np.sqrt(masses)[:, None] * a
+    upper = dsyrk(1.0, b.T)  # b.T is Fortran-ordered: no copy; (c, c), its upper triangle
+    return upper + np.triu(upper, 1).T
+
+
 class BodyFrameSim(ReducedSim):
     """Simulate a solid as a rigid frame plus body-frame modes.
 
@@ -93,12 +105,13 @@ class BodyFrameSim(ReducedSim):
                 "the modes carry linear or angular momentum on this mesh: wrap the basis in "
                 "BodyFrameBasis(mesh, learned=basis) to orthogonalise it against the rigid modes"
             )
-        self._projector = SubspaceProjector(self._values, self._masses) if k else None
         self.strain = strain
         jac = check_basis_output("jacobians", strain_jacobians(basis, mesh, self.cubature.tets, strain, self._values), (self.cubature.count, 3, 3, k))
         self._jacobians = np.ascontiguousarray(jac.reshape(self.cubature.count, 9, k))
         a = self._values.reshape(n, 3 * k)
-        products = (a.T @ (self._masses[:, None] * a)).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
+        products = _mass_products(a, self._masses).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
+        self._modal_mass = np.einsum("klii->kl", products)
+        self._projector = SubspaceProjector(self._values, self._masses, reduced_mass=self._modal_mass) if k else None
         self._core = _core.BodyFrameCore(
             total_mass=total,
             inertia_moments=np.einsum("v,vi,vj->ij", self._masses, self._xbar, self._xbar),
@@ -109,7 +122,6 @@ class BodyFrameSim(ReducedSim):
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
         self._shapes: dict[bytes, np.ndarray] = {}
-        self._modal_mass = np.einsum("klii->kl", products)
         self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene)
         self.time = 0.0
         self.set_state(*scene.initial.apply(mesh.vertices, self._masses))

@@ -85,12 +85,14 @@ class SubspaceProjector:
     Args:
         values: (n, 3, k) basis values at the vertices.
         masses: (n,) lumped vertex masses in kg.
+        reduced_mass: ``M_r`` (k, k), where the caller has already formed it (None: formed here).
 
     Raises:
         ConfigError: ``M_r`` is singular (modes linearly dependent on this mesh).
+        ShapeError: ``reduced_mass`` is not (k, k).
     """
 
-    def __init__(self, values: np.ndarray, masses: np.ndarray) -> None:
+    def __init__(self, values: np.ndarray, masses: np.ndarray, reduced_mass: np.ndarray | None = None) -> None:
         from scipy.linalg import LinAlgError, cho_factor
 
         from ..errors import ConfigError
@@ -98,7 +100,12 @@ class SubspaceProjector:
         w = np.asarray(values, dtype=np.float64)
         self._w = w.reshape(-1, w.shape[2])  # (3n, k)
         self._m3 = np.repeat(np.asarray(masses, dtype=np.float64), 3)
-        self.reduced_mass = self._w.T @ (self._m3[:, None] * self._w)
+        if reduced_mass is None:
+            self.reduced_mass = self._w.T @ (self._m3[:, None] * self._w)
+        else:
+            self.reduced_mass = np.asarray(reduced_mass, dtype=np.float64)
+            if self.reduced_mass.shape != (w.shape[2], w.shape[2]):
+                raise ShapeError(f"reduced_mass must have shape {(w.shape[2], w.shape[2])}, got {self.reduced_mass.shape}")
         scale = float(np.abs(np.diag(self.reduced_mass)).max())
         try:
             self._factor = cho_factor(self.reduced_mass)
