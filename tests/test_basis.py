@@ -62,6 +62,11 @@ def test_stacked_and_projection(rng):
     u = rng.standard_normal((mesh.n_vertices, 3))
     r = u - vals @ proj.project(u)
     np.testing.assert_allclose(proj.reduce(mesh.vertex_masses(1000.0)[:, None] * r), 0, atol=1e-9)
+    # a reduced mass the caller formed gives the same projector; one of the wrong size is refused
+    given = SubspaceProjector(vals, mesh.vertex_masses(1000.0), reduced_mass=proj.reduced_mass.copy())
+    np.testing.assert_array_equal(given.project(u), proj.project(u))
+    with pytest.raises(ShapeError, match=r"reduced_mass must have shape \(17, 17\), got \(16, 16\)"):
+        SubspaceProjector(vals, mesh.vertex_masses(1000.0), reduced_mass=np.eye(16))
 
 
 def test_singular_and_bad_bases(rng):
