@@ -1,6 +1,7 @@
 """Time a training epoch: its steps and what follows them (validation, checkpoint), on synthetic runs of any size.
 
-The runs are smooth synthetic deformations of the procedural cheese (no simulation), so the figures are the
+The runs are smooth synthetic deformations and rigid motions of the procedural cheese
+(:func:`licrom.learn.training_data.make_synthetic_trajectories`, no simulation), so the figures are the
 training's own cost at a given mesh size, frame count and r, independent of the physics. The printed hash of the
 trained network's weights lets two versions of the code be checked for the same training, bit for bit.
 
@@ -19,27 +20,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from licrom import Scene, Trajectory, meshes
+from licrom import meshes
 from licrom.learn.model import ModelConfig
 from licrom.learn.training import TrainConfig, train
-from licrom.learn.training_data import TrainingData
-
-
-def synthetic_runs(resolution: int, runs: int, frames: int, seed: int = 0) -> list[Trajectory]:
-    """``runs`` runs of ``frames`` frames on the cheese: a drift plus six smooth fields with random time courses."""
-    mesh = meshes.cheese(resolution=resolution)
-    x = (mesh.vertices - mesh.vertices.mean(axis=0)) / np.ptp(mesh.vertices, axis=0).max()
-    fields = np.stack([np.sin(np.pi * (k + 1) * x[:, [k % 3]]) * np.roll(x, k, axis=1) for k in range(6)])  # (6, n, 3)
-    rng = np.random.default_rng(seed)
-    dt = 0.01
-    t = np.arange(frames) * dt
-    out = []
-    for _ in range(runs):
-        amp = 2e-3 * np.sin(np.outer(t, rng.uniform(5, 40, 6)) + rng.uniform(0, 2 * np.pi, 6))  # (frames, 6) m
-        u = np.einsum("fk,kni->fni", amp, fields) + np.outer(t, rng.normal(0, 0.05, 3))[:, None, :]
-        v = np.gradient(u, dt, axis=0)
-        out.append(Trajectory(mesh.vertices, mesh.tets, u, v, t, Scene(dt=dt)))
-    return out
+from licrom.learn.training_data import TrainingData, make_synthetic_trajectories
 
 
 def main() -> None:
@@ -60,7 +44,7 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    runs = synthetic_runs(args.resolution, args.runs, args.frames)
+    runs = make_synthetic_trajectories(meshes.cheese(resolution=args.resolution), args.runs, args.frames, modes=6)
     data = TrainingData(runs, val_fraction=0.2, seed=0, frame="body")
     print(f"{data.mesh.n_tets} tets, {data.mesh.n_vertices} vertices; {len(data.train)} training frames, "
           f"{len(data.val)} validation frames; data {time.perf_counter() - t0:.1f} s")
