@@ -97,8 +97,12 @@ LARGE_MESH_EPOCHS = 800
 """Training epochs by default on a mesh above :data:`MAX_TETS` tets (``TrainConfig.epochs="auto"``): on the 104k-tet
 ball at r = 250, 300 epochs (the small meshes' 200 and its extension) left the learned subspace at 1.42x POD(250) and
 the held-out roll at 8.8 % non-rigid / 9.4 % of the size in centre of mass; 800 (1200 with the extension) at 1.26x and
-4.8 % / 1.3 %, within the targets (docs/results.md section 35). A training step samples the same 2048 points a frame on
-any mesh: one point per ten vertices there, 4-14 a vertex on the 1k-tet meshes."""
+4.8 % / 1.3 %, within the targets (docs/results.md section 35). That 300-epoch model's centre of mass was mostly its
+fit from 2048 candidates: with 8192, nine 300-epoch trainings put the held-out rolls at 4.4-10.2 % non-rigid (median
+7.1 % and 6.8 % on two rolls) and 0.8-3.9 % of the size, 7 of 18 rolls within both targets, against 3.5-8.8 % (median
+4.8 % and 4.1 %) and 1.1-3.5 %, 4 of 6, for three trainings at 1200 (section 43). A training step samples the same 2048
+points a frame on any mesh, one point per ten vertices there; 8192 or 32768 do not shorten the training (the subspace
+at 300 epochs 1.34x POD(250) with either, 1.35x with 2048; section 43)."""
 
 
 LARGE_MESH_CANDIDATES = 8192
