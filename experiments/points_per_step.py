@@ -103,16 +103,18 @@ def train_variant(args) -> dict:
 
 def all_variants(args) -> None:
     run_files(args)
-    procs = []
+    procs, logs = [], []
     for v in args.variants:
         points, epochs, *rest = v.split(":")
         extra = [f"--{kv.split('=')[0]}={kv.split('=')[1]}" for kv in ",".join(rest).split(",") if kv]
         cmd = [sys.executable, __file__, "--work", args.work, "--device", args.device, *(["--small"] if args.small else []),
                "train", "--points", points, "--epochs", epochs, *extra]
         env = {**os.environ, "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 2) // len(args.variants)))}
-        log = open(Path(args.work) / f"train_{v.replace(':', '_').replace('=', '').replace(',', '_')}.log", "w")
-        procs.append(subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT))
+        logs.append(open(Path(args.work) / f"train_{v.replace(':', '_').replace('=', '').replace(',', '_')}.log", "w"))
+        procs.append(subprocess.Popen(cmd, env=env, stdout=logs[-1], stderr=subprocess.STDOUT))
     rcs = [p.wait() for p in procs]
+    for f in logs:
+        f.close()
     res = [json.loads(p.read_text()) for p in sorted(Path(args.work).glob("variant_*.json"))]
     (Path(args.work) / "points.json").write_text(json.dumps({"rcs": rcs, "variants": res}, indent=1))
     for r in res:

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
-from licrom.subspace.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights, strain_jacobians
+from licrom.subspace.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights, strain_jacobians, weighted_gram
 
 
 def _fd_jacobian(basis, points, eps=1e-6):
@@ -67,6 +67,15 @@ def test_stacked_and_projection(rng):
     np.testing.assert_array_equal(given.project(u), proj.project(u))
     with pytest.raises(ShapeError, match=r"reduced_mass must have shape \(17, 17\), got \(16, 16\)"):
         SubspaceProjector(vals, mesh.vertex_masses(1000.0), reduced_mass=np.eye(16))
+
+
+def test_weighted_gram_is_the_weighted_product_and_symmetric(rng):
+    a = rng.standard_normal((50, 7))
+    w = rng.uniform(0.0, 3.0, 50)
+    g = weighted_gram(a, w)
+    np.testing.assert_allclose(g, a.T @ (w[:, None] * a), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(g, g.T)
+    assert weighted_gram(a[:, :0], w).shape == (0, 0)
 
 
 def test_singular_and_bad_bases(rng):

