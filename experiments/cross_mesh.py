@@ -2,11 +2,14 @@
 
     python experiments/cross_mesh.py [--model out/defaults/final/cheese.lcm] [--resolutions 8 12 16] [--work out/cross_mesh]
                                   [--cache 10:out/body_frame_c10 --cache 8:out/body_frame] [--docs docs] [--small]
+    python experiments/cross_mesh.py --family sphere --model ball.lcm --training-resolution 32 --resolutions 28 36 \
+                                  --drawn 1 --no-floors --time-step 0.0005 --integrator bdf2 --viscosity 400
 
-The soft cheese of ``experiments/body_frame_experiments.py``: a model trained on one mesh of it (``--model``, by
-default the ``licrom train`` defaults model of section 11, trained on the 1638-tet cheese, resolution
-``--training-resolution`` 10) and the family's 4 held-out scenes, built with the same placement code on other
-meshes of the same object (``meshes.cheese(resolution=R)`` for each ``--resolutions`` R). For each scene and
+A family of ``experiments/body_frame_experiments.py`` (``--family``: the soft cheese, or the soft ball): a model
+trained on one mesh of it (``--model``, by default the ``licrom train`` defaults model of section 11, trained on the
+1638-tet cheese, resolution ``--training-resolution`` 10) and the family's held-out scenes (with ``--drawn N`` the
+first N drawn scenes of ``more_scenes.py`` too), built with the same placement code on other meshes of the same
+object (``meshes.cheese(resolution=R)`` or ``meshes.sphere(...)`` for each ``--resolutions`` R). For each scene and
 other mesh M:
 
 * **(a) the model on M**: ``ReducedSim(model, scene=scene, mesh=M)`` (its fitted cubature refitted on M to the
@@ -22,11 +25,13 @@ clamped to the nearest tet). Non-rigid error: each frame's best rigid fit remove
 ``sqrt(sum_t |d_t|^2 / sum_t |u_t|^2)`` from M's first contact with u the reference's body-frame displacement
 (:func:`truth_convergence.sampled_nonrigid`; at M's own vertices it is :func:`licrom.analysis.compare.nonrigid_error`);
 centre of mass: the final frame's mass-weighted centre at M's vertices, distance over M's size. Noise floor: M's
-full run against itself dropped 0.1 mm higher (``body_frame_experiments.nudged``).
+full run against itself dropped 0.1 mm higher (``body_frame_experiments.nudged``; ``--no-floors`` skips those runs,
+which halves the full runs where the floor is known).
 
 Full runs are cached as ``.npz`` (``body_frame_experiments.full_run``): under ``--cache R:DIR`` where given (the
 training mesh's and the 864-tet truths of the earlier sections), else under ``--work/rR``; missing ones run here
-(warp, the default device: the CPU on a machine without a GPU). Writes ``--work/cross_mesh.json`` and section 14 of
+(warp, the default device: the CPU on a machine without a GPU); ``--truths-only`` runs those of ``--resolutions``
+alone, so that one process a mesh can share a GPU. Writes ``--work/cross_mesh.json`` and section 14 of
 ``docs/results.md`` (a ``### Reading`` part written by hand is kept). ``--small``: tiny meshes (resolutions 5 and 4,
 6), 20 steps, one scene, a 1-epoch model trained here; writes nothing under ``--docs``, runs in under a minute.
 """
@@ -47,6 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
+import more_scenes
 from licrom import Model, ReducedSim, Trajectory
 from licrom._io import atomic_path
 from licrom.analysis.compare import first_contact_frame
@@ -62,21 +68,41 @@ SMALL_STEPS = 20
 Samples = tuple[np.ndarray, np.ndarray]  # rest (p, 3) and deformed (frames, p, 3) positions of material points
 
 
-def cheese(resolution: int) -> bfe.Family:
-    """The cheese family of ``body_frame_experiments`` on ``meshes.cheese(resolution=resolution)``."""
-    saved = bfe.CHEESE_RESOLUTION
-    bfe.CHEESE_RESOLUTION = resolution
+RESOLUTION_OF = {"cheese": "CHEESE_RESOLUTION", "sphere": "SPHERE_RESOLUTION"}
+"""The ``body_frame_experiments`` setting of each family's mesh resolution."""
+
+
+def family_on(name: str, resolution: int) -> bfe.Family:
+    """The family ``name`` of ``body_frame_experiments`` on its mesh of ``resolution``."""
+    setting = RESOLUTION_OF[name]
+    saved = getattr(bfe, setting)
+    setattr(bfe, setting, resolution)
     try:
-        return bfe.FAMILIES["cheese"](False)
+        return bfe.FAMILIES[name](False)
     finally:
-        bfe.CHEESE_RESOLUTION = saved
+        setattr(bfe, setting, saved)
 
 
-def truths(cache: Path, fam: bfe.Family, cases: list[bfe.Case], steps: int) -> dict[str, tuple[Trajectory, Trajectory]]:
-    """Each case's full run and its noise-floor run (dropped 0.1 mm higher) on the family's mesh, cached under ``cache``."""
+def held_cases(name: str, fam: bfe.Family, drawn: int) -> list[bfe.Case]:
+    """The family's held-out scenes and its first ``drawn`` drawn ones (``more_scenes.py``'s seeded draws, placed on
+    ``fam``'s mesh: the same scenes on every mesh)."""
+    rng = np.random.default_rng(more_scenes.SEED)
+    return [*fam.held_out, *(more_scenes.drawn_case(name, fam, rng, k) for k in range(drawn))]
+
+
+def truths(cache: Path, fam: bfe.Family, cases: list[bfe.Case], steps: int,
+           floors: bool = True) -> dict[str, tuple[Trajectory, Trajectory | None]]:
+    """Each case's full run and its noise-floor run (dropped 0.1 mm higher; None without ``floors``) on the family's
+    mesh, cached under ``cache``."""
     every = fam.record_every
     return {c.name: (bfe.full_run(cache, c.name, fam.mesh, c.scene, steps, every),
-                     bfe.full_run(cache, c.name + bfe.NUDGED, fam.mesh, bfe.nudged(c.scene), steps, every)) for c in cases}
+                     bfe.full_run(cache, c.name + bfe.NUDGED, fam.mesh, bfe.nudged(c.scene), steps, every) if floors else None)
+            for c in cases}
+
+
+def floor_of(full: Trajectory, nudged: Trajectory | None) -> dict:
+    """The noise floor's metrics (None where its run was not made)."""
+    return bfe.run_metrics(full, nudged) if nudged is not None else {"nonrigid_error": None, "com_error": None}
 
 
 def difference(ref: Samples, other: Samples, weights: np.ndarray, start: int, size: float) -> dict:
@@ -110,7 +136,7 @@ def own_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]],
     for case in cases:
         full, nudged = train[case.name]
         reduced, info = reduced_run(model, case, steps, record_every=record_every)
-        rows.append({"name": case.name, "kind": case.kind, "tets": full.mesh.n_tets, "floor": bfe.run_metrics(full, nudged),
+        rows.append({"name": case.name, "kind": case.kind, "tets": full.mesh.n_tets, "floor": floor_of(full, nudged),
                      "model": bfe.run_metrics(full, reduced), **info})
         print(f"training mesh {case.name}: non-rigid {bfe._pct(rows[-1]['model']['nonrigid_error'])}, "
               f"COM {bfe._pct(rows[-1]['model']['com_error'])}", flush=True)
@@ -138,7 +164,7 @@ def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]
         model_m, truth = difference(own, red, weights, start, size), difference(own, trained, weights, start, size)
         metrics = bfe.run_metrics(full, reduced)
         rows.append({"name": case.name, "kind": case.kind, "tets": mesh.n_tets, "vertices": mesh.n_vertices,
-                     "floor": bfe.run_metrics(full, nudged), "model": model_m, "truth_gap": truth,
+                     "floor": floor_of(full, nudged), "model": model_m, "truth_gap": truth,
                      "ratio": {k: model_m[k] / truth[k] for k in model_m},
                      "model_vs_training_truth": difference(trained, red, weights, start, size),
                      "learned_projection": bfe.body_projection_error(full, modes), "model_metrics": metrics,
@@ -188,8 +214,8 @@ def report(result: dict) -> str:
     where = (f"Full runs: warp on the {'GPU' if device.startswith('cuda') else 'CPU'} of the machine named above"
              + ("." if damped else "; those of the training mesh and of the 864-tet mesh are the cached runs of sections 10-11."))
     out = [f"Model: `{model['path']}` ({'`licrom train` defaults' if damped else 'section 11' + chr(39) + 's `licrom train` defaults model'}: "
-           f"r = {model['r']}, trained on the {model['tets']}-tet cheese, {model['cubature']} fitted cubature tets). Held-out scenes of "
-           f"section 10, {result['steps']} steps of h = {1e3 * result['dt']:g} ms ({physics}), built with the same placement code on "
+           f"r = {model['r']}, trained on the {model['tets']}-tet {result.get('family', 'cheese')}, {model['cubature']} fitted cubature tets). "
+           f"Held-out scenes of section 10{' and drawn ones of section 25' if result.get('drawn') else ''}, {result['steps']} steps of h = {1e3 * result['dt']:g} ms ({physics}), built with the same placement code on "
            f"each mesh. {where}",
            "", "Measured at the other mesh M's vertices, weighted by M's lumped masses: the training mesh's full run is interpolated "
            "there (barycentric, containing tet of its own mesh). Non-rigid: each frame's best rigid fit removed, from M's first "
@@ -255,7 +281,10 @@ def small_model(path: Path, fam: bfe.Family, cache: Path) -> Model:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=Path("out/defaults/final/cheese.lcm"), help="model trained on the training mesh")
-    ap.add_argument("--training-resolution", type=int, default=10, help="cheese resolution of the model's mesh (10: 1638 tets)")
+    ap.add_argument("--family", choices=tuple(RESOLUTION_OF), default="cheese", help="the object (sphere: the soft ball; 32: 103536 tets)")
+    ap.add_argument("--training-resolution", type=int, default=10, help="resolution of the model's mesh (cheese 10: 1638 tets)")
+    ap.add_argument("--drawn", type=int, default=0, help="also the first N drawn scenes of more_scenes.py")
+    ap.add_argument("--no-floors", action="store_true", help="skip the noise-floor runs (the table's floor column reads -)")
     ap.add_argument("--resolutions", type=int, nargs="+", default=[8, 12, 16], help="other meshes (8: 864 tets, 12: 2748, 16: 6960)")
     ap.add_argument("--work", type=Path, default=Path("out/cross_mesh"), help="results and full runs of meshes without --cache")
     ap.add_argument("--cache", action="append", default=None, metavar="R:DIR",
@@ -278,36 +307,43 @@ def main() -> None:
         return caches.get(resolution, work / f"r{resolution}")
 
     def family(resolution: int) -> bfe.Family:
-        fam = bfe.physics_of(cheese(resolution), args)
+        fam = bfe.physics_of(family_on(args.family, resolution), args)
         if not args.record_unconverged:
             return fam
         record = SolverParams(on_failure="record")
         return dataclasses.replace(fam, cases=[dataclasses.replace(c, scene=c.scene.replace(solver=record)) for c in fam.cases])
 
+    def held(fam: bfe.Family) -> list[bfe.Case]:
+        cases = held_cases(args.family, fam, args.drawn)
+        if not args.record_unconverged:
+            return cases
+        return [dataclasses.replace(c, scene=c.scene.replace(solver=SolverParams(on_failure="record"))) for c in cases]
+
+    floors = not args.no_floors
     train_fam = family(train_res)
     steps = SMALL_STEPS if args.small else train_fam.steps
-    cases = list(train_fam.held_out[:1] if args.small else train_fam.held_out)
+    cases = held(train_fam)[:1] if args.small else held(train_fam)
+    names = {c.name for c in cases}
     if args.truths_only:
-        for res in [train_res, *resolutions]:
+        for res in resolutions:
             fam = family(res)
-            truths(cache(res), fam, [c for c in fam.held_out if c.name in {c.name for c in cases}], steps)
+            truths(cache(res), fam, [c for c in held(fam) if c.name in names], steps, floors)
         return
     model_path = work / "model.lcm" if args.small else args.model
     model = small_model(model_path, train_fam, cache(train_res)) if args.small else Model.load(model_path)
     if model.mesh.n_tets != train_fam.mesh.n_tets:
-        raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} cheese {train_fam.mesh.n_tets}: "
+        raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} {args.family} {train_fam.mesh.n_tets}: "
                          "pass its --training-resolution")
-    train = truths(cache(train_res), train_fam, cases, steps)
-    result = {"steps": steps, "dt": cases[0].scene.dt, "integrator": cases[0].scene.integrator, "full_device": resolve_device("auto"),
+    train = truths(cache(train_res), train_fam, cases, steps, floors)
+    result = {"family": args.family, "drawn": args.drawn, "steps": steps, "dt": cases[0].scene.dt, "integrator": cases[0].scene.integrator, "full_device": resolve_device("auto"),
               "viscosity": cases[0].scene.material.viscosity,
               "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
               "training_mesh": own_mesh_rows(model, train, cases, steps, train_fam.record_every), "other_meshes": []}
-    names = {c.name for c in cases}
     full_runs = {train_fam.mesh.n_tets: {k: v[0] for k, v in train.items()}}
     for res in resolutions:
         fam = family(res)
-        own_cases = [c for c in fam.held_out if c.name in names]
-        own = truths(cache(res), fam, own_cases, steps)
+        own_cases = [c for c in held(fam) if c.name in names]
+        own = truths(cache(res), fam, own_cases, steps, floors)
         full_runs[fam.mesh.n_tets] = {k: v[0] for k, v in own.items()}
         result["other_meshes"] += other_mesh_rows(model, train, fam, own_cases, steps, own)
     result["truth_gaps"] = truth_gaps(full_runs)
