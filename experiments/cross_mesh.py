@@ -215,8 +215,8 @@ def report(result: dict) -> str:
              + ("." if damped else "; those of the training mesh and of the 864-tet mesh are the cached runs of sections 10-11."))
     out = [f"Model: `{model['path']}` ({'`licrom train` defaults' if damped else 'section 11' + chr(39) + 's `licrom train` defaults model'}: "
            f"r = {model['r']}, trained on the {model['tets']}-tet {result.get('family', 'cheese')}, {model['cubature']} fitted cubature tets). "
-           f"Held-out scenes of section 10{' and drawn ones of section 25' if result.get('drawn') else ''}, {result['steps']} steps of h = {1e3 * result['dt']:g} ms ({physics}), built with the same placement code on "
-           f"each mesh. {where}",
+           f"Held-out scenes of section 10{' and drawn ones of section 25' if result.get('drawn') else ''}, {result['steps']} steps of "
+           f"h = {1e3 * result['dt']:g} ms ({physics}), built with the same placement code on each mesh. {where}",
            "", "Measured at the other mesh M's vertices, weighted by M's lumped masses: the training mesh's full run is interpolated "
            "there (barycentric, containing tet of its own mesh). Non-rigid: each frame's best rigid fit removed, from M's first "
            "contact; COM: final centre of mass, distance over M's size. (a) the model on M (`ReducedSim(model, scene=scene, "
