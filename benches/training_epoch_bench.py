@@ -7,6 +7,10 @@ trained network's weights lets two versions of the code be checked for the same 
 
     python benches/training_epoch_bench.py --resolution 12 --epochs 4               # the 1.6k-tet cheese, CPU
     python benches/training_epoch_bench.py --resolution 42 --rank 250 --device cuda  # 120k tets, on a GPU
+    python benches/training_epoch_bench.py --resolution 42 --rank 250 --device cuda --cuda-graph both
+
+``--cuda-graph both`` trains twice from the same seed, the steps replayed from CUDA graphs
+(``TrainConfig.cuda_graph``) and eagerly, and prints both timings and how far the two trainings' weights are apart.
 """
 
 from __future__ import annotations
@@ -39,6 +43,10 @@ def main() -> None:
     ap.add_argument("--bare", type=int, default=0, metavar="N",
                     help="also time N training steps without Lightning (the module's step, backward, Adam) and count "
                          "their kernel launches")
+    ap.add_argument("--cuda-graph", choices=("on", "off", "both"), default="on", help="TrainConfig.cuda_graph (both: each, compared)")
+    ap.add_argument("--graph-check", type=int, default=0, metavar="N",
+                    help="also replay N steps' passes from a CUDA graph beside eager passes at the same weights, and "
+                         "print how far their losses and gradients are apart")
     ap.add_argument("--save", action="store_true", help="write the model, its loss curves and a checkpoint every epoch "
                     "(as `licrom train` does) to a temporary folder")
     args = ap.parse_args()
@@ -49,25 +57,39 @@ def main() -> None:
     print(f"{data.mesh.n_tets} tets, {data.mesh.n_vertices} vertices; {len(data.train)} training frames, "
           f"{len(data.val)} validation frames; data {time.perf_counter() - t0:.1f} s")
     extra = {} if args.val_every is None else {"val_every": args.val_every if args.val_every == "auto" else int(args.val_every)}
-    cfg = TrainConfig(epochs=args.epochs, points_per_frame=args.points, device=args.device, progress=False, extension=0,
-                      cubature_points=50, cubature_candidates=256, **extra)
+    trained = {}
+    for graph in {"on": (True,), "off": (False,), "both": (True, False)}[args.cuda_graph]:
+        cfg = TrainConfig(epochs=args.epochs, points_per_frame=args.points, device=args.device, progress=False, extension=0,
+                          cubature_points=50, cubature_candidates=256, cuda_graph=graph, **extra)
+        trained[graph] = timed_training(data, cfg, args)
+    if len(trained) == 2:
+        a, b = trained[True], trained[False]
+        print(f"CUDA graphs against eager steps: weights apart by {np.max(np.abs(a - b)) / np.max(np.abs(b)):.1e} of the largest "
+              f"(max norm), {np.linalg.norm(a - b) / np.linalg.norm(b):.1e} (2-norm)")
+    if args.bare:
+        bare_steps(data, cfg, ModelConfig(latent_dim=args.rank), args.bare)
+    if args.graph_check:
+        graph_check(data, cfg, ModelConfig(latent_dim=args.rank), args.graph_check)
+
+
+def timed_training(data: TrainingData, cfg: TrainConfig, args) -> np.ndarray:
+    """Train with ``cfg``, print what its epochs cost, and return the trained weights (flat, float64)."""
     t0 = time.perf_counter()
     with warnings.catch_warnings(), tempfile.TemporaryDirectory() as tmp:
         warnings.simplefilter("ignore")
         model = train(data, Path(tmp) / "bench.lcm" if args.save else None, cfg, ModelConfig(latent_dim=args.rank))
     total = time.perf_counter() - t0
-    rows = model.metadata["history"][1:] or model.metadata["history"]  # the first epoch warms up
+    rows = model.metadata["history"][1:] or model.metadata["history"]  # the first epoch warms up (and captures)
     steps = np.mean([r["train_seconds"] for r in rows])
     after = np.mean([r["epoch_seconds"] - r["train_seconds"] for r in rows])
     batches = -(-len(data.train) // cfg.batch_frames)
     weights = torch.cat([p.detach().double().flatten().cpu() for p in model.net.parameters()]).numpy()
-    print(f"device {model.metadata['accelerator']}, r = {args.rank}, {args.points} points a frame: "
-          f"steps {steps:.3f} s an epoch ({1e3 * steps / batches:.2f} ms a step, {batches} steps), "
-          f"after them {after:.3f} s an epoch; fit {model.metadata['fit_seconds']:.1f} s for {args.epochs} epochs, "
-          f"train() {total:.1f} s in all")
+    print(f"device {model.metadata['accelerator']}, r = {args.rank}, {args.points} points a frame, "
+          f"{model.metadata['cuda_graphs']['graphs']} CUDA graphs: steps {steps:.3f} s an epoch ({1e3 * steps / batches:.2f} ms a step, "
+          f"{batches} steps), after them {after:.3f} s an epoch; fit {model.metadata['fit_seconds']:.1f} s for {args.epochs} "
+          f"epochs, train() {total:.1f} s in all; validation projection error {model.metadata['final'].get('val_proj_residual', float('nan')):.4g}")
     print(f"weights sha256 {hashlib.sha256(weights.tobytes()).hexdigest()[:16]}")
-    if args.bare:
-        bare_steps(data, cfg, ModelConfig(latent_dim=args.rank), args.bare)
+    return weights
 
 
 def bare_steps(data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, steps: int) -> None:
@@ -104,6 +126,42 @@ def bare_steps(data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, steps: i
     ops = sum(e.count for e in prof.key_averages() if e.key.startswith("aten::"))
     print(f"bare steps: {1e3 * seconds:.2f} ms a step (best of 3 rounds of {steps}); {launches / steps:.0f} kernel launches "
           f"and {ops / steps:.0f} aten calls a step")
+
+
+def graph_check(data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, steps: int) -> None:
+    """The training step's pass replayed from a CUDA graph (:class:`licrom.learn.training.step_graph.StepGraphs`)
+    against the same pass run eagerly at the same weights, on ``steps`` batches and point draws (the last batch
+    shorter, so that a second graph is captured): the largest relative differences of loss and gradients."""
+    from licrom.learn.training.lightning import _lightning_classes
+    from licrom.learn.training.sampling import _sample_points
+    from licrom.learn.training.step_graph import StepGraphs
+
+    device = torch.device("cuda")
+    module = _lightning_classes()["LicromModule"](mcfg.to_dict(), cfg.to_dict())
+    module.net.set_normalization(data.x_center, data.x_scale, data.u_scale)
+    module.attach(data)
+    module.to(device)
+    bank = module._ensure_bank()
+    params = list(module.net.parameters())
+    graphs = StepGraphs(params, module._step_loss)
+    g = torch.Generator(device=device).manual_seed(0)
+    worst_loss = worst_grad = 0.0
+    for i in range(steps):
+        batch = torch.randperm(len(data.train), device=device, generator=g)[: cfg.batch_frames - (i == steps - 1)]
+        inputs = (batch, *_sample_points(bank, cfg.points_per_frame, cfg.sample, g))
+        for p in params:
+            p.grad = None
+        loss = module._step_loss(*inputs)
+        loss.backward()
+        eager = [p.grad.clone() for p in params]
+        replayed = graphs.loss(*inputs).clone()
+        worst_loss = max(worst_loss, float(abs(replayed - loss.detach()) / abs(loss.detach())))
+        worst_grad = max(worst_grad, max(float((p.grad - e).norm() / e.norm().clamp_min(1e-30)) for p, e in zip(params, eager)))
+        with torch.no_grad():  # move the weights as a step would, so that each check starts elsewhere
+            for p, e in zip(params, eager):
+                p -= 1e-3 * e.sign()
+    print(f"graph check, {steps} passes ({graphs.captured} graphs): loss apart by at most {worst_loss:.1e}, "
+          f"each parameter's gradient by at most {worst_grad:.1e} (relative 2-norm)")
 
 
 if __name__ == "__main__":

@@ -81,6 +81,9 @@ class TrainConfig:
             again from its start, twice this process's age is added
             (:func:`licrom.learn.training.run.join_timeout_s`).
         precision: Lightning precision string (``"32-true"``; ``"bf16-mixed"`` on GPUs).
+        cuda_graph: replay each training step's forward and backward pass from a CUDA graph where training runs
+            on one GPU at 32-bit precision with the ``"pod"`` objective (:mod:`licrom.learn.training.step_graph`);
+            elsewhere, or with False, every step runs eagerly. The optimiser and its schedule are unchanged.
         checkpoint_dir: Lightning checkpoints; default ``<model>.checkpoints`` beside the model.
         checkpoint_every: epochs between checkpoints (``last.ckpt`` is overwritten).
         resume: continue from the most recently written checkpoint of the same run (data, r,
@@ -135,6 +138,7 @@ class TrainConfig:
     nodes: int = 1
     join_timeout_s: float = 120.0
     precision: str = "32-true"
+    cuda_graph: bool = True
     checkpoint_dir: str | None = None
     checkpoint_every: int = 1
     resume: bool = False
@@ -205,6 +209,8 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.join_timeout_s must be a finite number of seconds > 0, got {jt!r}")
         if self.max_time_s is not None and (not isinstance(self.max_time_s, (int, float)) or not self.max_time_s > 0):
             raise ConfigError(f"TrainConfig.max_time_s must be None or a positive number of seconds, got {self.max_time_s!r}")
+        if not isinstance(self.cuda_graph, bool):
+            raise ConfigError(f"TrainConfig.cuda_graph must be True or False, got {self.cuda_graph!r}")
         if self.num_threads is not None and (not isinstance(self.num_threads, int) or self.num_threads < 1):
             raise ConfigError(f"TrainConfig.num_threads must be None or an integer >= 1, got {self.num_threads!r}")
 

@@ -15,6 +15,15 @@ from .config import TrainConfig, write_csv
 from .evaluation import _encode_frames, _encoder_frames, _evaluate_tensors
 from .objectives import _pod_loss, pod_targets
 from .sampling import _Bank, _interpolate, _sample_points
+from .step_graph import StepGraphs
+
+
+def graph_steps(module: Any) -> bool:
+    """Whether a fit of ``module`` (a ``LicromModule`` being fitted) replays its passes from CUDA graphs: where
+    ``TrainConfig.cuda_graph`` is set, with the ``"pod"`` objective, on one CUDA device at 32-bit precision."""
+    cfg, trainer = module.tcfg, module.trainer
+    return bool(cfg.cuda_graph and cfg.objective == "pod" and module.device.type == "cuda" and trainer.world_size == 1
+                and str(trainer.precision).startswith("32"))
 
 
 def _lightning_classes() -> dict[str, Any]:
@@ -64,6 +73,7 @@ def _lightning_classes() -> dict[str, Any]:
             # step's time (0.85 of 2.6 ms on the CPU) and it is read once an epoch.
             self._loss_sum: torch.Tensor | None = None
             self._loss_frames = 0
+            self._graphs: StepGraphs | None = None
 
         def attach(self, data: TrainingData) -> None:
             self._data = data
@@ -97,22 +107,49 @@ def _lightning_classes() -> dict[str, Any]:
 
         def on_fit_start(self) -> None:
             self._ensure_bank()
+            # A fresh set of graphs each fit (an extension's fit loads its checkpoint into the same parameters).
+            self._graphs = (StepGraphs(list(self.net.parameters()), self._step_loss, capture=self.device.type == "cuda")
+                            if graph_steps(self) else None)
+
+        @property
+        def graphs_captured(self) -> int:
+            """CUDA graphs the training steps of this fit replay (0: eager steps)."""
+            return 0 if self._graphs is None else self._graphs.captured
+
+        @property
+        def graph_passes(self) -> int:
+            """The fit's passes that went through :class:`StepGraphs` (replayed, or run by it without capture)."""
+            return 0 if self._graphs is None else self._graphs.passes
+
+        def _step_loss(self, batch: torch.Tensor, x: torch.Tensor, verts: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+            """The step's loss on the frames ``batch`` at the sampled points ``x`` (made from ``verts`` and ``w``)."""
+            bank = self._bank
+            assert bank is not None
+            if self.tcfg.objective == "pod":
+                # The encoder reads the first encoder_points points only: interpolating the frames' displacements
+                # at all of them (16 frames x 2048 points) took a tenth of a step's time.
+                k = self.tcfg.encoder_points
+                u = _interpolate(bank.train, batch, verts[:k], w[:k])
+                return _pod_loss(self.net, x, u, _interpolate(bank.pod_modes, None, verts, w), bank.pod_latents[batch],
+                                 bank.pod_weights, self.tcfg.encoder_points)
+            u = _interpolate(bank.train, batch, verts, w)
+            return self.net(x, u, self.tcfg.encoder_points, self.tcfg.projection_weight)
+
+        def optimizer_zero_grad(self, epoch: int, batch_idx: int, optimizer: Any) -> None:
+            if self._graphs is None:  # a replayed pass zeroes the gradients it shares with the graph itself
+                optimizer.zero_grad()
+
+        def backward(self, loss: torch.Tensor, *args: Any, **kwargs: Any) -> None:
+            if self._graphs is None:  # a replayed pass has run its backward already
+                super().backward(loss, *args, **kwargs)
 
         def training_step(self, batch: torch.Tensor, batch_idx: int) -> torch.Tensor:
             bank = self._ensure_bank()
             gen = self._gen
             gen.manual_seed((self.tcfg.seed * 1_000_003 + self.global_step) * 64 + self.global_rank)
             x, verts, w = _sample_points(bank, self.tcfg.points_per_frame, self.tcfg.sample, gen)
-            if self.tcfg.objective == "pod":
-                # The encoder reads the first encoder_points points only: interpolating the frames' displacements
-                # at all of them (16 frames x 2048 points) took a tenth of a step's time.
-                k = self.tcfg.encoder_points
-                u = _interpolate(bank.train, batch, verts[:k], w[:k])
-                loss = _pod_loss(self.net, x, u, _interpolate(bank.pod_modes, None, verts, w), bank.pod_latents[batch],
-                                 bank.pod_weights, self.tcfg.encoder_points)
-            else:
-                u = _interpolate(bank.train, batch, verts, w)
-                loss = self.net(x, u, self.tcfg.encoder_points, self.tcfg.projection_weight)
+            step = self._step_loss if self._graphs is None else self._graphs.loss
+            loss = step(batch, x, verts, w)
             frames_loss = loss.detach().double() * len(batch)
             self._loss_sum = frames_loss if self._loss_sum is None else self._loss_sum + frames_loss
             self._loss_frames += len(batch)

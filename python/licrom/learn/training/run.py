@@ -423,6 +423,7 @@ def train(
         "subspace": subspace,
         "accelerator": accelerator,
         "world_size": trainer.world_size,
+        "cuda_graphs": {"graphs": module.graphs_captured, "passes": module.graph_passes},
         "torch_version": torch.__version__,
         "lightning_version": pl.__version__,
         "history": rows,

@@ -1,0 +1,55 @@
+"""The training step's pass through StepGraphs: the same gradients and the same training as eager steps.
+
+Capture itself needs a GPU (``benches/training_epoch_bench.py --graph-check`` compares replayed and eager passes
+there); on this CPU StepGraphs runs its pass without capture, which checks the rest of the path: the gradients it
+shares and zeroes, and the Lightning hooks that leave them to it.
+"""
+
+import numpy as np
+import pytest
+import torch
+from licrom import ConfigError
+from licrom.learn.model import ModelConfig
+from licrom.learn.training import TrainConfig, lightning, train
+from licrom.learn.training.step_graph import StepGraphs
+from licrom.learn.training_data import make_synthetic_trajectories
+
+
+def test_pass_leaves_the_gradients_of_a_fresh_backward():
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Linear(3, 8), torch.nn.ELU(), torch.nn.Linear(8, 2))
+    params = list(net.parameters())
+    graphs = StepGraphs(params, lambda x, y: torch.mean((net(x) - y) ** 2), capture=False)
+    for batch in (5, 5, 3):  # the gradients of one pass must not leak into the next
+        x, y = torch.randn(batch, 3), torch.randn(batch, 2)
+        loss = graphs.loss(x, y)
+        shared = [p.grad.clone() for p in params]
+        net.zero_grad(set_to_none=True)
+        expected = torch.mean((net(x) - y) ** 2)
+        expected.backward()
+        assert torch.equal(loss, expected)
+        for got, p in zip(shared, params):
+            assert torch.equal(got, p.grad)
+        for got, p in zip(shared, params):  # the next pass writes into the shared tensors again
+            p.grad = got
+    assert graphs.passes == 3 and graphs.captured == 0
+
+
+def test_training_through_step_graphs_matches_eager_training(coarse_box, monkeypatch):
+    trajs = make_synthetic_trajectories(coarse_box, count=4, frames=10, seed=3, modes=3, rotation=True)
+    # 7 frames a batch: the epoch's last batch is shorter, as a second graph would be
+    cfg = TrainConfig(epochs=3, batch_frames=7, points_per_frame=128, encoder_points=64, val_points=64, progress=False,
+                      extension=0.0, device="cpu", cubature_points=20, cubature_candidates=64)
+    eager = train(trajs, None, cfg, ModelConfig(latent_dim=3))
+    monkeypatch.setattr(lightning, "graph_steps", lambda module: True)
+    through = train(trajs, None, cfg, ModelConfig(latent_dim=3))
+    assert eager.metadata["cuda_graphs"]["passes"] == 0
+    frames = through.metadata["data"]["train_frames"]
+    assert frames % 7 and through.metadata["cuda_graphs"]["passes"] == 3 * -(-frames // 7)  # every step of 3 epochs
+    for a, b in zip(eager.net.parameters(), through.net.parameters()):
+        np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
+
+
+def test_cuda_graph_must_be_a_bool():
+    with pytest.raises(ConfigError, match="cuda_graph"):
+        TrainConfig(cuda_graph="yes")
