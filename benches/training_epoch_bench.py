@@ -44,9 +44,6 @@ def main() -> None:
                     help="also time N training steps without Lightning (the module's step, backward, Adam) and count "
                          "their kernel launches")
     ap.add_argument("--cuda-graph", choices=("on", "off", "both"), default="on", help="TrainConfig.cuda_graph (both: each, compared)")
-    ap.add_argument("--graph-check", type=int, default=0, metavar="N",
-                    help="also replay N steps' passes from a CUDA graph beside eager passes at the same weights, and "
-                         "print how far their losses and gradients are apart")
     ap.add_argument("--save", action="store_true", help="write the model, its loss curves and a checkpoint every epoch "
                     "(as `licrom train` does) to a temporary folder")
     args = ap.parse_args()
@@ -68,8 +65,6 @@ def main() -> None:
               f"(max norm), {np.linalg.norm(a - b) / np.linalg.norm(b):.1e} (2-norm)")
     if args.bare:
         bare_steps(data, cfg, ModelConfig(latent_dim=args.rank), args.bare)
-    if args.graph_check:
-        graph_check(data, cfg, ModelConfig(latent_dim=args.rank), args.graph_check)
 
 
 def timed_training(data: TrainingData, cfg: TrainConfig, args) -> np.ndarray:
@@ -126,42 +121,6 @@ def bare_steps(data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, steps: i
     ops = sum(e.count for e in prof.key_averages() if e.key.startswith("aten::"))
     print(f"bare steps: {1e3 * seconds:.2f} ms a step (best of 3 rounds of {steps}); {launches / steps:.0f} kernel launches "
           f"and {ops / steps:.0f} aten calls a step")
-
-
-def graph_check(data: TrainingData, cfg: TrainConfig, mcfg: ModelConfig, steps: int) -> None:
-    """The training step's pass replayed from a CUDA graph (:class:`licrom.learn.training.step_graph.StepGraphs`)
-    against the same pass run eagerly at the same weights, on ``steps`` batches and point draws (the last batch
-    shorter, so that a second graph is captured): the largest relative differences of loss and gradients."""
-    from licrom.learn.training.lightning import _lightning_classes
-    from licrom.learn.training.sampling import _sample_points
-    from licrom.learn.training.step_graph import StepGraphs
-
-    device = torch.device("cuda")
-    module = _lightning_classes()["LicromModule"](mcfg.to_dict(), cfg.to_dict())
-    module.net.set_normalization(data.x_center, data.x_scale, data.u_scale)
-    module.attach(data)
-    module.to(device)
-    bank = module._ensure_bank()
-    params = list(module.net.parameters())
-    graphs = StepGraphs(params, module._step_loss)
-    g = torch.Generator(device=device).manual_seed(0)
-    worst_loss = worst_grad = 0.0
-    for i in range(steps):
-        batch = torch.randperm(len(data.train), device=device, generator=g)[: cfg.batch_frames - (i == steps - 1)]
-        inputs = (batch, *_sample_points(bank, cfg.points_per_frame, cfg.sample, g))
-        for p in params:
-            p.grad = None
-        loss = module._step_loss(*inputs)
-        loss.backward()
-        eager = [p.grad.clone() for p in params]
-        replayed = graphs.loss(*inputs).clone()
-        worst_loss = max(worst_loss, float(abs(replayed - loss.detach()) / abs(loss.detach())))
-        worst_grad = max(worst_grad, max(float((p.grad - e).norm() / e.norm().clamp_min(1e-30)) for p, e in zip(params, eager)))
-        with torch.no_grad():  # move the weights as a step would, so that each check starts elsewhere
-            for p, e in zip(params, eager):
-                p -= 1e-3 * e.sign()
-    print(f"graph check, {steps} passes ({graphs.captured} graphs): loss apart by at most {worst_loss:.1e}, "
-          f"each parameter's gradient by at most {worst_grad:.1e} (relative 2-norm)")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,9 @@ gradients it leaves, so the optimiser, its learning-rate schedule and checkpoint
 
 The gradients live in tensors allocated once, before the first capture, and each graph zeroes them before its
 backward pass accumulates into them, so that graphs of several batch sizes (an epoch's last batch may be shorter)
-share one set and the optimiser always reads the gradients of the pass just replayed.
+share one set and the optimiser always reads the gradients of the pass just replayed. They are held here and set as
+the parameters' ``.grad`` before every pass: Lightning sets those to None between epochs, and a graph replayed into
+tensors nobody holds would write into freed memory (measured: a validation's indices overwritten, an index assert).
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ class StepGraphs:
         self.loss_of = loss_of
         self.capture = capture
         self._graphs: dict[tuple, _Captured] = {}
+        self._grads: list[torch.Tensor] | None = None
         self.passes = 0
 
     @property
@@ -59,8 +62,8 @@ class StepGraphs:
         """Replay the pass for ``inputs``: the loss (a tensor the next replay overwrites) and each parameter's
         ``.grad``, as ``loss_of(*inputs).backward()`` on zeroed gradients would leave them."""
         self.passes += 1
+        self._set_grads()
         if not self.capture:
-            self._allocate_grads()
             return self._pass(tuple(inputs))
         key = tuple((t.shape, t.dtype) for t in inputs)
         captured = self._graphs.get(key)
@@ -78,13 +81,13 @@ class StepGraphs:
         loss.backward()
         return loss
 
-    def _allocate_grads(self) -> None:
-        for p in self.parameters:
-            if p.grad is None:
-                p.grad = torch.zeros_like(p)
+    def _set_grads(self) -> None:
+        if self._grads is None:
+            self._grads = [torch.zeros_like(p) for p in self.parameters]
+        for p, g in zip(self.parameters, self._grads):
+            p.grad = g
 
     def _capture(self, inputs: Sequence[torch.Tensor]) -> _Captured:
-        self._allocate_grads()
         static = tuple(t.detach().clone() for t in inputs)
         side = torch.cuda.Stream()
         side.wait_stream(torch.cuda.current_stream())
