@@ -9,7 +9,7 @@ hooks that leave them to it.
 import numpy as np
 import pytest
 import torch
-from licrom import ConfigError
+from licrom import ConfigError, LicromWarning
 from licrom.learn.model import ModelConfig
 from licrom.learn.training import TrainConfig, lightning, train
 from licrom.learn.training.step_graph import StepGraphs
@@ -38,6 +38,27 @@ def test_pass_leaves_the_gradients_of_a_fresh_backward():
     graphs.loss(torch.randn(4, 3), torch.randn(4, 2))
     assert all(p.grad is g for p, g in zip(params, grads))  # every pass sets the tensors it writes (a graph's own)
     assert graphs.passes == 5 and graphs.captured == 0
+
+
+def test_a_failed_capture_warns_and_runs_the_pass_eagerly(monkeypatch):
+    torch.manual_seed(1)
+    net = torch.nn.Linear(3, 2)
+    graphs = StepGraphs(list(net.parameters()), lambda x: net(x).square().mean())
+
+    def fails(inputs):
+        raise RuntimeError("CUDA error: operation not permitted when stream is capturing\nmore")
+
+    monkeypatch.setattr(graphs, "_capture", fails)
+    monkeypatch.setattr(torch.cuda, "synchronize", lambda: None)  # no CUDA here
+    x = torch.randn(4, 3)
+    with pytest.warns(LicromWarning, match="operation not permitted.*run eagerly"):
+        loss = graphs.loss(x)
+    assert not graphs.capture and graphs.captured == 0
+    assert torch.equal(loss, net(x).square().mean())
+    grad = net.weight.grad.clone()
+    net.zero_grad(set_to_none=True)
+    net(x).square().mean().backward()
+    assert torch.equal(grad, net.weight.grad)
 
 
 def test_training_through_step_graphs_matches_eager_training(coarse_box, monkeypatch):

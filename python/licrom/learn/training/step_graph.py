@@ -11,14 +11,20 @@ backward pass accumulates into them, so that graphs of several batch sizes (an e
 share one set and the optimiser always reads the gradients of the pass just replayed. They are held here and set as
 the parameters' ``.grad`` before every pass: Lightning sets those to None between epochs, and a graph replayed into
 tensors nobody holds would write into freed memory (measured: a validation's indices overwritten, an index assert).
+
+Where a capture fails (an operation that cannot be recorded: a host synchronisation, or a library or driver that
+does not support it), a :class:`~licrom.errors.LicromWarning` says so and every later pass runs eagerly.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
+
+from ...errors import LicromWarning
 
 __all__ = ["WARMUP_PASSES", "StepGraphs"]
 
@@ -68,7 +74,14 @@ class StepGraphs:
         key = tuple((t.shape, t.dtype) for t in inputs)
         captured = self._graphs.get(key)
         if captured is None:
-            captured = self._graphs[key] = self._capture(inputs)
+            try:
+                captured = self._graphs[key] = self._capture(inputs)
+            except RuntimeError as exc:  # torch's CUDA errors (AcceleratorError among them) are RuntimeErrors
+                warnings.warn(f"recording the training step in a CUDA graph failed ({str(exc).splitlines()[0]}); the steps "
+                              "run eagerly (TrainConfig(cuda_graph=False) asks for that directly)", LicromWarning, stacklevel=2)
+                self.capture = False
+                torch.cuda.synchronize()
+                return self._pass(tuple(inputs))
         for static, value in zip(captured.inputs, inputs):
             static.copy_(value)
         captured.graph.replay()
