@@ -321,13 +321,14 @@ def test_cli_train(data_dir, tmp_path):
     back = Model.load(out)
     assert back.n_learned == 2 and back.frame == "body"  # body frame by default
     assert back.metadata["train_config"]["pod_weighting"] == "run"  # every training run counts the same by default
+    assert back.metadata["train_config"]["cuda_graph"] is True  # on by default (used only on one GPU)
     world = tmp_path / "world.lcm"
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(world), "--modes", "2", "--epochs", "1", "--points", "128",
                                    "--batch-frames", "4", "--device", "cpu", "--quiet", "--frame", "world", "--objective", "autoencoder",
-                                   "--pod-weighting", "frame"])
+                                   "--pod-weighting", "frame", "--no-cuda-graph"])
     assert res.exit_code == 0, res.output
     back = Model.load(world)
-    assert back.frame == "world" and back.n_modes == 14
+    assert back.frame == "world" and back.n_modes == 14 and back.metadata["train_config"]["cuda_graph"] is False
     assert back.metadata["train_config"]["objective"] == "autoencoder" and back.metadata["train_config"]["pod_weighting"] == "frame"
     res = CliRunner().invoke(cli, ["train", str(data_dir), "-o", str(tmp_path / "x.lcm"), "--frame", "lab"])
     assert res.exit_code != 0 and "body" in res.output and "world" in res.output
