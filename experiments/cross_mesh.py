@@ -292,7 +292,7 @@ def main() -> None:
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--small", action="store_true", help="tiny meshes, 20 steps, one scene, a 1-epoch model: writes nothing under --docs")
     ap.add_argument("--record-unconverged", action="store_true",
-                    help="full runs record unconverged steps instead of stopping (SolverParams(on_failure='record'), as at 100k tets)")
+                    help="held-out full runs record unconverged steps instead of stopping (SolverParams(on_failure='record'), as at 100k tets)")
     ap.add_argument("--truths-only", action="store_true", help="run and cache the full runs of every mesh, then stop (no model needed)")
     bfe.add_physics_arguments(ap)
     ap.add_argument("--section", default=SECTION_TITLE, help="title of the docs section written")
@@ -307,13 +307,10 @@ def main() -> None:
         return caches.get(resolution, work / f"r{resolution}")
 
     def family(resolution: int) -> bfe.Family:
-        fam = bfe.physics_of(family_on(args.family, resolution), args)
-        if not args.record_unconverged:
-            return fam
-        record = SolverParams(on_failure="record")
-        return dataclasses.replace(fam, cases=[dataclasses.replace(c, scene=c.scene.replace(solver=record)) for c in fam.cases])
+        return bfe.physics_of(family_on(args.family, resolution), args)
 
     def held(fam: bfe.Family) -> list[bfe.Case]:
+        """The held-out cases on ``fam``'s mesh, recording unconverged steps with ``--record-unconverged``."""
         cases = held_cases(args.family, fam, args.drawn)
         if not args.record_unconverged:
             return cases
