@@ -6,6 +6,8 @@ pass without capture, which checks the rest of the path: the gradients it holds,
 hooks that leave them to it.
 """
 
+import contextlib
+
 import numpy as np
 import pytest
 import torch
@@ -59,6 +61,36 @@ def test_a_failed_capture_warns_and_runs_the_pass_eagerly(monkeypatch):
     net.zero_grad(set_to_none=True)
     net(x).square().mean().backward()
     assert torch.equal(grad, net.weight.grad)
+
+
+class _RecordedGraph:
+    """Stands in for ``torch.cuda.CUDAGraph`` on the CPU: the captured block runs once, replays do nothing."""
+
+    def replay(self):
+        pass
+
+
+class _Stream:
+    def wait_stream(self, other):
+        pass
+
+
+def test_a_captured_loss_holds_no_autograd_graph(monkeypatch):
+    # A loss kept with its autograd graph keeps the parameters' gradient accumulators of one capture's stream alive
+    # into the next capture, which torch warns about (seen on an H200 when an epoch's shorter last batch is captured).
+    monkeypatch.setattr(torch.cuda, "Stream", _Stream)
+    monkeypatch.setattr(torch.cuda, "current_stream", _Stream)
+    monkeypatch.setattr(torch.cuda, "stream", lambda stream: contextlib.nullcontext())
+    monkeypatch.setattr(torch.cuda, "CUDAGraph", _RecordedGraph)
+    monkeypatch.setattr(torch.cuda, "graph", lambda graph: contextlib.nullcontext())
+    torch.manual_seed(2)
+    net = torch.nn.Linear(3, 2)
+    graphs = StepGraphs(list(net.parameters()), lambda x: net(x).square().mean())
+    x = torch.randn(4, 3)
+    loss = graphs.loss(x)
+    assert graphs.captured == 1 and graphs.capture
+    assert loss.grad_fn is None and not loss.requires_grad
+    assert torch.equal(loss, net(x).square().mean().detach())
 
 
 def test_training_through_step_graphs_matches_eager_training(coarse_box, monkeypatch):

@@ -111,4 +111,6 @@ class StepGraphs:
         graph = torch.cuda.CUDAGraph()
         with torch.cuda.graph(graph):
             loss = self._pass(static)
-        return _Captured(graph, static, loss)
+        # Detached: the replays write into its storage, and holding its autograd graph would keep the parameters'
+        # gradient accumulators of this capture's stream alive into the next capture (torch's stream-mismatch warning).
+        return _Captured(graph, static, loss.detach())
