@@ -30,6 +30,10 @@ from ..scene.sweep import held_out_pairs, in_sweep, sweep_axis
 __all__ = ["DemoConfig", "run_demo"]
 
 
+TRAIN_DEVICES = ("cpu", "auto", "cuda")
+"""Accepted values of :attr:`DemoConfig.train_device` (those of :attr:`licrom.TrainConfig.device`)."""
+
+
 @dataclass(frozen=True)
 class DemoConfig:
     """Settings of the demo. The defaults finish in under a minute on two CPU cores once warp's kernels are compiled.
@@ -59,6 +63,11 @@ class DemoConfig:
             fits to the training runs' forces (:attr:`licrom.TrainConfig.cubature_points`), which
             stops earlier once it matches them.
         device: warp device of the full simulations.
+        train_device: torch device of the training (:attr:`licrom.TrainConfig.device`): the CPU, where the
+            budget above was measured and where it trains as fast as a GPU does at this size (on an NVIDIA
+            H200 the same 10 epochs took 17 s, against 22 s on two CPU cores, and, being another draw of the
+            training points, landed 7.8 and 11.4 % non-rigid error: docs/results.md section 44); ``"auto"``
+            or ``"cuda"`` to train on a GPU.
         train_threads: CPU threads torch trains with (:attr:`licrom.TrainConfig.num_threads`; None:
             torch's default, every core).
         blas_threads: threads of numpy's and scipy's BLAS (their wheels' OpenBLAS) for the whole demo
@@ -76,6 +85,7 @@ class DemoConfig:
     epochs: int = 10
     cubature_points: int = 400
     device: str = "cpu"
+    train_device: str = "cpu"
     train_threads: int | None = 1
     blas_threads: int | None = 1
 
@@ -88,6 +98,8 @@ class DemoConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < (4 if name == "resolution" else 1):
                 raise ConfigError(f"DemoConfig.{name} must be an integer >= {4 if name == 'resolution' else 1}, got {value!r}")
         check_frame(self.frame, "DemoConfig.frame")
+        if self.train_device not in TRAIN_DEVICES:
+            raise ConfigError(f"DemoConfig.train_device must be one of {', '.join(map(repr, TRAIN_DEVICES))}, got {self.train_device!r}")
 
 
 def demo_scene(config: DemoConfig) -> SceneFile:
@@ -156,7 +168,7 @@ def _run_demo(config: DemoConfig, progress: bool) -> dict:
         out / "data", out / "model.lcm",
         # 64 encoder points (128 to validate), not 512: the POD objective trains the field, which makes the modes,
         # apart from the encoder, so the modes and the held-out errors are the same, and an epoch takes half the time.
-        TrainConfig(epochs=config.epochs, progress=progress, device="auto", cubature_points=config.cubature_points,
+        TrainConfig(epochs=config.epochs, progress=progress, device=config.train_device, cubature_points=config.cubature_points,
                     num_threads=config.train_threads, encoder_points=64, val_points=128),
         ModelConfig(latent_dim=config.modes, frame=config.frame),
     )
