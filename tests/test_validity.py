@@ -147,7 +147,7 @@ def test_stepping_many_stops_a_diverging_simulation_even_when_recording_failures
 
 
 def test_first_touch_is_the_first_frame_within_the_tolerance_of_a_plane():
-    from licrom.validity import first_touch
+    from licrom.validity import TOUCH_BLOCK, first_touch
 
     ground = np.array([[0.0, 0.0, 1.0, 0.0, 0.5]])  # z >= 0
     heights = np.array([0.3, 0.1, 0.004, -0.01])  # one vertex falling through z = 0
@@ -158,3 +158,9 @@ def test_first_touch_is_the_first_frame_within_the_tolerance_of_a_plane():
     assert first_touch(frames, ground, 0.2) == 1
     assert first_touch(frames[:2], ground, 0.005) is None
     assert first_touch(frames, np.zeros((0, 5)), 0.005) is None
+    # in a later block of frames, and on its last frame
+    high = np.repeat(frames[:1], 3 * TOUCH_BLOCK, axis=0)
+    for touch in (TOUCH_BLOCK + 5, 2 * TOUCH_BLOCK - 1, 3 * TOUCH_BLOCK - 1):
+        late = high.copy()
+        late[touch:] = frames[2]
+        assert first_touch(late, ground, 0.005) == touch
