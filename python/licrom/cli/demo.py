@@ -31,7 +31,8 @@ __all__ = ["DemoConfig", "run_demo"]
 
 
 TRAIN_DEVICES = ("cpu", "auto", "cuda")
-"""Accepted values of :attr:`DemoConfig.train_device` (those of :attr:`licrom.TrainConfig.device`)."""
+"""Accepted values of :attr:`DemoConfig.train_device`: those :attr:`licrom.TrainConfig.device` checks, named again here
+because importing the training package loads torch, which every command line call would then pay for."""
 
 
 @dataclass(frozen=True)
