@@ -2,9 +2,10 @@
 
 import numpy as np
 import pytest
-from licrom import ConfigError, ContactParams, FullSim, InitialState, Material, MeshBasis, Plane, Scene, ShapeError, SolverParams, _core, meshes
+from licrom import ConfigError, ContactParams, FullSim, InitialState, Material, MeshBasis, Plane, Scene, ShapeError, SolverParams, Trajectory, _core, meshes, validity
+from licrom._blas import blas_threads, numpy_blas_threads
 from licrom.errors import PhysicsWarning
-from licrom.reduced.body import BodyFrameSim
+from licrom.reduced.body import BodyFrameSim, _RecordedFrames
 from licrom.rigid import center_of_mass
 from licrom.subspace.basis import AffineBasis
 from licrom.subspace.body_basis import BodyFrameBasis, rigid_momenta
@@ -163,6 +164,68 @@ def test_recorded_frames_are_the_states_read_between_steps(integrator, monkeypat
     for f, (x, v) in enumerate(frames):
         np.testing.assert_allclose(recorded.displacements[f] + mesh.vertices, x, rtol=0, atol=1e-12)
         np.testing.assert_allclose(recorded.velocities[f], v, rtol=0, atol=1e-10 * scale)
+
+
+@pytest.mark.filterwarnings("ignore::licrom.AccuracyWarning")  # random modes miss the motion
+@pytest.mark.parametrize("integrator", ["backward_euler", "bdf2"])
+def test_frames_built_on_their_first_read_are_those_read_at_once_and_those_the_run_measured(integrator, monkeypatch, tmp_path):
+    # run() measures each frame's positions by blocks (of 2 here, the last one short) and leaves the trajectory's
+    # displacements and velocities to be built when first read: once, the same bits whatever the simulation did since.
+    monkeypatch.setattr("licrom.reduced.body._FRAME_BLOCK", 2)
+    builds = []
+    build = _RecordedFrames.build
+    monkeypatch.setattr(_RecordedFrames, "build", lambda self: builds.append(1) or build(self))
+    measured = []
+    depth = validity.penetration
+    monkeypatch.setattr("licrom.reduced.base.penetration", lambda x, planes: measured.append(np.array(x)) or depth(x, planes))
+    mesh = meshes.cheese(resolution=4)
+    scene = Scene(planes=(Plane.incline(25.0, 0.3, offset=0.12),), initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.4)),
+                  integrator=integrator)
+    learned = MeshBasis(mesh, 0.01 * np.random.default_rng(3).normal(size=(mesh.n_vertices, 3, 5)))
+    basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
+
+    def sim():
+        return BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+
+    at_once = sim().run(60, record_every=5)
+    frames = (at_once.displacements, at_once.velocities)
+    assert len(builds) == 1 and at_once.n_frames == 13
+    first = len(measured)
+    stepped = sim()
+    later = stepped.run(60, record_every=5)
+    assert len(builds) == 1  # the run built nothing
+    stepped.run(7)
+    stepped.set_state(velocities=np.zeros((mesh.n_vertices, 3)))
+    for a, b in zip((later.displacements, later.velocities), frames):
+        assert a.dtype == b.dtype == np.float64 and a.shape == b.shape == (13, mesh.n_vertices, 3) and np.array_equal(a, b)
+    for name in ("penetration", "min_det_f", "error_estimate", "times"):
+        assert np.array_equal(getattr(later, name), getattr(at_once, name))
+    # The run measured the positions of the frames built, bit for bit.
+    assert np.array_equal(np.array(measured[first:first + 13]) - mesh.vertices, later.displacements)
+    assert later.penetration[0] == 0 < later.penetration.max() and np.abs(later.velocities).max() > 0.1
+    back = Trajectory.load(later.save(tmp_path / "t.npz", precision="float64"))
+    assert np.array_equal(back.displacements, frames[0]) and np.array_equal(back.velocities, frames[1])
+    later.positions(3)
+    assert len(builds) == 2
+    # The first touch (frame 2, in the second block) is where one block over every frame finds it: the estimate runs from there.
+    monkeypatch.setattr("licrom.reduced.body._FRAME_BLOCK", 1000)
+    assert np.array_equal(sim().run(60, record_every=5).error_estimate, later.error_estimate) and not later.error_estimate[:2].any()
+
+
+def test_frames_are_built_with_the_blas_threads_of_their_run(monkeypatch):
+    # OpenBLAS rounds a product differently with another thread count: frames read later multiply as their run did.
+    if numpy_blas_threads() is None:
+        pytest.skip("numpy's BLAS is not its wheel's OpenBLAS")
+    seen = []
+    shapes = _RecordedFrames._shapes
+    monkeypatch.setattr(_RecordedFrames, "_shapes", lambda self, block: seen.append(numpy_blas_threads()) or shapes(self, block))
+    mesh = meshes.box((0.2, 0.1, 0.1), resolution=2)
+    basis = BodyFrameBasis(mesh, density=Scene().material.density)
+    with blas_threads(1):
+        traj = BodyFrameSim(basis, mesh, Scene(planes=()), cubature=Cubature.full(mesh)).run(3)
+    assert seen == [1]
+    with blas_threads(2):
+        assert traj.velocities.shape == (4, mesh.n_vertices, 3) and seen == [1, 1] and numpy_blas_threads() == 2
 
 
 def test_basis_carries_no_momentum_on_an_anisotropic_body():

@@ -1,8 +1,10 @@
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
 from licrom import FileFormatError, Plane, Scene, ShapeError, SolverError, Trajectory, meshes
+from licrom.records.trajectory import DeferredFrames
 
 
 def _traj(frames=3):
@@ -174,3 +176,57 @@ def test_bad_impact_frames_are_refused(impacts, times, error):
     t = _traj()
     with pytest.raises(error, match="impact"):
         dataclasses.replace(t, impact_displacements=impacts, impact_times=np.array(times))
+
+
+def _deferred(t, build):
+    """``t`` with its frames given as one :class:`DeferredFrames` of ``build``."""
+    frames = DeferredFrames(t.displacements.shape, build)
+    return Trajectory(t.rest_positions, t.tets, frames, frames, t.times, t.scene, info=t.info)
+
+
+def test_deferred_frames_are_built_on_their_first_read_once_and_read_as_frames_given_at_once(tmp_path):
+    t = _traj()
+    builds = []
+
+    def build():
+        builds.append(len(builds))
+        return t.displacements.tolist(), t.velocities.astype(np.float32)  # converted as arrays given at once are
+
+    lazy = _deferred(t, build)
+    assert repr(lazy) == repr(t) and lazy.valid.all() and not builds
+    given = Trajectory(t.rest_positions, t.tets, t.displacements.tolist(), t.velocities.astype(np.float32), t.times, t.scene)
+    for name in ("velocities", "displacements"):
+        a = getattr(lazy, name)
+        assert a.dtype == np.float64 and np.array_equal(a, getattr(given, name))
+    np.testing.assert_array_equal(lazy.positions(1), given.positions(1))
+    np.testing.assert_array_equal(lazy.centers_of_mass(), given.centers_of_mass())
+    # Saving writes the frames built.
+    back = Trajectory.load(lazy.save(tmp_path / "t.npz", precision="float64"))
+    assert np.array_equal(back.displacements, given.displacements) and np.array_equal(back.velocities, given.velocities)
+    assert builds == [0]
+    # A frame array assigned before the first read stays; a pickle holds the frames, not the build.
+    lazy = _deferred(t, build)
+    lazy.velocities = np.zeros_like(t.velocities)
+    assert np.array_equal(lazy.displacements, given.displacements) and not lazy.velocities.any()
+    copy = pickle.loads(pickle.dumps(_deferred(t, lambda: (t.displacements, t.velocities))))
+    assert np.array_equal(copy.displacements, t.displacements) and np.array_equal(copy.velocities, t.velocities)
+    with pytest.raises(AttributeError, match="no attribute 'speeds'"):
+        _ = lazy.speeds
+
+
+def test_deferred_frames_are_refused_as_frames_given_at_once():
+    t = _traj()
+    frames = DeferredFrames((2, len(t.rest_positions), 3), lambda: (t.displacements, t.velocities))
+    with pytest.raises(ShapeError, match=r"both displacements and velocities, with shape \(frames, vertices, 3\) = \(3, 27, 3\)"):
+        Trajectory(t.rest_positions, t.tets, frames, frames, t.times, t.scene)
+    frames = DeferredFrames(t.displacements.shape, lambda: (t.displacements, t.velocities))
+    with pytest.raises(ShapeError, match="both displacements and velocities"):
+        Trajectory(t.rest_positions, t.tets, frames, t.velocities, t.times, t.scene)
+    # A build's frames are checked when it runs, on the first read.
+    bad = t.velocities.copy()
+    bad[1, 2, 0] = np.inf
+    lazy = _deferred(t, lambda: (t.displacements, bad))
+    with pytest.raises(SolverError, match="velocities holds NaN or inf"):
+        _ = lazy.displacements
+    with pytest.raises(ShapeError, match=r"displacements must have shape \(frames, vertices, 3\) = \(3, 27, 3\), got \(2, 27, 3\)"):
+        _ = _deferred(t, lambda: (t.displacements[:2], t.velocities)).velocities

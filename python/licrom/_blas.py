@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["blas_threads"]
+__all__ = ["blas_threads", "numpy_blas_threads"]
 
 
 @functools.cache
@@ -53,3 +53,9 @@ def blas_threads(count: int | None) -> Iterator[None]:
     finally:
         for (_, put), n in zip(libraries, before):
             put(n)
+
+
+def numpy_blas_threads() -> int | None:
+    """Threads of numpy's BLAS (its wheel's OpenBLAS) now, for :func:`blas_threads` to restore later; None where it is not that OpenBLAS."""
+    libraries = _openblas()
+    return libraries[0][0]() if libraries else None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -17,11 +18,34 @@ from ..rigid import center_of_mass
 from ..scene.scene import Scene
 from ..validity import PENETRATION_LIMIT
 
-__all__ = ["READABLE_VERSIONS", "TRAJECTORY_FORMAT_VERSION", "Trajectory"]
+__all__ = ["READABLE_VERSIONS", "TRAJECTORY_FORMAT_VERSION", "DeferredFrames", "Trajectory"]
 
 TRAJECTORY_FORMAT_VERSION = 2
 """Written when a run holds impact frames; otherwise version 1 (the same file without them), which older licrom reads."""
 READABLE_VERSIONS = (1, 2)
+
+_FRAMES = ("displacements", "velocities")
+"""The frame arrays a :class:`DeferredFrames` builds."""
+
+
+class DeferredFrames:
+    """A run's (f, n, 3) displacements and velocities, built when a :class:`Trajectory` first reads either, once.
+
+    Pass the same object as a trajectory's ``displacements`` and ``velocities``. A body-frame run records its
+    poses, and building every frame's n x 3 displacements and velocities from them is most of what a run does
+    besides its steps, while most readers of a run read no frame (its summaries, ``min_det_f``, ``penetration``
+    and ``error_estimate`` are measured by the run itself): 2000 steps on 104k tets took 18.8 s with the frames
+    built and 10.5 s without, and the first read then builds them in 7.9 s.
+
+    Args:
+        shape: ``(f, n, 3)``, the shape of either array.
+        build: returns ``(displacements, velocities)``; the trajectory checks them as it checks arrays given
+            at once, when it calls it.
+    """
+
+    def __init__(self, shape: tuple[int, int, int], build: Callable[[], tuple[np.ndarray, np.ndarray]]) -> None:
+        self.shape = shape
+        self.build = build
 
 
 @dataclass
@@ -31,7 +55,8 @@ class Trajectory:
     Attributes:
         rest_positions: (n, 3) rest positions in m.
         tets: (m, 4) tets.
-        displacements: (f, n, 3) displacement from rest at each frame, m.
+        displacements: (f, n, 3) displacement from rest at each frame, m. Given as a :class:`DeferredFrames`
+            (with ``velocities``), both are built when first read, once: a NaN or inf in them raises then.
         velocities: (f, n, 3) velocity at each frame, m/s.
         times: (f,) time of each frame, s.
         scene: the scene simulated (material, planes, stiffnesses, dt, gravity, initial state).
@@ -78,18 +103,21 @@ class Trajectory:
         if tets.size and not np.issubdtype(tets.dtype, np.integer):
             raise ShapeError(f"Trajectory.tets must be integer vertex indices, got dtype {tets.dtype}")
         self.tets = tets.astype(np.int64)
-        self.displacements = np.asarray(self.displacements, dtype=np.float64)
-        self.velocities = np.asarray(self.velocities, dtype=np.float64)
         self.times = np.asarray(self.times, dtype=np.float64)
         n = len(self.rest_positions)
         f = len(self.times)
-        for name in ("displacements", "velocities"):
-            a = getattr(self, name)
-            if a.shape != (f, n, 3):
-                raise ShapeError(f"Trajectory.{name} must have shape (frames, vertices, 3) = {(f, n, 3)}, got {a.shape}")
-        for name in ("displacements", "velocities", "times"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise SolverError(f"Trajectory.{name} holds NaN or inf; refusing to keep a diverged simulation")
+        deferred = self.displacements
+        if isinstance(deferred, DeferredFrames):
+            if self.velocities is not deferred or deferred.shape != (f, n, 3):
+                raise ShapeError(f"Trajectory's DeferredFrames must be given as both displacements and velocities, with shape "
+                                 f"(frames, vertices, 3) = {(f, n, 3)}")
+            # Missing attributes until __getattr__ builds them.
+            del self.displacements, self.velocities
+            self._deferred = deferred
+        else:
+            self.displacements, self.velocities = self._checked_frames(self.displacements, self.velocities)
+        if not np.all(np.isfinite(self.times)):
+            raise SolverError("Trajectory.times holds NaN or inf; refusing to keep a diverged simulation")
         if self.times.ndim != 1 or np.any(np.diff(self.times) <= 0):
             raise ShapeError("Trajectory.times must be a 1-D array of strictly increasing times in s")
         self.impact_times = np.asarray(self.impact_times, dtype=np.float64)
@@ -112,6 +140,39 @@ class Trajectory:
             if a.shape not in ((0,), (f,)):
                 raise ShapeError(f"Trajectory.{name} must have shape (frames,) = ({f},) or be empty, got {a.shape}")
             setattr(self, name, a)
+
+    def _checked_frames(self, displacements: np.ndarray, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(displacements, velocities)`` as float64 arrays of shape (frames, vertices, 3), all finite.
+
+        Raises:
+            ShapeError: another shape.
+            SolverError: a NaN or inf.
+        """
+        frames = {"displacements": np.asarray(displacements, dtype=np.float64), "velocities": np.asarray(velocities, dtype=np.float64)}
+        shape = (len(self.times), len(self.rest_positions), 3)
+        for name, a in frames.items():
+            if a.shape != shape:
+                raise ShapeError(f"Trajectory.{name} must have shape (frames, vertices, 3) = {shape}, got {a.shape}")
+        for name, a in frames.items():
+            if not np.all(np.isfinite(a)):
+                raise SolverError(f"Trajectory.{name} holds NaN or inf; refusing to keep a diverged simulation")
+        return frames["displacements"], frames["velocities"]
+
+    def __getattr__(self, name: str) -> Any:
+        """Deferred frames (:class:`DeferredFrames`), built on their first read; Python asks here only for missing attributes."""
+        deferred = self.__dict__.get("_deferred") if name in _FRAMES else None
+        if deferred is None:
+            raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
+        for key, value in zip(_FRAMES, self._checked_frames(*deferred.build())):
+            self.__dict__.setdefault(key, value)  # one assigned since construction stays
+        self.__dict__.pop("_deferred", None)
+        return self.__dict__[name]
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The attributes to pickle or copy, frames built: a deferred build holds its simulation's arrays in a closure."""
+        for name in _FRAMES:
+            getattr(self, name)
+        return self.__dict__
 
     @property
     def n_frames(self) -> int:

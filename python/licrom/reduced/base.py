@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,7 +21,7 @@ import numpy as np
 from .. import _core
 from ..errors import ConfigError, LicromWarning, SolverError
 from ..geometry.mesh import Mesh
-from ..records.trajectory import Trajectory
+from ..records.trajectory import DeferredFrames, Trajectory
 from ..scene.scene import Scene
 from ..stepping import RunRecord, check_field, check_run_arguments
 from ..subspace.basis import vertex_strain_form
@@ -282,19 +282,24 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
     def _check_field(self, name: str, a: np.ndarray) -> np.ndarray:
         return check_field(name, a, self.mesh.n_vertices)
 
-    def _trajectory(self, rec: RunRecord, positions: np.ndarray, displacements: np.ndarray, velocities: np.ndarray, qs: np.ndarray,
-                    record_every: int, what: str, info: dict[str, Any]) -> Trajectory:
-        """The :class:`Trajectory` of a run that ``run`` recorded: its frames' (f, n, 3) ``positions``, ``displacements`` and
-        ``velocities`` and (f, k) ``qs``, with each frame's smallest ``det F`` at the cubature points and deepest
-        penetration into a plane, and the online error estimate; each warns, as ``what``, where it leaves its range, at the
-        caller of ``run``. Its ``info`` holds the source, the sampling and ``info``."""
+    def _trajectory(self, rec: RunRecord, positions: Iterable[np.ndarray], displacements: np.ndarray | DeferredFrames,
+                    velocities: np.ndarray | DeferredFrames, qs: np.ndarray, record_every: int, what: str, info: dict[str, Any]) -> Trajectory:
+        """The :class:`Trajectory` of a run that ``run`` recorded: its frames' (f, n, 3) ``positions`` (in blocks of
+        frames, read once, in order), ``displacements`` and ``velocities`` (arrays, or one :class:`DeferredFrames` for
+        both) and (f, k) ``qs``, with each frame's smallest ``det F`` at the cubature points and deepest penetration into
+        a plane, and the online error estimate; each warns, as ``what``, where it leaves its range, at the caller of
+        ``run``. Its ``info`` holds the source, the sampling and ``info``."""
         min_det_f = cubature_min_det(self._jacobians, qs)
         planes = self.scene.plane_array()
-        depth = np.array([penetration(x, planes) for x in positions])
-        min_det_f, depth = with_steps(min_det_f, depth, rec.between)
+        depths: list[float] = []
+        start = None
+        for block in positions:
+            touch = None if start is not None else first_touch(block, planes, CONTACT_TOLERANCE * self.mesh.size)
+            start = start if touch is None else len(depths) + touch
+            depths += [penetration(x, planes) for x in block]
+        min_det_f, depth = with_steps(min_det_f, np.array(depths), rec.between)
         arrays = rec.arrays()
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, what, rec.trailing, stacklevel=4)
-        start = first_touch(positions, planes, CONTACT_TOLERANCE * self.mesh.size)
         estimate = self._monitor.estimate(record_every * np.arange(len(qs)), None if start is None else record_every * start)
         warn_estimate(estimate, what, stacklevel=4)
         return Trajectory(

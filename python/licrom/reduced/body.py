@@ -15,15 +15,16 @@ rows once and steps ``licrom._core.BodyFrameCore``, with the user API of
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .. import _core
+from .._blas import blas_threads, numpy_blas_threads
 from ..errors import ConfigError
 from ..geometry.mesh import Mesh
-from ..records.trajectory import Trajectory
+from ..records.trajectory import DeferredFrames, Trajectory
 from ..rigid import center_of_mass, rigid_fit
 from ..scene.scene import Scene
 from ..stepping import record_run
@@ -40,7 +41,84 @@ __all__ = ["BodyFrameSim"]
 # (round-off of the orthogonalisation on large meshes stays far below).
 _ORTHOGONALITY = 1e-8
 _KEPT_SHAPES = 4  # body shapes kept by q: BDF2 velocities read three poses, plus the next frame's
-_FRAME_BLOCK = 64  # recorded frames whose body shapes are rebuilt in one matrix product (BodyFrameSim._frames)
+_FRAME_BLOCK = 64  # recorded frames whose body shapes are rebuilt in one matrix product (_RecordedFrames)
+
+_Pose = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""``(c, R, q)``: centre of mass, rotation and modal coordinates."""
+
+
+def _difference(x: Sequence[np.ndarray], dt: float, bdf2: bool) -> np.ndarray:
+    """The integrator's velocity from positions now and one (backward Euler) or two (BDF2) steps back (``x[k]``: k steps back)."""
+    if bdf2:
+        return (1.5 * x[0] - 2.0 * x[1] + 0.5 * x[2]) / dt
+    return (x[0] - x[1]) / dt
+
+
+class _RecordedFrames:
+    """The frames of a run recorded as poses (:meth:`BodyFrameSim._poses`), rebuilt in full space block by block.
+
+    The run reads each frame's positions once, a block at a time (penetration at every vertex, the first touch);
+    its trajectory's displacements and velocities are built when first read
+    (:class:`~licrom.records.trajectory.DeferredFrames`): most readers read none, and on 104k tets and 2000 frames the
+    positions alone took 1.9 s where the frames took 7.9 s (writing 2 x 1 GB and three poses a frame). Both rebuild a
+    block's shapes with the same matrix product, so they read the same positions bit for bit. This keeps what the
+    rebuild reads (the poses and the mode values), not the simulation: a later step or ``set_state`` leaves the frames.
+
+    Args:
+        poses: each frame's poses, now first and then the steps back that its velocity reads.
+        values: (n, 3, r) body-frame mode values.
+        xbar: (n, 3) body-frame rest positions.
+        vertices: (n, 3) rest positions.
+        dt: the time step, s.
+        bdf2: whether the velocities are BDF2's difference (else backward Euler's).
+    """
+
+    def __init__(self, poses: Sequence[Sequence[_Pose]], values: np.ndarray, xbar: np.ndarray, vertices: np.ndarray, dt: float,
+                 bdf2: bool) -> None:
+        self.poses = poses
+        self.modes = values.reshape(-1, values.shape[2]).T
+        self.xbar, self.vertices = xbar, vertices
+        self.dt, self.bdf2 = dt, bdf2
+        # Fixed now, so that the frames built later split and multiply as the positions read by the run: OpenBLAS
+        # rounds a product differently with another thread count.
+        self.block, self.threads = _FRAME_BLOCK, numpy_blas_threads()
+
+    def _shapes(self, block: Sequence[Sequence[_Pose]]) -> Callable[[np.ndarray], np.ndarray]:
+        """The body shape ``Xbar + W q`` of each q in ``block``'s poses, by q.
+
+        The distinct q of the block are reconstructed in one matrix product: on a 100k-tet mesh a shape reads
+        all n x 3 x r mode values, and one product over a block reads them once where one per frame reads them
+        every frame (measured: docs/results.md section 13); the blocks bound the shapes held at once.
+        """
+        index: dict[bytes, int] = {}
+        for frame in block:
+            for _, _, q in frame:
+                index.setdefault(np.ascontiguousarray(q, dtype=np.float64).tobytes(), len(index))
+        qs = np.frombuffer(b"".join(index), dtype=np.float64).reshape(len(index), -1)
+        shapes = self.xbar + (qs @ self.modes).reshape(len(index), *self.xbar.shape)
+        return lambda q: shapes[index[np.ascontiguousarray(q, dtype=np.float64).tobytes()]]
+
+    def _blocks(self) -> Iterator[tuple[int, Callable[[np.ndarray], np.ndarray]]]:
+        """Each block's first frame and the shapes of its poses (:meth:`_shapes`), in turn."""
+        for first in range(0, len(self.poses), self.block):
+            yield first, self._shapes(self.poses[first:first + self.block])
+
+    def positions(self) -> Iterator[np.ndarray]:
+        """(B, n, 3) positions of each block's frames in turn."""
+        for first, shape in self._blocks():
+            yield np.array([c + shape(q) @ r.T for (c, r, q), *_ in self.poses[first:first + self.block]])
+
+    def build(self) -> tuple[np.ndarray, np.ndarray]:
+        """(F, n, 3) displacements and velocities of every frame, as its trajectory reads them."""
+        displacements = np.empty((len(self.poses), *self.xbar.shape))
+        velocities = np.empty_like(displacements)
+        with blas_threads(self.threads):
+            for first, shape in self._blocks():
+                for f, frame in enumerate(self.poses[first:first + self.block], start=first):
+                    x = [c + shape(q) @ r.T for c, r, q in frame]
+                    displacements[f] = x[0] - self.vertices
+                    velocities[f] = _difference(x, self.dt, self.bdf2)
+        return displacements, velocities
 
 
 class BodyFrameSim(ReducedSim):
@@ -171,49 +249,17 @@ class BodyFrameSim(ReducedSim):
         positions, as in :class:`licrom.FullSim`: ``(x - x_prev) / h`` for backward Euler,
         ``(3 x - 4 x_prev + x_prev2) / (2h)`` for BDF2 (for a spinning body the continuous
         ``v + w x R y`` differs from it by about ``h |w|^2 |R y| / 2``)."""
-        return self._difference([self.positions] + [self._previous_positions(k) for k in range(1, self._steps_back + 1)])
+        x = [self.positions] + [self._previous_positions(k) for k in range(1, self._steps_back + 1)]
+        return _difference(x, self.scene.dt, self.scene.integrator == "bdf2")
 
     @property
     def _steps_back(self) -> int:
         """Poses before the current one that a velocity reads (backward Euler 1, BDF2 2)."""
         return 2 if self.scene.integrator == "bdf2" else 1
 
-    def _difference(self, x: Sequence[np.ndarray]) -> np.ndarray:
-        """The integrator's velocity from positions now and :attr:`_steps_back` steps back (``x[k]``: k steps back)."""
-        h = self.scene.dt
-        if self.scene.integrator == "bdf2":
-            return (1.5 * x[0] - 2.0 * x[1] + 0.5 * x[2]) / h
-        return (x[0] - x[1]) / h
-
-    def _poses(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def _poses(self) -> list[_Pose]:
         """``(c, R, q)`` now and :attr:`_steps_back` steps back: what a recorded frame's positions and velocities read."""
         return [(self.center, self.rotation, self.q)] + [self._core.previous_pose(k) for k in range(1, self._steps_back + 1)]
-
-    def _frames(self, poses: Sequence[Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]]) -> tuple[np.ndarray, np.ndarray]:
-        """(F, n, 3) positions and velocities of the frames recorded as :meth:`_poses`.
-
-        The distinct q of each block of :data:`_FRAME_BLOCK` frames are reconstructed in one matrix
-        product: on a 100k-tet mesh a shape reads all n x 3 x r mode values, and one product over
-        a block reads them once where one per frame reads them every frame (measured:
-        docs/results.md section 13); the blocks bound the shapes held at once.
-        """
-        n, k = self.mesh.n_vertices, self._values.shape[2]
-        modes = self._values.reshape(3 * n, k).T
-        positions = np.empty((len(poses), n, 3))
-        velocities = np.empty((len(poses), n, 3))
-        for first in range(0, len(poses), _FRAME_BLOCK):
-            block = poses[first:first + _FRAME_BLOCK]
-            index: dict[bytes, int] = {}
-            for frame in block:
-                for _, _, q in frame:
-                    index.setdefault(np.ascontiguousarray(q, dtype=np.float64).tobytes(), len(index))
-            qs = np.frombuffer(b"".join(index), dtype=np.float64).reshape(len(index), k)
-            shapes = self._xbar + (qs @ modes).reshape(len(index), n, 3)
-            for f, frame in enumerate(block, start=first):
-                x = [c + shapes[index[np.ascontiguousarray(q, dtype=np.float64).tobytes()]] @ r.T for c, r, q in frame]
-                positions[f] = x[0]
-                velocities[f] = self._difference(x)
-        return positions, velocities
 
     def _project(self, field: np.ndarray) -> np.ndarray:
         return np.zeros(0) if self._projector is None else self._projector.project(field)
@@ -275,8 +321,9 @@ class BodyFrameSim(ReducedSim):
             return outcome
 
         rec = record_run(step, self._poses, lambda: self.time, steps, record_every, progress, "body frame", self._core.validity)
-        positions, velocities = self._frames(rec.frames)
-        return self._trajectory(rec, positions, positions - self.mesh.vertices, velocities, np.array([frame[0][2] for frame in rec.frames]),
+        frames = _RecordedFrames(rec.frames, self._values, self._xbar, self.mesh.vertices, self.scene.dt, self.scene.integrator == "bdf2")
+        deferred = DeferredFrames((len(rec.frames), self.mesh.n_vertices, 3), frames.build)
+        return self._trajectory(rec, frames.positions(), deferred, deferred, np.array([frame[0][2] for frame in rec.frames]),
                                 record_every, "the body-frame simulation", {"frame": "body", "solver": "newton"})
 
     # --- other meshes ------------------------------------------------------------------

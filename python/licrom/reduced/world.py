@@ -178,7 +178,7 @@ class WorldFrameSim(ReducedSim):
         w = self._values.reshape(-1, self._values.shape[2])
         n = self.mesh.n_vertices
         displacements = (qs @ w.T).reshape(-1, n, 3)
-        return self._trajectory(rec, self.mesh.vertices + displacements, displacements, (qdots @ w.T).reshape(-1, n, 3), qs, record_every,
+        return self._trajectory(rec, [self.mesh.vertices + displacements], displacements, (qdots @ w.T).reshape(-1, n, 3), qs, record_every,
                                 "the reduced simulation",
                                 {"solver": self.solver, "solver_stats": work, "q": qs.tolist() if qs.size <= 200_000 else None})
 
