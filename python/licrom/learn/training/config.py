@@ -95,7 +95,8 @@ class TrainConfig:
             many seconds; None: no limit. The schedule still assumes ``epochs``.
         cubature_tolerance: relative force residual at which the cubature fitted at the end
             of training stops adding tets (:meth:`licrom.Cubature.fitted`).
-        cubature_points: most tets of that cubature.
+        cubature_points: most tets of that cubature, or ``"auto"``: 1000, and 3000 on a mesh above 5000 tets
+            (:func:`licrom.learn.training.dynamics.default_cubature_points`).
         cubature_candidates: tets that fit chooses from, a random pool of the mesh's (None: as many as
             :data:`licrom.subspace.cubature.FIT_MEMORY` holds, :func:`licrom.subspace.cubature.fit_candidates`, and 8192
             on a mesh above 5000 tets, :func:`licrom.learn.training.dynamics.fit_pool`).
@@ -146,7 +147,7 @@ class TrainConfig:
     num_threads: int | None = None
     max_time_s: float | None = None
     cubature_tolerance: float = FIT_TOLERANCE
-    cubature_points: int = 1000
+    cubature_points: int | str = "auto"
     cubature_candidates: int | None = None
     cubature_samples: int = 256
     rank_tolerance: float = DEFAULT_TOLERANCE
@@ -155,13 +156,14 @@ class TrainConfig:
     extension: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.epochs != "auto":
-            v = self.epochs
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ConfigError(f"TrainConfig.epochs must be an integer >= 1 or 'auto', got {v!r}")
-            object.__setattr__(self, "epochs", int(v))
+        for name in ("epochs", "cubature_points"):
+            v = getattr(self, name)
+            if v != "auto":
+                if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                    raise ConfigError(f"TrainConfig.{name} must be an integer >= 1 or 'auto', got {v!r}")
+                object.__setattr__(self, name, int(v))
         for name in ("batch_frames", "points_per_frame", "encoder_points", "val_points", "val_encoder_frames", "val_every", "frame_stride", "checkpoint_every", "nodes",
-                     "cubature_points", "cubature_samples", "max_rank"):
+                     "cubature_samples", "max_rank"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"TrainConfig.{name} must be an integer >= 1, got {v!r}")

@@ -23,7 +23,7 @@ from ..model.finalize import finalize_basis
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
-from .dynamics import check_dynamics, default_epochs, fit_pool, large_mesh_remedy, too_large
+from .dynamics import check_dynamics, default_cubature_points, default_epochs, fit_pool, large_mesh_remedy, too_large
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
 from .held_out import REMEDY, check_held_out
 from .lightning import _lightning_classes
@@ -78,7 +78,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
     The poses are at most ``cfg.cubature_samples`` frames, evenly spaced over every run of
     ``data`` (training and held-out: the fit needs no held-out check, the more poses the
     better), in the model's frame; the fit is :meth:`licrom.Cubature.fitted` with
-    ``cfg.cubature_tolerance`` and at most ``cfg.cubature_points`` tets. Its size, residual
+    ``cfg.cubature_tolerance`` and at most ``cfg.cubature_points`` tets (a count: :func:`train` resolves ``"auto"``). Its size, residual
     and time go to ``model.metadata["cubature"]``.
     """
     from ...subspace.cubature import Cubature, fit_candidates, model_samples
@@ -294,6 +294,8 @@ def train(
     tdata.check_deformation()
     if cfg.epochs == "auto":
         cfg = dataclasses.replace(cfg, epochs=default_epochs(tdata.mesh.n_tets))
+    if cfg.cubature_points == "auto":
+        cfg = dataclasses.replace(cfg, cubature_points=default_cubature_points(tdata.mesh.n_tets))
     t_data = time.perf_counter() - t_start
     rank = dynamics = None
     if mcfg.latent_dim == "auto":
