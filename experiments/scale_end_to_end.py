@@ -42,6 +42,8 @@ held-out runs with MODEL's stored cubature, with refits of it to the model's sto
 ``--cubature-counts`` tets, with every tet (``--every-tet``) and, with ``--own-pod``, on POD(r) of each run's own frames
 with every tet, and with ``--training-pod`` on POD(r) of the training runs' frames (what the learned modes are trained
 towards) with every tet (``--work/cubatures.json``): how much of the reduced error is the cubature's, the dynamics', the network's.
+With ``--against-every-tet`` each variant is measured against the model run with every tet in place of the full run: a
+cubature's share, on a machine without the GPU that a large mesh's full runs need.
 ``--speed MODEL`` times on one machine, one run at a time, each held-out scene's full step on ``--device`` (its run
 generated alone) and MODEL's reduced step (one CPU thread), with ``--cpu-steps`` of the first scene's full run on
 the CPU (``--work/speed.json``): the speed-ups without the other jobs of a study sharing the GPU.
@@ -318,6 +320,25 @@ def bounds_study(args) -> dict:
     return {"rows": rows}
 
 
+def every_tet_runs(args, fam: bfe.Family, model: licrom.Model, cases: list[bfe.Case]):
+    """Each of ``cases`` with ``model`` run on it with every tet as its cubature (cached under ``--work/every_tet``), in
+    place of its full run (``--against-every-tet``): the share of a cubature in the error, on a machine without the GPU
+    that the full runs of a large mesh need."""
+    for case in cases:
+        path = Path(args.work) / "every_tet" / f"{case.name}.npz"
+        if path.exists():
+            reference = Trajectory.load(path)
+        else:
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # its estimate is reported beside each variant's
+                reference = ReducedSim(model, scene=case.scene, cubature="full").run(fam.steps, record_every=fam.record_every)
+            log(f"reference {case.name}: the model with every tet, {time.perf_counter() - t0:.0f} s")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            reference.save(path)
+        yield case, reference, {"median_step_ms": 1e3 * float(np.median(reference.step_seconds))}
+
+
 def cubature_study(args) -> dict:
     """The held-out runs with the model ``args.cubatures``' stored cubature, refits of it to its stored training
     poses at ``--cubature-counts`` tets (tolerance ``--cubature-tolerance``), every tet (``--every-tet``), the stored
@@ -335,7 +356,7 @@ def cubature_study(args) -> dict:
         log(f"cubature refit at most {count} tets: {fit.count} tets, residual {fit.fit_error:.2e}, {fit_s:.1f} s")
         variants.append((f"refit {count}", fit, fit_s, None))
     variants += [(f"stored, {n} contact points", None, 0.0, n) for n in args.contact_points]
-    if args.every_tet:
+    if args.every_tet and not args.against_every_tet:
         variants.append(("every tet", "full", 0.0, None))
     pods = [(f"training POD({model.n_learned}), every tet", training_pod(args, fam, model.n_learned))] if args.training_pod else []
     rows = []
@@ -343,7 +364,9 @@ def cubature_study(args) -> dict:
     def save() -> None:
         (work / "cubatures.json").write_text(json.dumps({"model": str(args.cubatures), "device": args.device, "rows": rows}, indent=1, default=str))
 
-    for case, full, info in full_runs(args, fam, held_cases(args, fam)):
+    cases = held_cases(args, fam)
+    references = every_tet_runs(args, fam, model, cases) if args.against_every_tet else full_runs(args, fam, cases)
+    for case, full, info in references:
         for label, cubature, fit_s, points in variants:
             row = reduced_stage(model, case, full, fam.steps, contact_points=points, cubature=cubature, projection=label == "stored",
                                 record_every=fam.record_every)
@@ -704,6 +727,8 @@ def main() -> None:
                     help="only the speed: held-out full steps on --device, one run at a time, against MODEL's reduced step (--work/speed.json)")
     ap.add_argument("--cubature-counts", type=int, nargs="*", default=[3000], metavar="N", help="most tets of each refit (--cubatures)")
     ap.add_argument("--every-tet", action="store_true", help="also every tet as cubature (--cubatures)")
+    ap.add_argument("--against-every-tet", action="store_true",
+                    help="each --cubatures variant against the model run with every tet in place of the full run (no GPU needed)")
     ap.add_argument("--training-pod", action="store_true",
                     help="also each held-out run on POD(r) of the --runs training runs' frames, every tet (--cubatures; generates them)")
     ap.add_argument("--own-pod", action="store_true", help="also each held-out run on POD(r) of its own frames, every tet (--cubatures)")
