@@ -1,4 +1,5 @@
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -268,6 +269,42 @@ def test_training_warns_when_its_fitted_cubature_misses_the_tolerance(tiny_demo)
     with pytest.warns(AccuracyWarning, match="force residual"):
         fit_cubature(model, data, TrainConfig(cubature_points=1))
     assert model.cubature.count == 1 and model.metadata["cubature"]["fit_error"] > FIT_TOLERANCE
+
+
+def test_training_keeps_the_fit_whose_held_out_runs_land_nearest_their_targets(tiny_demo, monkeypatch):
+    from licrom import AccuracyWarning, Model
+    from licrom.learn.training import TrainConfig, run
+    from licrom.learn.training.held_out import check_held_out, target_ratio
+    from licrom.learn.training_data import TrainingData
+
+    out, _ = tiny_demo
+    model = Model.load(out / "model.lcm")
+    data = TrainingData(out / "data", frame=model.frame)
+    assert data.held_out
+    monkeypatch.setattr(run, "cubature_counts", lambda n_tets: (40, 1))  # one tet: far from the runs
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", AccuracyWarning)  # the one-tet fit, not kept, does not warn
+        run.fit_cubature(model, data, TrainConfig())
+    choice = model.metadata["cubature"]["choice"]
+    assert [row["max_count"] for row in choice] == [40, 1] and choice[0]["target_ratio"] < choice[1]["target_ratio"]
+    assert model.metadata["cubature"]["max_count"] == 40 and model.cubature.count == choice[0]["count"] > 1
+    assert target_ratio(check_held_out(model, data.held_out)) == choice[0]["target_ratio"]  # the kept fit's own check
+    # no held-out run to choose by: the larger fit
+    monkeypatch.setattr(run, "cubature_counts", lambda n_tets: (1, 40))
+    run.fit_cubature(model, data, TrainConfig(), held_out=())
+    assert model.metadata["cubature"]["max_count"] == 40 and all("target_ratio" not in row for row in model.metadata["cubature"]["choice"])
+
+
+def test_the_target_ratio_is_the_worst_runs_distance_to_its_targets():
+    from licrom.analysis.compare import COM_TARGET, NONRIGID_TARGET
+    from licrom.learn.training.held_out import target_ratio
+
+    def row(nr, com, right=True):
+        return {"run": "r", "nonrigid_error": nr, "com_error": com, "stick_slip_right": right}
+
+    assert target_ratio({"runs": [row(0.5 * NONRIGID_TARGET, 0.1 * COM_TARGET), row(0.2 * NONRIGID_TARGET, 3 * COM_TARGET)]}) == pytest.approx(3)
+    assert target_ratio({"runs": [row(0.0, 0.0, right=False)]}) == float("inf")
+    assert np.isnan(target_ratio({"runs": [{"run": "r", "skipped": "not evenly spaced"}]}))
 
 
 def test_a_fit_draws_its_tets_from_the_candidates_given(tiny_demo):

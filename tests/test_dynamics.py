@@ -108,7 +108,7 @@ def test_nothing_is_replayed_where_the_check_cannot_raise_r_or_does_not_apply(de
     assert "-r " not in spent and "training runs" in spent and "--cubature-points" in spent and "against a full run" in spent
 
 
-def test_epochs_and_the_fits_tets_and_candidates_by_default_grow_above_the_checks_tet_limit(monkeypatch):
+def test_epochs_the_fits_and_their_candidates_by_default_grow_above_the_checks_tet_limit(monkeypatch):
     for name in ("epochs", "cubature_points"):
         assert getattr(TrainConfig(), name) == "auto" and getattr(TrainConfig(**{name: 7}), name) == 7
         for bad in (0, -3, 2.5, True, "many"):
@@ -116,12 +116,13 @@ def test_epochs_and_the_fits_tets_and_candidates_by_default_grow_above_the_check
                 TrainConfig(**{name: bad})
     assert dynamics.default_epochs(dynamics.MAX_TETS) == dynamics.DEFAULT_EPOCHS
     assert dynamics.default_epochs(dynamics.MAX_TETS + 1) == dynamics.LARGE_MESH_EPOCHS > dynamics.DEFAULT_EPOCHS
-    assert dynamics.default_cubature_points(dynamics.MAX_TETS) == dynamics.DEFAULT_CUBATURE_POINTS
-    assert dynamics.default_cubature_points(dynamics.MAX_TETS + 1) == dynamics.LARGE_MESH_CUBATURE_POINTS > dynamics.DEFAULT_CUBATURE_POINTS
+    assert dynamics.cubature_counts(dynamics.MAX_TETS) == (dynamics.DEFAULT_CUBATURE_POINTS,)
+    assert dynamics.cubature_counts(dynamics.MAX_TETS + 1) == (dynamics.DEFAULT_CUBATURE_POINTS, dynamics.LARGE_MESH_CUBATURE_POINTS)
+    assert dynamics.LARGE_MESH_CUBATURE_POINTS > dynamics.DEFAULT_CUBATURE_POINTS
     assert dynamics.fit_pool(84, None) is None and dynamics.fit_pool(84, 300) == 300
     monkeypatch.setattr(dynamics, "MAX_TETS", 10)
     assert dynamics.default_epochs(84) == dynamics.LARGE_MESH_EPOCHS
-    assert dynamics.default_cubature_points(84) == dynamics.LARGE_MESH_CUBATURE_POINTS
+    assert len(dynamics.cubature_counts(84)) == 2
     assert dynamics.fit_pool(84, None) == dynamics.LARGE_MESH_CANDIDATES and dynamics.fit_pool(84, 300) == 300
 
 

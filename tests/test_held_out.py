@@ -97,7 +97,11 @@ def test_training_above_the_dynamics_checks_tet_limit_advises_r_and_epochs_for_a
     assert model.metadata["rank"]["dynamics"]["too_large"], model.metadata["rank"]
     assert model.n_learned == model.metadata["rank"]["dynamics"]["max_rank"]  # r to the cap where nothing is replayed
     assert model.metadata["cubature"]["candidates"] == dynamics.LARGE_MESH_CANDIDATES
-    assert model.metadata["cubature"]["max_count"] == model.metadata["train_config"]["cubature_points"] == dynamics.LARGE_MESH_CUBATURE_POINTS
+    # two fits, 1000 and 3000 allowed, each replayed on the held-out runs; the kept one nearest the targets
+    choice = model.metadata["cubature"]["choice"]
+    assert [row["max_count"] for row in choice] == list(dynamics.cubature_counts(model.mesh.n_tets))
+    kept = next(row for row in choice if row["max_count"] == model.metadata["cubature"]["max_count"])
+    assert kept["count"] == model.cubature.count and kept["target_ratio"] == min(row["target_ratio"] for row in choice)
     # at the large-mesh defaults (r at the cap, their epochs) only the data and the cubature are left to advise
     monkeypatch.setattr(dynamics, "LARGE_MESH_EPOCHS", 1)
     with pytest.warns(AccuracyWarning, match=r"r is at the dynamics check's cap \(\d+\) and training ran 1 epochs or more.*add training runs"):

@@ -321,8 +321,8 @@ _SIZE_FLAGS = {"points_per_frame": "--points", "batch_frames": "--batch-frames",
 @click.option("--projection-weight", type=float, default=None, show_default="1; 0: plain LiCROM", help="Weight of the projection loss term.")
 @click.option("--fourier", type=int, default=None, show_default="32; 0: plain LiCROM", help="Random Fourier features of X fed to W(X).")
 @click.option("--cubature-points", type=click.IntRange(min=1), default=None, show_default="auto",
-              help="Most tets of the cubature fitted at the end (auto: 1000; 3000 above 5000 tets); at r = 250 on the 120k-tet cheese 3000 in place of 1000 cut the "
-                   "held-out error from the cubature 3x at 1.6x the step (docs/results.md, section 47).")
+              help="Most tets of the cubature fitted at the end (auto: 1000; above 5000 tets a fit of 1000 and one of 3000, keeping the one "
+                   "whose held-out runs land nearer their targets: docs/results.md, section 47).")
 @click.option("--cubature-candidates", type=click.IntRange(min=1), default=None, show_default="as many as 1 GiB holds; 8192 above 5000 tets",
               help="Tets that fit chooses from; at high r on large meshes a small pool limits it "
                    "(the 104k-tet ball at r = 250: 19 % force residual from 2001, 3.9 % from 8192; docs/results.md, section 34).")

@@ -95,8 +95,9 @@ class TrainConfig:
             many seconds; None: no limit. The schedule still assumes ``epochs``.
         cubature_tolerance: relative force residual at which the cubature fitted at the end
             of training stops adding tets (:meth:`licrom.Cubature.fitted`).
-        cubature_points: most tets of that cubature, or ``"auto"``: 1000, and 3000 on a mesh above 5000 tets
-            (:func:`licrom.learn.training.dynamics.default_cubature_points`).
+        cubature_points: most tets of that cubature, or ``"auto"``: 1000, and on a mesh above 5000 tets a fit
+            of 1000 and one of 3000, keeping the one whose held-out runs land nearer their targets
+            (:func:`licrom.learn.training.dynamics.cubature_counts`; the fit of 3000 where no run is held out).
         cubature_candidates: tets that fit chooses from, a random pool of the mesh's (None: as many as
             :data:`licrom.subspace.cubature.FIT_MEMORY` holds, :func:`licrom.subspace.cubature.fit_candidates`, and 8192
             on a mesh above 5000 tets, :func:`licrom.learn.training.dynamics.fit_pool`).

@@ -23,9 +23,9 @@ run meets at the cap, the replays say nothing about r and it stays.
 Above :data:`MAX_TETS` tets nothing is replayed (no quadrature there holds the replays without the full elastic pass),
 and r goes to the cap: the one mesh measured at that size, the 104k-tet ball, needed it (docs/results.md section 35),
 and a model that is too rich costs speed where one that is too poor costs the run. Training then also runs
-:data:`LARGE_MESH_EPOCHS` epochs by default (:func:`default_epochs`) and fits its cubature of at most
-:data:`LARGE_MESH_CUBATURE_POINTS` tets (:func:`default_cubature_points`) from :data:`LARGE_MESH_CANDIDATES` candidate
-tets (:func:`fit_pool`).
+:data:`LARGE_MESH_EPOCHS` epochs by default (:func:`default_epochs`), fits its cubature from
+:data:`LARGE_MESH_CANDIDATES` candidate tets (:func:`fit_pool`) with at most 1000 and 3000 tets, and keeps the fit
+whose held-out runs land nearer their targets (:func:`cubature_counts`).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from ..training_data import TrainingData
 from .held_out import run_cadence
 
 __all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DEFAULT_EPOCHS", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_CANDIDATES", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
-           "check_dynamics", "default_cubature_points", "default_epochs", "fit_pool", "large_mesh_remedy", "spread_runs", "too_large"]
+           "check_dynamics", "cubature_counts", "default_epochs", "fit_pool", "large_mesh_remedy", "spread_runs", "too_large"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -115,16 +115,19 @@ and 3.6 % of its size in centre of mass; from 8192 candidates (4.3 GB at r = 250
 it at 4.8 % and 1.3 %, and a drawn roll at 4.1 % and 1.9 % (7.4 % and 1.3 % from 2048; docs/results.md section 36)."""
 
 LARGE_MESH_CUBATURE_POINTS = 3000
-"""Most tets of the cubature fitted at the end of training on a mesh above :data:`MAX_TETS` tets, by default
-(``TrainConfig.cubature_points="auto"``). At r = 250 the fit is limited by its count, not by its residual: the 120k-tet
-cheese's model, fitted from 8192 candidates with at most 1000 tets, kept 587 at a 15 % force residual and put its
-held-out slide and stick 10.9 % and 15.1 % non-rigid from the same model run with every tet (which lands 1.6 % and 3.6 %
-from their full runs); with at most 3000 it kept 1343 at 12 %, 3.1 % and 4.8 % from every tet, for a 1.6x reduced step
-(docs/results.md section 47)."""
+"""Most tets of the second cubature training fits on a mesh above :data:`MAX_TETS` tets by default
+(``TrainConfig.cubature_points="auto"``), beside :data:`DEFAULT_CUBATURE_POINTS`; training keeps the one whose
+held-out runs land nearer their targets (:func:`licrom.learn.training.held_out.target_ratio`). At r = 250 the count
+limits the fit, not its residual: the 120k-tet cheese's model, fitted from 8192 candidates with at most 1000 tets,
+kept 587 at a 15 % force residual and put its held-out slide and stick 10.9 % and 15.1 % non-rigid from the same model
+run with every tet (which lands 1.6 % and 3.6 % from their full runs); with at most 3000 it kept 1343 at 12 %, 3.1 %
+and 4.8 % from every tet, for a 1.6x reduced step (docs/results.md section 47). But the 104k-tet ball's learned modes,
+integrated with every tet, land further from the truth than its fits of about 740 tets (section 39), and 3000 allowed
+(1801 kept) brings its rolls within 1.5 % of every tet: which fit is better is the model's, so the data choose."""
 
 DEFAULT_CUBATURE_POINTS = 1000
-"""Most tets of that cubature by default on a mesh of at most :data:`MAX_TETS` tets: the small meshes' fits meet their
-tolerance with 370-800 tets (docs/results.md section 32)."""
+"""Most tets of the cubature fitted at the end of training by default: the small meshes' fits meet their tolerance
+with 370-800 tets (docs/results.md section 32)."""
 
 DEFAULT_EPOCHS = 200
 """Training epochs by default on a mesh of at most :data:`MAX_TETS` tets (``TrainConfig.epochs="auto"``): the 1k-tet
@@ -137,10 +140,10 @@ def default_epochs(n_tets: int) -> int:
     return LARGE_MESH_EPOCHS if too_large(n_tets) else DEFAULT_EPOCHS
 
 
-def default_cubature_points(n_tets: int) -> int:
-    """``TrainConfig.cubature_points="auto"`` on a mesh of ``n_tets`` tets: :data:`DEFAULT_CUBATURE_POINTS`, or
-    :data:`LARGE_MESH_CUBATURE_POINTS` above :data:`MAX_TETS`."""
-    return LARGE_MESH_CUBATURE_POINTS if too_large(n_tets) else DEFAULT_CUBATURE_POINTS
+def cubature_counts(n_tets: int) -> tuple[int, ...]:
+    """The most tets of each cubature training fits with ``TrainConfig.cubature_points="auto"`` on a mesh of ``n_tets``
+    tets: :data:`DEFAULT_CUBATURE_POINTS`, and :data:`LARGE_MESH_CUBATURE_POINTS` beside it above :data:`MAX_TETS`."""
+    return (DEFAULT_CUBATURE_POINTS, LARGE_MESH_CUBATURE_POINTS) if too_large(n_tets) else (DEFAULT_CUBATURE_POINTS,)
 
 
 def fit_pool(n_tets: int, candidates: int | None) -> int | None:
@@ -165,7 +168,7 @@ def large_mesh_remedy(cap: int, rank: int, epochs: int) -> str:
     if rank >= cap and epochs >= LARGE_MESH_EPOCHS:
         return (f"r is at the dynamics check's cap ({cap}) and training ran {LARGE_MESH_EPOCHS} epochs or more, the large-mesh "
                 f"defaults where the check does not run (above {MAX_TETS} tets): add training runs nearer the missed scene; a larger "
-                f"cubature (--cubature-points above {LARGE_MESH_CUBATURE_POINTS}) lowers the non-rigid error, while a rolling body's "
+                "cubature (--cubature-points) moves the model towards its exact integration, while a rolling body's "
                 "centre of mass at this size lands either side of its target with the fit's own error (docs/results.md sections 39 "
                 "and 47): check the scenes you rely on against a full run (licrom compare)")
     return (f"the dynamics check, which raises r where the motion needs more modes, does not run above {MAX_TETS} tets: give r "

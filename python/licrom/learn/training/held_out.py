@@ -27,7 +27,7 @@ from ...reduced.base import ReducedSim
 from ...reduced.error_estimate import ERROR_THRESHOLD
 from ..model import Model
 
-__all__ = ["HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines"]
+__all__ = ["HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines", "target_ratio"]
 
 HELD_OUT_RUNS = 8
 """Held-out runs checked at most (the first ones of the split): each costs a reduced run and a comparison."""
@@ -97,6 +97,22 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
             f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; {remedy}",
             AccuracyWarning, stacklevel=3)
     return {"runs": rows, "worst_nonrigid_error": worst, "threshold": ERROR_THRESHOLD}
+
+
+def target_ratio(report: dict[str, Any]) -> float:
+    """How far the worst checked run of ``report`` (:func:`check_held_out`) is from its targets: the largest of its
+    non-rigid error over :data:`~licrom.analysis.compare.NONRIGID_TARGET` and its final centre of mass over
+    :data:`~licrom.analysis.compare.COM_TARGET` (below 1: every run meets; infinite where a run's stick/slip is wrong);
+    NaN where no run was checked."""
+    done = [r for r in report["runs"] if "skipped" not in r]
+    ratios = [max(_over(r["nonrigid_error"], NONRIGID_TARGET), _over(r["com_error"], COM_TARGET)) if r["stick_slip_right"] else float("inf")
+              for r in done]
+    return max(ratios, default=float("nan"))
+
+
+def _over(value: float, target: float) -> float:
+    """``value / target``; a target of 0 is missed by any error (infinite ratio) and met by none."""
+    return value / target if target > 0 else (float("inf") if value > 0 else 0.0)
 
 
 def _missed(row: dict[str, Any]) -> list[str]:

@@ -23,9 +23,9 @@ from ..model.finalize import finalize_basis
 from ..training_data import TrainingData, TrajectorySource
 from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
-from .dynamics import check_dynamics, default_cubature_points, default_epochs, fit_pool, large_mesh_remedy, too_large
+from .dynamics import check_dynamics, cubature_counts, default_epochs, fit_pool, large_mesh_remedy, too_large
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
-from .held_out import REMEDY, check_held_out
+from .held_out import REMEDY, check_held_out, target_ratio
 from .lightning import _lightning_classes
 from .objectives import _refit_output_layer, pod_targets
 from .rank import RankChoice, choose_rank
@@ -72,14 +72,17 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
     return save_png(fig, path)
 
 
-def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
+def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: Sequence[tuple[str, Any]] | None = None) -> None:
     """Fit the model's default cubature to the forces of its training poses and store it in the model.
 
     The poses are at most ``cfg.cubature_samples`` frames, evenly spaced over every run of
     ``data`` (training and held-out: the fit needs no held-out check, the more poses the
     better), in the model's frame; the fit is :meth:`licrom.Cubature.fitted` with
-    ``cfg.cubature_tolerance`` and at most ``cfg.cubature_points`` tets (a count: :func:`train` resolves ``"auto"``). Its size, residual
-    and time go to ``model.metadata["cubature"]``.
+    ``cfg.cubature_tolerance`` and at most ``cfg.cubature_points`` tets. Where that is ``"auto"`` on a large mesh
+    (:func:`~licrom.learn.training.dynamics.cubature_counts`), each count is fitted and the model keeps the fit whose
+    ``held_out`` runs (default: ``data.held_out``) land nearest their targets
+    (:func:`~licrom.learn.training.held_out.target_ratio`; the largest fit where there are none). Its size,
+    residual, time and the choice go to ``model.metadata["cubature"]``.
     """
     from ...subspace.cubature import Cubature, fit_candidates, model_samples
 
@@ -93,21 +96,40 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig) -> None:
                         for f, lo, hi in zip(frames, offsets[:-1], offsets[1:])])
     samples = model_samples(model, u)
     candidates = fit_pool(model.mesh.n_tets, cfg.cubature_candidates)
-    cubature = Cubature.fitted(model, samples, count=cfg.cubature_points, tolerance=cfg.cubature_tolerance, candidates=candidates)
+    counts = cubature_counts(model.mesh.n_tets) if cfg.cubature_points == "auto" else (cfg.cubature_points,)
+    held_out = data.held_out if held_out is None else held_out
+    fits, choice = [], []
+    for count in counts:
+        t_fit = time.perf_counter()
+        fits.append((count, Cubature.fitted(model, samples, count=count, tolerance=cfg.cubature_tolerance, candidates=candidates)))
+        choice.append({"max_count": count, "count": fits[-1][1].count, "fit_error": fits[-1][1].fit_error,
+                       "fit_seconds": time.perf_counter() - t_fit})
+    if len(fits) > 1 and held_out:
+        for row, (_, cubature) in zip(choice, fits):
+            model.set_cubature(cubature, samples)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", AccuracyWarning)  # only the kept fit's check warns, at the end of training
+                row["target_ratio"] = target_ratio(check_held_out(model, held_out))
+        ratios = [row["target_ratio"] for row in choice]
+        # the smaller fit where they tie (the cheaper step); the larger where no run could be replayed
+        best = len(fits) - 1 if np.all(np.isnan(ratios)) else int(np.nanargmin(ratios))
+    else:
+        best = len(fits) - 1
+    count, cubature = fits[best]
     model.set_cubature(cubature, samples)
     pool = min(model.mesh.n_tets, candidates or fit_candidates(*samples.shape))
     if cubature.fit_error > cfg.cubature_tolerance:
         # Both limits are named: the fit ends at its count, or earlier when no candidate left lowers the residual
         # (then the pool is the limit: the 104k-tet ball at r = 250), and its weights may drop some chosen tets.
         warnings.warn(f"the fitted cubature's force residual is {cubature.fit_error:.1e}, above its tolerance {cfg.cubature_tolerance:.0e}, "
-                      f"with {cubature.count} of {model.mesh.n_tets} tets ({cfg.cubature_points} allowed, chosen from {pool} candidates): the reduced "
+                      f"with {cubature.count} of {model.mesh.n_tets} tets ({count} allowed, chosen from {pool} candidates): the reduced "
                       "elastic forces are that far off at the training poses (raise TrainConfig.cubature_points, licrom train --cubature-points, "
                       + ("or the candidates, TrainConfig.cubature_candidates, licrom train --cubature-candidates, " if pool < model.mesh.n_tets else "")
                       + "or run with cubature='full' to see what the fit costs)",
                       AccuracyWarning, stacklevel=3)
     model.metadata["cubature"] = {"scheme": cubature.scheme, "count": cubature.count, "fit_error": cubature.fit_error,
-                                  "tolerance": cfg.cubature_tolerance, "max_count": cfg.cubature_points, "candidates": candidates,
-                                  "samples": len(samples),
+                                  "tolerance": cfg.cubature_tolerance, "max_count": count, "candidates": candidates,
+                                  "samples": len(samples), "choice": choice if len(fits) > 1 else None,
                                   "fit_seconds": time.perf_counter() - t0}
 
 
@@ -294,8 +316,6 @@ def train(
     tdata.check_deformation()
     if cfg.epochs == "auto":
         cfg = dataclasses.replace(cfg, epochs=default_epochs(tdata.mesh.n_tets))
-    if cfg.cubature_points == "auto":
-        cfg = dataclasses.replace(cfg, cubature_points=default_cubature_points(tdata.mesh.n_tets))
     t_data = time.perf_counter() - t_start
     rank = dynamics = None
     if mcfg.latent_dim == "auto":
@@ -437,7 +457,7 @@ def train(
             net, torch.tensor(tdata.rest), torch.tensor(tdata.masses), torch.as_tensor(val.residuals),
             torch.as_tensor(val.norm2_residual), torch.as_tensor(val.norm2_full), mcfg.affine).items()})
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
-    fit_cubature(model, tdata, cfg)
+    fit_cubature(model, tdata, cfg, held_out=None if trainer.is_global_zero else ())  # the choice's replays on one process
     if tdata.held_out and trainer.is_global_zero:
         remedy = REMEDY
         if tdata.frame == "body" and too_large(tdata.mesh.n_tets):
