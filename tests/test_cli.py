@@ -124,6 +124,22 @@ def test_train_cubature_points_caps_the_fitted_cubature(data, tmp_path):
     assert model.metadata["cubature"]["max_count"] == 3 and model.metadata["cubature"]["candidates"] == 40
 
 
+def test_train_reports_the_cubature_fits_it_chose_between(data, tmp_path, capsys, monkeypatch):
+    from licrom.learn.training import run
+
+    monkeypatch.setattr(run, "cubature_counts", lambda n_tets: (2, 30))  # the large-mesh choice, on the small data
+    model_path = tmp_path / "m.lcm"
+    assert main(["train", str(data), "-o", str(model_path), "-r", "2", "--epochs", "1", "--points", "128", "--batch-frames", "4",
+                 "--width", "16", "--fourier", "0", "--val-fraction", "0.5", "--device", "cpu", "--cubature-candidates", "40"]) == 0
+    printed = capsys.readouterr().out
+    stored = Model.load(model_path).metadata["cubature"]
+    for row in stored["choice"]:
+        kept = "kept" if row["max_count"] == stored["max_count"] else "not kept"
+        assert (f"fit of at most {row['max_count']} tets: {row['count']} tets, force residual {100 * row['fit_error']:.2f} %, worst held-out "
+                f"run {row['target_ratio']:.2f}x its targets ({kept})") in printed, printed
+    assert printed.count("(kept)") == 1
+
+
 def test_out_of_range_flags_are_refused_with_the_flag_and_the_range(tmp_path, capsys):
     assert main(["generate", str(tmp_path / "d"), "--slope", "95"]) == 2  # used to run at 85 deg
     assert "Invalid value for '--slope': 95.0 is not in the range 0<=x<90." in capsys.readouterr().err

@@ -405,6 +405,10 @@ def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_ra
         click.echo(f"cubature          {cub['count']} of {model.mesh.n_tets} tets fitted to {cub['samples']} training poses, "
                    f"force residual {100 * cub['fit_error']:.2f} % (tolerance {100 * cub['tolerance']:g} %), {cub['fit_seconds']:.1f} s; "
                    "stored in the model, the reduced runs' default")
+        for row in cub.get("choice") or []:
+            kept = "kept" if row["max_count"] == cub["max_count"] else "not kept"
+            ratio = f", worst held-out run {row['target_ratio']:.2f}x its targets" if "target_ratio" in row else ""
+            click.echo(f"  fit of at most {row['max_count']} tets: {row['count']} tets, force residual {100 * row['fit_error']:.2f} %{ratio} ({kept})")
     held = meta.get("held_out")
     if held and held.get("runs"):
         click.echo(f"held-out runs, ReducedSim(model) with its defaults against each run (estimate: the run's own; flagged above "
