@@ -137,20 +137,23 @@ def test_tumbling_free_flight_matches_full_simulation(integrator):
     assert err < 1e-8
 
 
+def _spinning_cheese(integrator: str, offset: float):
+    """The tiny cheese thrown spinning at an incline ``offset`` m below it, and a maker of its body-frame simulation on 5
+    random modes with every tet."""
+    mesh = meshes.cheese(resolution=4)
+    scene = Scene(planes=(Plane.incline(25.0, 0.3, offset=offset),), initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.4)),
+                  integrator=integrator)
+    learned = MeshBasis(mesh, 0.01 * np.random.default_rng(3).normal(size=(mesh.n_vertices, 3, 5)))
+    basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
+    return mesh, lambda: BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+
+
 @pytest.mark.parametrize("integrator", ["backward_euler", "bdf2"])
 def test_recorded_frames_are_the_states_read_between_steps(integrator, monkeypatch):
     # run() rebuilds its frames' shapes at the end, a block of frames at once (blocks of 2 here): the same
     # positions and velocities (the integrator's difference of the poses before) as reading them after each step.
     monkeypatch.setattr("licrom.reduced.body._FRAME_BLOCK", 2)
-    mesh = meshes.cheese(resolution=4)
-    scene = Scene(planes=(Plane.incline(25.0, 0.3, offset=0.1),), initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.4)),
-                  integrator=integrator)
-    learned = MeshBasis(mesh, 0.01 * np.random.default_rng(3).normal(size=(mesh.n_vertices, 3, 5)))
-    basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
-
-    def sim():
-        return BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
-
+    mesh, sim = _spinning_cheese(integrator, offset=0.1)
     recorded = sim().run(8, record_every=3)
     stepped = sim()
     frames = [(stepped.positions, stepped.velocities)]
@@ -178,15 +181,7 @@ def test_frames_built_on_their_first_read_are_those_read_at_once_and_those_the_r
     measured = []
     depth = validity.penetration
     monkeypatch.setattr("licrom.reduced.base.penetration", lambda x, planes: measured.append(np.array(x)) or depth(x, planes))
-    mesh = meshes.cheese(resolution=4)
-    scene = Scene(planes=(Plane.incline(25.0, 0.3, offset=0.12),), initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.4)),
-                  integrator=integrator)
-    learned = MeshBasis(mesh, 0.01 * np.random.default_rng(3).normal(size=(mesh.n_vertices, 3, 5)))
-    basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
-
-    def sim():
-        return BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
-
+    mesh, sim = _spinning_cheese(integrator, offset=0.12)
     at_once = sim().run(60, record_every=5)
     frames = (at_once.displacements, at_once.velocities)
     assert len(builds) == 1 and at_once.n_frames == 13
