@@ -274,7 +274,7 @@ def test_training_warns_when_its_fitted_cubature_misses_the_tolerance(tiny_demo)
 def test_training_keeps_the_fit_whose_held_out_runs_land_nearest_their_targets(tiny_demo, monkeypatch):
     from licrom import AccuracyWarning, Model
     from licrom.learn.training import TrainConfig, run
-    from licrom.learn.training.held_out import check_held_out, target_ratio
+    from licrom.learn.training.held_out import replay_held_out, target_ratio
     from licrom.learn.training_data import TrainingData
 
     out, _ = tiny_demo
@@ -284,14 +284,15 @@ def test_training_keeps_the_fit_whose_held_out_runs_land_nearest_their_targets(t
     monkeypatch.setattr(run, "cubature_counts", lambda n_tets: (40, 1))  # one tet: far from the runs
     with warnings.catch_warnings():
         warnings.simplefilter("error", AccuracyWarning)  # the one-tet fit, not kept, does not warn
-        run.fit_cubature(model, data, TrainConfig())
+        kept = run.fit_cubature(model, data, TrainConfig())
     choice = model.metadata["cubature"]["choice"]
     assert [row["max_count"] for row in choice] == [40, 1] and choice[0]["target_ratio"] < choice[1]["target_ratio"]
     assert model.metadata["cubature"]["max_count"] == 40 and model.cubature.count == choice[0]["count"] > 1
-    assert target_ratio(check_held_out(model, data.held_out)) == choice[0]["target_ratio"]  # the kept fit's own check
-    # no held-out run to choose by: the larger fit
+    # the kept fit's replay comes back for training's check, which would replay the same
+    assert target_ratio(kept) == target_ratio(replay_held_out(model, data.held_out)) == choice[0]["target_ratio"]
+    # no held-out run to choose by: the larger fit, and no replay
     monkeypatch.setattr(run, "cubature_counts", lambda n_tets: (1, 40))
-    run.fit_cubature(model, data, TrainConfig(), held_out=())
+    assert run.fit_cubature(model, data, TrainConfig(), held_out=()) is None
     assert model.metadata["cubature"]["max_count"] == 40 and all("target_ratio" not in row for row in model.metadata["cubature"]["choice"])
 
 

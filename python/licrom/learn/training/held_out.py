@@ -27,7 +27,7 @@ from ...reduced.base import ReducedSim
 from ...reduced.error_estimate import ERROR_THRESHOLD
 from ..model import Model
 
-__all__ = ["HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines", "target_ratio"]
+__all__ = ["HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines", "replay_held_out", "target_ratio", "warn_misses"]
 
 HELD_OUT_RUNS = 8
 """Held-out runs checked at most (the first ones of the split): each costs a reduced run and a comparison."""
@@ -49,13 +49,19 @@ def run_cadence(run: Trajectory) -> tuple[int, int] | None:
 
 
 def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_runs: int = HELD_OUT_RUNS, remedy: str = REMEDY) -> dict[str, Any]:
+    """:func:`replay_held_out`, then :func:`warn_misses` with ``remedy``: the check as training runs it."""
+    report = replay_held_out(model, runs, max_runs)
+    warn_misses(report, remedy, stacklevel=4)
+    return report
+
+
+def replay_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_runs: int = HELD_OUT_RUNS) -> dict[str, Any]:
     """Run ``ReducedSim(model, scene=run.scene)`` on each held-out run and compare it with the run.
 
     Args:
         model: the trained model (with its fitted cubature).
         runs: ``(name, full run)`` of the held-out runs.
         max_runs: runs checked at most.
-        remedy: the advice the warning ends with where a run misses.
 
     Returns:
         ``{"runs": [per run: name, nonrigid_error, com_error, stick_slip_right, estimate, flagged,
@@ -87,20 +93,24 @@ def check_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_run
             "step_ms": float(1e3 * np.median(reduced.step_seconds)),
             "seconds": time.perf_counter() - start,
         })
-    done = [r for r in rows if "skipped" not in r]
-    worst = max((r["nonrigid_error"] for r in done), default=float("nan"))
-    misses = [(r, _missed(r)) for r in done]
-    misses = [(r, what) for r, what in misses if what]
+    worst = max((r["nonrigid_error"] for r in rows if "skipped" not in r), default=float("nan"))
+    return {"runs": rows, "worst_nonrigid_error": worst, "threshold": ERROR_THRESHOLD}
+
+
+def warn_misses(report: dict[str, Any], remedy: str = REMEDY, stacklevel: int = 2) -> None:
+    """An :class:`~licrom.errors.AccuracyWarning` naming every run of ``report`` (:func:`replay_held_out`) that misses a
+    target, ending with ``remedy``; none where every run meets."""
+    done = [r for r in report["runs"] if "skipped" not in r]
+    misses = [(r, what) for r in done if (what := _missed(r))]
     if misses:
         shown = "; ".join(f"{r['run']} ({', '.join(what)}; estimated non-rigid {100 * r['estimate']:.1f} %)" for r, what in misses)
         warnings.warn(
             f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; {remedy}",
-            AccuracyWarning, stacklevel=3)
-    return {"runs": rows, "worst_nonrigid_error": worst, "threshold": ERROR_THRESHOLD}
+            AccuracyWarning, stacklevel=stacklevel)
 
 
 def target_ratio(report: dict[str, Any]) -> float:
-    """How far the worst checked run of ``report`` (:func:`check_held_out`) is from its targets: the largest of its
+    """How far the worst checked run of ``report`` (:func:`replay_held_out`) is from its targets: the largest of its
     non-rigid error over :data:`~licrom.analysis.compare.NONRIGID_TARGET` and its final centre of mass over
     :data:`~licrom.analysis.compare.COM_TARGET` (below 1: every run meets; infinite where a run's stick/slip is wrong);
     NaN where no run was checked."""

@@ -25,7 +25,7 @@ from .checkpoints import checkpoint_io, resume_checkpoint, run_fingerprint
 from .config import CSV_COLUMNS, TrainConfig, check_training_memory, output_paths, write_csv
 from .dynamics import check_dynamics, cubature_counts, default_epochs, fit_pool, large_mesh_remedy, too_large
 from .evaluation import _evaluate_tensors, _orthogonalized_vertex_field, _projection_error2
-from .held_out import REMEDY, check_held_out, target_ratio
+from .held_out import REMEDY, replay_held_out, target_ratio, warn_misses
 from .lightning import _lightning_classes
 from .objectives import _refit_output_layer, pod_targets
 from .rank import RankChoice, choose_rank
@@ -72,7 +72,7 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
     return save_png(fig, path)
 
 
-def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: Sequence[tuple[str, Any]] | None = None) -> None:
+def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: Sequence[tuple[str, Any]] | None = None) -> dict[str, Any] | None:
     """Fit the model's default cubature to the forces of its training poses and store it in the model.
 
     The poses are at most ``cfg.cubature_samples`` frames, evenly spaced over every run of
@@ -83,6 +83,10 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: S
     ``held_out`` runs (default: ``data.held_out``) land nearest their targets
     (:func:`~licrom.learn.training.held_out.target_ratio`; the largest fit where there are none). Its size,
     residual, time and the choice go to ``model.metadata["cubature"]``.
+
+    Returns:
+        The kept fit's replay of the held-out runs (:func:`~licrom.learn.training.held_out.replay_held_out`) where
+        the runs chose it, for training's check not to replay them again; else None.
     """
     from ...subspace.cubature import Cubature, fit_candidates, model_samples
 
@@ -98,7 +102,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: S
     candidates = fit_pool(model.mesh.n_tets, cfg.cubature_candidates)
     counts = cubature_counts(model.mesh.n_tets) if cfg.cubature_points == "auto" else (cfg.cubature_points,)
     held_out = data.held_out if held_out is None else held_out
-    fits, choice = [], []
+    fits, choice, replays = [], [], []
     for count in counts:
         t_fit = time.perf_counter()
         fits.append((count, Cubature.fitted(model, samples, count=count, tolerance=cfg.cubature_tolerance, candidates=candidates)))
@@ -107,9 +111,8 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: S
     if len(fits) > 1 and held_out:
         for row, (_, cubature) in zip(choice, fits):
             model.set_cubature(cubature, samples)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", AccuracyWarning)  # only the kept fit's check warns, at the end of training
-                row["target_ratio"] = target_ratio(check_held_out(model, held_out))
+            replays.append(replay_held_out(model, held_out))
+            row["target_ratio"] = target_ratio(replays[-1])
         ratios = [row["target_ratio"] for row in choice]
         # the smaller fit where they tie (the cheaper step); the larger where no run could be replayed
         best = len(fits) - 1 if np.all(np.isnan(ratios)) else int(np.nanargmin(ratios))
@@ -131,6 +134,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: S
                                   "tolerance": cfg.cubature_tolerance, "max_count": count, "candidates": candidates,
                                   "samples": len(samples), "choice": choice if len(fits) > 1 else None,
                                   "fit_seconds": time.perf_counter() - t0}
+    return replays[best] if replays else None
 
 
 # ----------------------------------------------------------------------------------------
@@ -457,13 +461,15 @@ def train(
             net, torch.tensor(tdata.rest), torch.tensor(tdata.masses), torch.as_tensor(val.residuals),
             torch.as_tensor(val.norm2_residual), torch.as_tensor(val.norm2_full), mcfg.affine).items()})
     model = Model(net, tdata.mesh, tdata.scenes, finalization=fin, default_scene_index=0 if not tdata.train_indices else tdata.train_indices[0], metadata=metadata)
-    fit_cubature(model, tdata, cfg, held_out=None if trainer.is_global_zero else ())  # the choice's replays on one process
+    replayed = fit_cubature(model, tdata, cfg, held_out=None if trainer.is_global_zero else ())  # the choice's replays on one process
     if tdata.held_out and trainer.is_global_zero:
         remedy = REMEDY
         if tdata.frame == "body" and too_large(tdata.mesh.n_tets):
             cap = dynamics.max_rank if dynamics is not None else cfg.dynamics_max_rank
             remedy = large_mesh_remedy(cap, int(mcfg.latent_dim), int(cfg.epochs))
-        model.metadata["held_out"] = check_held_out(model, tdata.held_out, remedy=remedy)
+        report = replayed if replayed is not None else replay_held_out(model, tdata.held_out)
+        warn_misses(report, remedy, stacklevel=3)
+        model.metadata["held_out"] = report
     if paths is not None and trainer.is_global_zero:
         model.save(paths["model"])
         if rows:
