@@ -33,6 +33,7 @@ from ..subspace.body_basis import BodyFrameBasis, rigid_momenta
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
 from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
+from .cubature_error import CubatureError
 from .error_estimate import ErrorMonitor
 
 __all__ = ["BodyFrameSim"]
@@ -188,7 +189,8 @@ class BodyFrameSim(ReducedSim):
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
         self._shapes: dict[bytes, np.ndarray] = {}
-        self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene)
+        self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene,
+                                     cubature_error=CubatureError(mesh, self._values, self._xbar, scene, self.cubature, self._jacobians, self._modal_mass))
         self.time = 0.0
         self.set_state(*scene.initial.apply(mesh.vertices, self._masses))
 

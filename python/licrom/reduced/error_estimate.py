@@ -55,6 +55,7 @@ from ..errors import AccuracyWarning, ConfigError
 from ..geometry.mesh import Mesh
 from ..geometry.points import farthest_points
 from ..scene.scene import Scene
+from .cubature_error import CubatureError
 
 __all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "SAMPLE_COUNT", "TARGET_WEIGHTS",
            "ErrorMonitor", "normalising_inverse", "sample_vertices", "warn_estimate"]
@@ -149,7 +150,8 @@ class ErrorMonitor:
 
     Positions of the sample are ``x = c + R (rest + W q)`` (world-frame models: ``c = 0``,
     ``R = I``, ``rest = X``; body-frame models: ``rest = Xbar``). A run calls :meth:`start`,
-    then :meth:`after_step` after each step, then :meth:`estimate`.
+    then :meth:`after_step` after each step, then :meth:`components`, whose two terms added in quadrature
+    (the residual sees the error outside the subspace, the cubature's term the error inside it) are the estimate.
 
     Args:
         mesh: the simulated mesh.
@@ -158,6 +160,8 @@ class ErrorMonitor:
         scene: the scene (material, gravity, dt, integrator, planes).
         count: sample size (all vertices on meshes with fewer).
         stride: steps between two evaluations, an integer >= 1.
+        cubature_error: the cubature's term (:mod:`licrom.reduced.cubature_error`), evaluated with every
+            ``cubature_error.stride``-th evaluation of the residual; None: the residual alone.
 
     Attributes:
         vertices: (s,) the sample vertices.
@@ -169,7 +173,7 @@ class ErrorMonitor:
     """
 
     def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, count: int = SAMPLE_COUNT,
-                 stride: int = ERROR_STRIDE) -> None:
+                 stride: int = ERROR_STRIDE, cubature_error: CubatureError | None = None) -> None:
         for name, value in (("sample count", count), ("stride", stride)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ConfigError(f"the error estimate's {name} must be an integer >= 1, got {value!r}")
@@ -205,8 +209,10 @@ class ErrorMonitor:
                                                 self._own, self._m, normaliser, np.asarray(scene.gravity, dtype=np.float64),
                                                 np.ascontiguousarray(scene.plane_array()[:, :4]), self._target, h, self._total_mass,
                                                 scene.material.viscosity)
+        self._cubature_error = cubature_error
         self._step = 0
         self._evaluations: list[tuple[int, float, float]] = []
+        self._cubature_evaluations: list[tuple[int, float, float]] = []
 
     def sample_positions(self, q: np.ndarray, center: np.ndarray | None = None, rotation: np.ndarray | None = None) -> np.ndarray:
         """(s, 3) world positions of the sample vertices, m."""
@@ -231,6 +237,7 @@ class ErrorMonitor:
         self._residual.start(np.stack(history))
         self._step = 0
         self._evaluations = []
+        self._cubature_evaluations = []
 
     def after_step(self, state: Callable[[], tuple[np.ndarray, np.ndarray | None, np.ndarray | None]],
                    deformation: Callable[[np.ndarray], float]) -> None:
@@ -249,41 +256,56 @@ class ErrorMonitor:
         if wait:
             self._residual.record(q, center, rotation)
             return
-        self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), deformation(q)))
+        size = deformation(q)
+        cubature = self._cubature_error
+        if cubature is not None and len(self._evaluations) % cubature.stride == 0:
+            self._cubature_evaluations.append((self._step, cubature.displacement(q), size))
+        self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), size))
 
-    def estimate(self, frame_steps: np.ndarray, start_step: int | None) -> np.ndarray:
-        """(f,) running estimate at each frame, from the evaluations since the last :meth:`start`.
-
-        ``ERROR_SCALE * sqrt(sum M/M_S sum_v m_v |du_v|^2 / sum |u|_M^2)`` over the evaluated
-        steps from ``start_step`` (the first contact; None: every step) up to each frame's step;
-        zero where none is counted yet or nothing has deformed.
+    def components(self, frame_steps: np.ndarray, start_step: int | None) -> dict[str, np.ndarray]:
+        """(f,) running value of each term of the estimate at each frame, from the evaluations since the last
+        :meth:`start`: ``"residual"``, ``ERROR_SCALE * sqrt(sum M/M_S sum_v m_v |du_v|^2 / sum |u|_M^2)``, and
+        ``"cubature"``, ``sqrt(sum |W dq|_M^2 / sum |u|_M^2)`` (:mod:`licrom.reduced.cubature_error`; zero without
+        that term), each over its evaluated steps from ``start_step`` (the first contact; None: every step) up to each
+        frame's step; zero where none is counted yet or nothing has deformed.
 
         Args:
             frame_steps: (f,) the step of each frame (0 for the state the run started from).
             start_step: the first step counted.
         """
-        out = np.zeros(len(frame_steps))
-        if not self._evaluations:
-            return out
-        steps, weighted, deformation = (np.array(a) for a in zip(*self._evaluations))
-        keep = steps >= (0 if start_step is None else start_step)
-        if not keep.any():  # every evaluation before the first contact (a run recorded at few frames)
-            return out
-        steps, num, den = steps[keep], np.cumsum(weighted[keep]), np.cumsum(deformation[keep])
-        last = np.searchsorted(steps, frame_steps, side="right") - 1
-        ok = (last >= 0) & (den[last] > 0)
-        out[ok] = ERROR_SCALE * np.sqrt(num[last[ok]] / den[last[ok]])
+        return {"residual": ERROR_SCALE * _running_ratio(self._evaluations, frame_steps, start_step),
+                "cubature": _running_ratio(self._cubature_evaluations, frame_steps, start_step)}
+
+
+def _running_ratio(evaluations: list[tuple[int, float, float]], frame_steps: np.ndarray, start_step: int | None) -> np.ndarray:
+    """(f,) ``sqrt(sum error / sum size)`` of the ``(step, error, size)`` evaluations from ``start_step`` up to each
+    frame's step; zero where none is counted yet or the sizes sum to zero."""
+    out = np.zeros(len(frame_steps))
+    if not evaluations:
         return out
+    steps, error, size = (np.array(a) for a in zip(*evaluations))
+    keep = steps >= (0 if start_step is None else start_step)
+    if not keep.any():  # every evaluation before the first contact (a run recorded at few frames)
+        return out
+    steps, num, den = steps[keep], np.cumsum(error[keep]), np.cumsum(size[keep])
+    last = np.searchsorted(steps, frame_steps, side="right") - 1
+    ok = (last >= 0) & (den[last] > 0)
+    out[ok] = np.sqrt(num[last[ok]] / den[last[ok]])
+    return out
 
 
-def warn_estimate(estimate: np.ndarray, what: str, stacklevel: int = 3) -> None:
+def warn_estimate(estimate: np.ndarray, what: str, stacklevel: int = 3, cubature: float = 0.0) -> None:
     """Warn (:class:`~licrom.errors.AccuracyWarning`) once when the run-level estimate (the last
-    frame's) passes :data:`ERROR_THRESHOLD`; ``stacklevel`` as in :func:`warnings.warn` (3: the caller's caller)."""
+    frame's) passes :data:`ERROR_THRESHOLD`; ``stacklevel`` as in :func:`warnings.warn` (3: the caller's caller).
+    ``cubature``: the estimate's cubature term (:meth:`ErrorMonitor.components`), which names the cause where it
+    is the larger part."""
     if len(estimate) and estimate[-1] > ERROR_THRESHOLD:
+        cause = ("the cubature misintegrates the subspace's forces; use more cubature tets (cubature='full' is exact) or refit it"
+                 if cubature > estimate[-1] / np.sqrt(2) else
+                 "the subspace misses this motion; use more modes, or retrain with runs like this scene")
         warnings.warn(
             f"{what}: estimated non-rigid error {100 * estimate[-1]:.3g} % exceeds the threshold "
-            f"{100 * ERROR_THRESHOLD:.0f} % (Trajectory.error_estimate, licrom.reduced.error_estimate): the subspace "
-            "misses this motion; use more modes, or retrain with runs like this scene",
+            f"{100 * ERROR_THRESHOLD:.0f} % (Trajectory.error_estimate, licrom.reduced.error_estimate): {cause}",
             AccuracyWarning,
             stacklevel=stacklevel,
         )

@@ -26,6 +26,7 @@ from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
 from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
+from .cubature_error import CubatureError
 from .error_estimate import ErrorMonitor
 
 __all__ = ["SOLVERS", "WorldFrameSim"]
@@ -103,7 +104,9 @@ class WorldFrameSim(ReducedSim):
             **native_inputs(self, strain, mesh.vertices),
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
-        self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene)
+        self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene,
+                                     cubature_error=CubatureError(mesh, self._values, mesh.vertices, scene, self.cubature, self._jacobians,
+                                                                  self._projector.reduced_mass))
         self.time = 0.0
         positions, velocities = scene.initial.apply(mesh.vertices, self._masses)
         self.set_state(positions, velocities)

@@ -113,6 +113,7 @@ def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: S
             model.set_cubature(cubature, samples)
             replays.append(replay_held_out(model, held_out))
             row["target_ratio"] = target_ratio(replays[-1])
+            row["held_out"] = replays[-1]["runs"]  # each fit's runs, with the online estimate beside the true error
         ratios = [row["target_ratio"] for row in choice]
         # the smaller fit where they tie (the cheaper step); the larger where no run could be replayed
         best = len(fits) - 1 if np.all(np.isnan(ratios)) else int(np.nanargmin(ratios))

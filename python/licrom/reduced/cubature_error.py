@@ -1,0 +1,118 @@
+"""The cubature's share of a reduced run's error, estimated online: every tet's reduced force against the cubature's.
+
+A reduced step balances the elastic force of its cubature, ``g_K(q) = sum_k w_k G_k^T P(I + G_k q)``
+(``G_k = dF/dq`` at cubature tet k, P the stable Neo-Hookean stress), against inertia, gravity and contact. The
+full equations projected onto the subspace balance every tet's instead,
+
+    ``g(q) = sum_t V_t G_t^T P(F_t(q)) = sum_v W_v^T dE/dy_v``,
+
+which costs one reconstruction of the body ``y = rest + W q``, one pass over the tets and one product with the
+mode values: the elastic force the full model would feel at the reduced state, through the subspace. Their
+difference ``d = g(q) - g_K(q)`` is the force the cubature leaves out, and the displacement it would make in the
+subspace, ``dq = K^-1 d`` (``K``: the reduced stiffness at rest over every tet), is the cubature's error of the
+state. The estimate compares it with the body's non-rigid deformation ``u`` as :mod:`licrom.reduced.error_estimate`
+compares its residual:
+
+    ``e_K(t) = sqrt(sum_{s<=t} |W dq(s)|_M^2 / sum_{s<=t} |u(s)|_M^2)``
+
+over the evaluated steps s. ``|W dq|_M^2 = dq^T M_r dq`` with ``M_r`` the exact reduced mass; in the modes ``phi``
+of ``K phi = lambda M_r phi`` (mass-normalised) it is ``sum_i ((phi_i . d) / lambda_i)^2``, k^2 work a step. Modes
+of no stiffness (the world-frame model's rigid motions) feel no elastic force and are left out.
+
+Why: the residual the error estimate samples at vertices is the part of the full equations the subspace cannot
+represent; a cubature that integrates the subspace's own forces wrongly leaves a state that satisfies the reduced
+equations and is wrong inside the subspace, where that residual does not look (docs/results.md section 47: a fit of
+587 tets made the 120k-tet cheese 10.7-15.1 % non-rigid where the same model with every tet lands 1.6-3.6 %, and the
+residual read 4.6-6.8 % for both). With every tet as the cubature the term is zero to round-off.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+from .. import _core
+from ..geometry.mesh import Mesh
+from ..scene.scene import Scene
+from ..subspace.cubature import Cubature
+
+__all__ = ["RIGID_TOLERANCE", "TETS_PER_STRIDE", "CubatureError"]
+
+RIGID_TOLERANCE = 1e-9
+"""Stiffness eigenvalues below this fraction of the largest count as rigid motions (no elastic force acts on them)."""
+
+_STIFFNESS_BLOCK = 2048  # tets whose strain Jacobians are formed at once (38 MB at k = 256)
+
+TETS_PER_STRIDE = 4000
+"""Tets of the mesh per error-estimate evaluation between two evaluations of this term: on meshes of up to this many
+tets every evaluation of the estimate evaluates it, on larger ones one in ``ceil(m / TETS_PER_STRIDE)``, so that
+its cost, which grows with the mesh where the reduced step does not, stays a small part of the step's."""
+
+
+class CubatureError:
+    """The cubature's error of a reduced state, as a displacement in the subspace (module docstring).
+
+    Args:
+        mesh: the simulated mesh.
+        values: (n, 3, k) mode values at every vertex.
+        rest: (n, 3) the rest term of the body (``X`` or ``Xbar``), m.
+        scene: the scene (its material).
+        cubature: the reduced model's cubature.
+        jacobians: (K, 9, k) ``dF/dq`` at the cubature tets.
+        modal_mass: (k, k) exact reduced mass ``W^T M W``, kg.
+
+    Attributes:
+        stride: evaluations of the error estimate per evaluation of this term (:data:`TETS_PER_STRIDE`).
+    """
+
+    def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, cubature: Cubature, jacobians: np.ndarray,
+                 modal_mass: np.ndarray) -> None:
+        n, _, k = values.shape
+        self._mu, self._lam = scene.material.snh_parameters
+        self._tets = mesh.tets
+        self._grads = mesh.shape_gradients
+        self._volumes = mesh.rest_volumes
+        self._n = n
+        self._modes = values.reshape(3 * n, k)
+        self._body = _core.Reconstruction(values, rest)
+        self._jacobians = jacobians
+        self._weights = cubature.weights
+        self.stride = -(-mesh.n_tets // TETS_PER_STRIDE)
+        stiffness = self._rest_stiffness(values)
+        lam, phi = scipy.linalg.eigh(0.5 * (stiffness + stiffness.T), modal_mass)
+        elastic = lam > RIGID_TOLERANCE * max(lam.max(initial=0.0), 1e-300)
+        self._scaled = phi[:, elastic] / lam[elastic]  # (k, e): d -> each elastic mode's static displacement
+
+    def _rest_stiffness(self, values: np.ndarray) -> np.ndarray:
+        """(k, k) reduced stiffness at rest over every tet, ``sum_t V_t G_t^T C G_t`` (N/m per unit q^2).
+
+        Every tet's and not the cubature's: a cubature that misintegrates the forces misintegrates the stiffness too,
+        and one of a few tets leaves modes nearly free, which would read its error as a displacement without bound
+        (measured: 25 random tets on the 864-tet demo cheese read 950-1010 % for a true 51-60 %). The tets' ``G_t`` are
+        formed a block at a time from the vertex values, so the memory stays that of a block.
+        """
+        k = values.shape[2]
+        c = _core.snh_hessian(np.eye(3)[None], self._mu, self._lam, False)[0]
+        stiffness = np.zeros((k, k))
+        for first in range(0, len(self._tets), _STIFFNESS_BLOCK):
+            block = slice(first, first + _STIFFNESS_BLOCK)
+            g = np.einsum("taic,taj->tijc", values[self._tets[block]], self._grads[block]).reshape(-1, 9, k)
+            weighted = self._volumes[block, None, None] * np.einsum("ij,tjc->tic", c, g)
+            stiffness += g.reshape(-1, k).T @ weighted.reshape(-1, k)
+        return stiffness
+
+    def forces(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) reduced elastic forces ``dE/dq`` (N m per unit q) at ``q``: every tet's and the cubature's."""
+        y = self._body.positions(q)
+        f = _core.snh_pk1(np.einsum("tai,taj->tij", y[self._tets], self._grads), self._mu, self._lam)
+        corner = self._volumes[:, None, None] * np.einsum("tij,taj->tai", f, self._grads)  # dE/dy of each tet's corners
+        per_vertex = np.stack([np.bincount(self._tets.ravel(), corner[..., i].ravel(), self._n) for i in range(3)], axis=1)
+        everything = self._modes.T @ per_vertex.ravel()
+        at = np.eye(3).ravel() + self._jacobians @ q
+        stress = _core.snh_pk1(at.reshape(-1, 3, 3), self._mu, self._lam).reshape(-1, 9)
+        return everything, np.einsum("k,kic,ki->c", self._weights, self._jacobians, stress)
+
+    def displacement(self, q: np.ndarray) -> float:
+        """``|W dq|_M^2`` (kg m^2): the cubature's error of the state ``q`` as a displacement, squared."""
+        everything, cubature = self.forces(q)
+        return float(np.sum(((everything - cubature) @ self._scaled) ** 2))
