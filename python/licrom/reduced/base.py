@@ -302,7 +302,8 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
         warn_frames(arrays["times"], min_det_f, depth, self.mesh.size, what, rec.trailing, stacklevel=4)
         parts = self._monitor.components(record_every * np.arange(len(qs)), None if start is None else record_every * start)
         estimate = np.hypot(parts["residual"], parts["cubature"])
-        warn_estimate(estimate, what, stacklevel=4, cubature=float(parts["cubature"][-1]) if len(estimate) else 0.0)
+        terms = {name: float(part[-1]) if len(part) else 0.0 for name, part in parts.items()}
+        warn_estimate(estimate, what, stacklevel=4, terms=terms)
         return Trajectory(
             rest_positions=self.mesh.vertices,
             tets=self.mesh.tets,
@@ -320,7 +321,7 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
                 "cubature_points": int(self.cubature.count),
                 "contact_points": int(self.contact_points.count),
                 # The run-level estimate's two terms (licrom.reduced.error_estimate): outside the subspace and the cubature's.
-                "error_estimate_terms": {name: float(part[-1]) if len(part) else 0.0 for name, part in parts.items()},
+                "error_estimate_terms": terms,
                 **info,
             },
         )

@@ -294,17 +294,18 @@ def _running_ratio(evaluations: list[tuple[int, float, float]], frame_steps: np.
     return out
 
 
-def warn_estimate(estimate: np.ndarray, what: str, stacklevel: int = 3, cubature: float = 0.0) -> None:
+def warn_estimate(estimate: np.ndarray, what: str, stacklevel: int = 3, terms: dict[str, float] | None = None) -> None:
     """Warn (:class:`~licrom.errors.AccuracyWarning`) once when the run-level estimate (the last
     frame's) passes :data:`ERROR_THRESHOLD`; ``stacklevel`` as in :func:`warnings.warn` (3: the caller's caller).
-    ``cubature``: the estimate's cubature term (:meth:`ErrorMonitor.components`), which names the cause where it
-    is the larger part."""
+    ``terms``: the run-level :meth:`ErrorMonitor.components`, named in the message with the remedy of the larger."""
     if len(estimate) and estimate[-1] > ERROR_THRESHOLD:
-        cause = ("the cubature misintegrates the subspace's forces; use more cubature tets (cubature='full' is exact) or refit it"
-                 if cubature > estimate[-1] / np.sqrt(2) else
-                 "the subspace misses this motion; use more modes, or retrain with runs like this scene")
+        parts, cause = "", "the subspace misses this motion; use more modes, or retrain with runs like this scene"
+        if terms is not None:
+            parts = f" (outside the subspace {100 * terms['residual']:.3g} %, the cubature's {100 * terms['cubature']:.3g} %)"
+            if terms["cubature"] > terms["residual"]:
+                cause = "the cubature misintegrates the subspace's forces; use more cubature tets (cubature='full' is exact) or refit it"
         warnings.warn(
-            f"{what}: estimated non-rigid error {100 * estimate[-1]:.3g} % exceeds the threshold "
+            f"{what}: estimated non-rigid error {100 * estimate[-1]:.3g} %{parts} exceeds the threshold "
             f"{100 * ERROR_THRESHOLD:.0f} % (Trajectory.error_estimate, licrom.reduced.error_estimate): {cause}",
             AccuracyWarning,
             stacklevel=stacklevel,
