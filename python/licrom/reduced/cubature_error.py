@@ -9,7 +9,7 @@ full equations projected onto the subspace balance every tet's instead,
 which costs one reconstruction of the body ``y = rest + W q``, one pass over the tets and one product with the
 mode values: the elastic force the full model would feel at the reduced state, through the subspace. Their
 difference ``d = g(q) - g_K(q)`` is the force the cubature leaves out, and the displacement it would make in the
-subspace, ``dq = K^-1 d`` (``K``: the reduced stiffness at rest over every tet), is the cubature's error of the
+subspace, ``dq = K^-1 d`` (``K``: the reduced stiffness at rest over every tet, or a large sample of them), is the cubature's error of the
 state. The estimate compares it with the body's non-rigid deformation ``u`` as :mod:`licrom.reduced.error_estimate`
 compares its residual:
 
@@ -36,12 +36,17 @@ from ..geometry.mesh import Mesh
 from ..scene.scene import Scene
 from ..subspace.cubature import Cubature
 
-__all__ = ["RIGID_TOLERANCE", "TETS_PER_STRIDE", "CubatureError"]
+__all__ = ["RIGID_TOLERANCE", "STIFFNESS_TETS", "TETS_PER_STRIDE", "CubatureError"]
 
 RIGID_TOLERANCE = 1e-9
 """Stiffness eigenvalues below this fraction of the largest count as rigid motions (no elastic force acts on them)."""
 
 _STIFFNESS_BLOCK = 2048  # tets whose strain Jacobians are formed at once (38 MB at k = 256)
+
+STIFFNESS_TETS = 4000
+"""Most tets the reduced stiffness at rest is summed over (:meth:`CubatureError._rest_stiffness`): every tet up to this
+many, a volume-scaled random sample of this many above, so that on a 120k-tet mesh at r = 250 it costs about what the
+rest of the setup does."""
 
 TETS_PER_STRIDE = 4000
 """Tets of the mesh per error-estimate evaluation between two evaluations of this term: on meshes of up to this many
@@ -78,26 +83,28 @@ class CubatureError:
         self._jacobians = jacobians
         self._weights = cubature.weights
         self.stride = -(-mesh.n_tets // TETS_PER_STRIDE)
-        stiffness = self._rest_stiffness(values)
+        stiffness = self._rest_stiffness(values, mesh)
         lam, phi = scipy.linalg.eigh(0.5 * (stiffness + stiffness.T), modal_mass)
         elastic = lam > RIGID_TOLERANCE * max(lam.max(initial=0.0), 1e-300)
         self._scaled = phi[:, elastic] / lam[elastic]  # (k, e): d -> each elastic mode's static displacement
 
-    def _rest_stiffness(self, values: np.ndarray) -> np.ndarray:
-        """(k, k) reduced stiffness at rest over every tet, ``sum_t V_t G_t^T C G_t`` (N/m per unit q^2).
+    def _rest_stiffness(self, values: np.ndarray, mesh: Mesh) -> np.ndarray:
+        """(k, k) reduced stiffness at rest, ``sum_t V_t G_t^T C G_t`` (N/m per unit q^2), over every tet of meshes of up
+        to :data:`STIFFNESS_TETS` tets and over that many random tets, volume-scaled (:meth:`Cubature.naive`), on larger.
 
-        Every tet's and not the cubature's: a cubature that misintegrates the forces misintegrates the stiffness too,
-        and one of a few tets leaves modes nearly free, which would read its error as a displacement without bound
-        (measured: 25 random tets on the 864-tet demo cheese read 950-1010 % for a true 51-60 %). The tets' ``G_t`` are
-        formed a block at a time from the vertex values, so the memory stays that of a block.
+        Not the cubature's: a cubature that misintegrates the forces misintegrates the stiffness too, and one of a few
+        tets leaves modes nearly free, which would read its error as a displacement without bound (measured: 25 random
+        tets on the 864-tet demo cheese read 950-1010 % for a true 51-60 %). The tets' ``G_t`` are formed a block at a
+        time from the vertex values, so the memory stays that of a block.
         """
         k = values.shape[2]
+        sample = Cubature.full(mesh) if mesh.n_tets <= STIFFNESS_TETS else Cubature.naive(mesh, STIFFNESS_TETS)
         c = _core.snh_hessian(np.eye(3)[None], self._mu, self._lam, False)[0]
         stiffness = np.zeros((k, k))
-        for first in range(0, len(self._tets), _STIFFNESS_BLOCK):
-            block = slice(first, first + _STIFFNESS_BLOCK)
-            g = np.einsum("taic,taj->tijc", values[self._tets[block]], self._grads[block]).reshape(-1, 9, k)
-            weighted = self._volumes[block, None, None] * np.einsum("ij,tjc->tic", c, g)
+        for first in range(0, sample.count, _STIFFNESS_BLOCK):
+            tets = sample.tets[first:first + _STIFFNESS_BLOCK]
+            g = np.einsum("taic,taj->tijc", values[self._tets[tets]], self._grads[tets]).reshape(-1, 9, k)
+            weighted = sample.weights[first:first + _STIFFNESS_BLOCK, None, None] * np.einsum("ij,tjc->tic", c, g)
             stiffness += g.reshape(-1, k).T @ weighted.reshape(-1, k)
         return stiffness
 
