@@ -16,7 +16,6 @@ from licrom.rigid import body_frame_displacements
 from licrom.subspace.basis import strain_jacobians
 from licrom.subspace.body_basis import BodyFrameBasis
 from licrom.subspace.cubature import Cubature
-
 from test_error_estimate import _scene
 
 MATERIAL = Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0)
