@@ -26,6 +26,7 @@ def test_the_training_report_holds_each_held_out_run_replayed_with_the_defaults(
         assert row["nonrigid_error"] == pytest.approx(c.nonrigid_error, rel=1e-9)
         assert row["com_error"] == pytest.approx(c.final_com_error, rel=1e-9)
         assert row["estimate"] == pytest.approx(c.error_estimate, rel=1e-9)
+        assert row["estimate_terms"] == pytest.approx(reduced.info["error_estimate_terms"], rel=1e-9)
         assert row["stick_slip_right"] == c.stick_slip_agree
         assert row["flagged"] == (row["estimate"] > report["threshold"])
     assert report["worst_nonrigid_error"] == max(r["nonrigid_error"] for r in report["runs"])
@@ -34,6 +35,7 @@ def test_the_training_report_holds_each_held_out_run_replayed_with_the_defaults(
     for row, line in zip(report["runs"], lines):  # each run with its verdict, then what the numbers mean
         ok = row["nonrigid_error"] < 0.1 and row["com_error"] < 0.02 and row["stick_slip_right"]
         assert line.endswith("meets every target") == ok and ("misses" in line) == (not ok)
+        assert f"the cubature's {100 * row['estimate_terms']['cubature']:.1f} %" in line
     assert lines[-2].startswith("  non-rigid error (target < 10 %): How far")
 
 

@@ -64,8 +64,9 @@ def replay_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_ru
         max_runs: runs checked at most.
 
     Returns:
-        ``{"runs": [per run: name, nonrigid_error, com_error, stick_slip_right, estimate, flagged,
-        step_ms, seconds], "worst_nonrigid_error", "threshold"}``; a run the check cannot replay
+        ``{"runs": [per run: name, nonrigid_error, com_error, stick_slip_right, estimate, estimate_terms (the
+        estimate's two terms, ``Trajectory.info["error_estimate_terms"]``), flagged, step_ms, seconds],
+        "worst_nonrigid_error", "threshold"}``; a run the check cannot replay
         (frames not evenly spaced, or the reduced run fails) has ``"skipped"`` with the reason.
     """
     rows: list[dict[str, Any]] = []
@@ -89,6 +90,7 @@ def replay_held_out(model: Model, runs: Sequence[tuple[str, Trajectory]], max_ru
             "com_error": float(c.final_com_error),
             "stick_slip_right": bool(c.stick_slip_agree),
             "estimate": float(c.error_estimate),
+            "estimate_terms": reduced.info["error_estimate_terms"],
             "flagged": bool(c.error_estimate > ERROR_THRESHOLD),
             "step_ms": float(1e3 * np.median(reduced.step_seconds)),
             "seconds": time.perf_counter() - start,
@@ -149,7 +151,10 @@ def held_out_lines(report: dict[str, Any]) -> list[str]:
                               "stick_slip_agree": r["stick_slip_right"]})
         lines.append(
             f"  {r['run']}: non-rigid error {100 * r['nonrigid_error']:.1f} % (estimate {100 * r['estimate']:.1f} %"
-            f"{', flagged' if r['flagged'] else ''}), final centre of mass {100 * r['com_error']:.2f} % of the size, "
+            # reports of models trained before the estimate had its cubature term hold the estimate alone
+            + (f": outside the subspace {100 * r['estimate_terms']['residual']:.1f} %, the cubature's {100 * r['estimate_terms']['cubature']:.1f} %"
+               if "estimate_terms" in r else "")
+            + f"{', flagged' if r['flagged'] else ''}), final centre of mass {100 * r['com_error']:.2f} % of the size, "
             f"stick/slip {'right' if r['stick_slip_right'] else 'WRONG'}, {r['step_ms']:.2f} ms a step: "
             + ("meets every target" if ok else "misses " + ", ".join(missed)))
     if lines:
