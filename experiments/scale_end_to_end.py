@@ -179,7 +179,8 @@ def reduced_stage(model: licrom.Model, case: bfe.Case, full: Trajectory, steps: 
            "full_median_step_ms": 1e3 * float(np.median(full.step_seconds))}
     log(f"reduced {case.name} ({row['contact_points']} contact points, {row['cubature']} {row['cubature_scheme']} cubature tets): "
         f"setup {setup:.2f} s, median step {row['median_step_ms']:.3f} ms, non-rigid {bfe._pct(row['nonrigid_error'])} "
-        f"(est {bfe._pct(row['estimate'])}: residual {bfe._pct(row['estimate_terms']['residual'])}, cubature {bfe._pct(row['estimate_terms']['cubature'])}; learned proj {bfe._pct(learned)}), COM {bfe._pct(row['com_error'])}, compare {compare_s:.1f} s, "
+        f"(est {bfe._pct(row['estimate'])}: residual {bfe._pct(row['estimate_terms']['residual'])}, "
+        f"cubature {bfe._pct(row['estimate_terms']['cubature'])}; learned proj {bfe._pct(learned)}), COM {bfe._pct(row['com_error'])}, compare {compare_s:.1f} s, "
         f"projection {proj_s:.1f} s")
     return row
 
