@@ -23,7 +23,9 @@ Why: the residual the error estimate samples at vertices is the part of the full
 represent; a cubature that integrates the subspace's own forces wrongly leaves a state that satisfies the reduced
 equations and is wrong inside the subspace, where that residual does not look (docs/results.md section 47: a fit of
 587 tets made the 120k-tet cheese 10.7-15.1 % non-rigid where the same model with every tet lands 1.6-3.6 %, and the
-residual read 4.6-6.8 % for both). With every tet as the cubature the term is zero to round-off.
+residual read 4.6-6.8 % for both). With every tet as the cubature the term is zero to round-off. The material's
+viscous stress, which the cubature integrates too, is left out: the term checks the elastic forces, which hold the
+deformation.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import scipy.linalg
 from .. import _core
 from ..geometry.mesh import Mesh
 from ..scene.scene import Scene
+from ..subspace.basis import mesh_strain_jacobians
 from ..subspace.cubature import Cubature
 
 __all__ = ["MAX_STRIDE", "RIGID_TOLERANCE", "STIFFNESS_TETS", "TETS_PER_STRIDE", "CubatureError"]
@@ -109,8 +112,7 @@ class CubatureError:
         c = _core.snh_hessian(np.eye(3)[None], self._mu, self._lam, False)[0]
         stiffness = np.zeros((k, k))
         for first in range(0, sample.count, _STIFFNESS_BLOCK):
-            tets = sample.tets[first:first + _STIFFNESS_BLOCK]
-            g = np.einsum("taic,taj->tijc", values[self._tets[tets]], self._grads[tets]).reshape(-1, 9, k)
+            g = mesh_strain_jacobians(mesh, sample.tets[first:first + _STIFFNESS_BLOCK], values).reshape(-1, 9, k)
             weighted = sample.weights[first:first + _STIFFNESS_BLOCK, None, None] * np.einsum("ij,tjc->tic", c, g)
             stiffness += g.reshape(-1, k).T @ weighted.reshape(-1, k)
         return stiffness

@@ -37,6 +37,7 @@ __all__ = [
     "affine_values",
     "check_basis",
     "check_basis_output",
+    "mesh_strain_jacobians",
     "run_balanced_weights",
     "strain_jacobians",
     "vertex_strain_form",
@@ -197,8 +198,14 @@ def strain_jacobians(basis: Basis, mesh: Mesh, tets: np.ndarray, strain: str = "
         return basis.jacobians(mesh.centroids[idx])
     if strain != "mesh":
         raise ConfigError(f"strain must be one of {', '.join(repr(s) for s in STRAINS)}, got {strain!r}")
-    v = basis.values(mesh.vertices) if values is None else values
-    return np.einsum("paic,paj->pijc", v[mesh.tets[idx]], mesh.shape_gradients[idx])
+    return mesh_strain_jacobians(mesh, idx, basis.values(mesh.vertices) if values is None else values)
+
+
+def mesh_strain_jacobians(mesh: Mesh, tets: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(p, 3, 3, k) ``dF/dq = sum_a W_{v_a} (x) grad N_a`` in the tets ``tets`` of ``mesh`` from the (n, 3, k) mode
+    ``values`` at its vertices: the ``"mesh"`` strain of :func:`strain_jacobians`."""
+    idx = np.asarray(tets, dtype=np.int64)
+    return np.einsum("paic,paj->pijc", values[mesh.tets[idx]], mesh.shape_gradients[idx])
 
 
 def vertex_strain_form(mesh: Mesh, tets: np.ndarray, strain: str, values: np.ndarray) -> dict[str, np.ndarray]:
@@ -300,8 +307,7 @@ class MeshBasis:
 
     def jacobians(self, points: np.ndarray) -> np.ndarray:
         tets, _ = self.mesh.locate(check_points(points))
-        grads = self.mesh.shape_gradients[tets]  # (p, 4, 3)
-        return np.einsum("paic,paj->pijc", self.modes[self.mesh.tets[tets]], grads)
+        return mesh_strain_jacobians(self.mesh, tets, self.modes)
 
     def __repr__(self) -> str:
         return f"MeshBasis(n_vertices={self.mesh.n_vertices}, n_modes={self.n_modes})"
