@@ -40,8 +40,8 @@ def main() -> None:
             walls[with_term].append(time.perf_counter() - t)
     ratios = np.array(walls[True]) / np.array(walls[False])
     w, wo = float(np.median(walls[True])), float(np.median(walls[False]))
-    print(f"{sim.mesh.n_tets} tets, k = {sim._values.shape[2]}, {sim.cubature.count} cubature tets; the term every {term.stride} "
-          f"evaluations of the residual ({term.stride * monitor.stride} steps)")
+    print(f"{sim.mesh.n_tets} tets, k = {sim._values.shape[2]}, {sim.cubature.count} cubature tets; the term about every {term.stride} "
+          "steps and at the run's end")
     print(f"run of {args.steps} steps: {w:.3f} s with the term, {wo:.3f} s without (medians of {args.rounds}): "
           f"{100 * (w / wo - 1):+.1f} %; rounds {np.round(ratios, 3).tolist()}")
 

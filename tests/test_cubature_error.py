@@ -10,7 +10,7 @@ import pytest
 from licrom import AccuracyWarning, Material, MeshBasis, Scene, _core, meshes
 from licrom.analysis.compare import nonrigid_error
 from licrom.reduced.body import BodyFrameSim
-from licrom.reduced.cubature_error import CubatureError
+from licrom.reduced.cubature_error import CubatureError, evaluation_stride
 from licrom.reduced.error_estimate import warn_estimate
 from licrom.rigid import body_frame_displacements
 from licrom.subspace.basis import strain_jacobians
@@ -107,6 +107,8 @@ def test_a_few_cubature_tets_raise_the_estimate_and_the_warning_names_the_cubatu
     exact = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh)).run(30)
     assert exact.info["error_estimate_terms"]["cubature"] < 1e-8
     sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.naive(mesh, 40, seed=0))
+    # a run shorter than the term's stride: its one value is the evaluation at the run's end (ErrorMonitor.finish)
+    assert evaluation_stride(mesh.n_tets, 40, basis.n_modes) > 30
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         run = sim.run(30)
@@ -143,3 +145,10 @@ def test_world_frame_rigid_modes_add_nothing(mesh, basis):
     bent = term.displacement(q)
     assert np.isfinite(bent) and bent > 0.0
     assert term.displacement(moved) == pytest.approx(bent, rel=1e-9)
+
+
+def test_the_stride_keeps_the_term_to_its_share_of_the_steps():
+    # a larger mesh costs more a pass, a heavier step (more cubature tets, more modes) less in proportion
+    assert evaluation_stride(120378, 600, 256) > evaluation_stride(1638, 908, 256)
+    assert evaluation_stride(1638, 908, 256) < evaluation_stride(1638, 100, 256) < evaluation_stride(1638, 100, 20)
+    assert evaluation_stride(10, 10, 1) >= 1

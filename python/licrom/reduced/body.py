@@ -317,12 +317,16 @@ class BodyFrameSim(ReducedSim):
         history = [self._previous_positions(k) for k in range(monitor.history_length - 1, 0, -1)] + [self.positions]
         monitor.start([x[monitor.vertices] for x in history])
 
+        def deformation(q: np.ndarray) -> float:
+            return float(q @ self._modal_mass @ q)
+
         def step() -> tuple[int, float, bool]:
             outcome = self.step_or_record()
-            monitor.after_step(lambda: (self.q, self.center, self.rotation), lambda q: float(q @ self._modal_mass @ q))
+            monitor.after_step(lambda: (self.q, self.center, self.rotation), deformation)
             return outcome
 
         rec = record_run(step, self._poses, lambda: self.time, steps, record_every, progress, "body frame", self._core.validity)
+        monitor.finish(self.q, deformation)
         frames = _RecordedFrames(rec.frames, self._values, self._xbar, self.mesh.vertices, self.scene.dt, self.scene.integrator == "bdf2")
         deferred = DeferredFrames((len(rec.frames), self.mesh.n_vertices, 3), frames.build)
         return self._trajectory(rec, frames.positions(), deferred, deferred, np.array([frame[0][2] for frame in rec.frames]),

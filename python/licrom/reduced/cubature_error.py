@@ -30,6 +30,8 @@ deformation.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.linalg
 
@@ -40,7 +42,7 @@ from ..scene.scene import Scene
 from ..subspace.basis import mesh_strain_jacobians
 from ..subspace.cubature import Cubature
 
-__all__ = ["MAX_STRIDE", "RIGID_TOLERANCE", "STIFFNESS_TETS", "TETS_PER_STRIDE", "CubatureError"]
+__all__ = ["COST_SHARE", "RIGID_TOLERANCE", "STIFFNESS_TETS", "CubatureError", "evaluation_stride"]
 
 RIGID_TOLERANCE = 1e-9
 """Stiffness eigenvalues below this fraction of the largest count as rigid motions (no elastic force acts on them)."""
@@ -52,16 +54,30 @@ STIFFNESS_TETS = 4000
 many, a volume-scaled random sample of this many above, so that on a 120k-tet mesh at r = 250 it costs about what the
 rest of the setup does."""
 
-TETS_PER_STRIDE = 200
-"""Tets of the mesh per evaluation of the error estimate between two evaluations of this term: one in
-``ceil(m / TETS_PER_STRIDE)``, at most :data:`MAX_STRIDE`. Its cost grows with the mesh where the reduced step's does
-not: measured on this project's 2-core machine, one evaluation took 1.5 ms on the 1638-tet cheese at k = 126 (the
-step at the defaults: 0.3-0.4 ms) and about 90 ms on the 120k-tet one at k = 246 (the step: 1.4 ms), so every 90th
-step costs about 5 % of the step on the first."""
+COST_SHARE = 0.02
+"""Share of a reduced run's time the term may take on average by :func:`evaluation_stride`'s model (dimensionless).
+Below the 10 % the whole estimate may cost because the model reads an evaluation at its fastest: on two shared cores
+the median evaluation took up to 3x its fastest (the 1638-tet cheese: 2.2 ms fastest, 6.9 ms median), and at 5 % the
+1638-tet cheese's runs took 14 % longer with the term (7 interleaved rounds, 0.94-1.63x)."""
 
-MAX_STRIDE = 60
-"""Most evaluations of the error estimate between two of this term (600 steps): a run of 1500 steps on a large mesh
-still evaluates it a few times, at about 10 % of the step on the 120k-tet cheese."""
+
+def evaluation_stride(n_tets: int, n_cubature: int, k: int) -> int:
+    """Steps between two evaluations of the term so that it costs about :data:`COST_SHARE` of the steps, from a cost
+    model fitted to three measurements on this project's 2-core machine (one evaluation against a median step):
+
+    | mesh, k, cubature tets | evaluation | step | model's ratio |
+    |---|---|---|---|
+    | the demo's 864-tet cheese, 18, 73 | 0.24 ms | 0.02 ms | 28 (measured 12) |
+    | the 1638-tet cheese, 256, 908 | 2.2 ms | 1.8 ms | 1.2 |
+    | the 120k-tet cheese, 246, 600 | 90 ms | 1.4 ms | 64 |
+
+    An evaluation costs a pass over the tets and a fixed part (about 2000 tets' worth, numpy's calls); a step about
+    the cubature's Hessian, ``K k^2``, and a fixed part. The model reads the smallest models' ratio high, so that their
+    runs evaluate the term less often than the budget allows. A run also evaluates it once at its end
+    (:meth:`licrom.reduced.error_estimate.ErrorMonitor.finish`), so that a run shorter than the stride has one value.
+    """
+    ratio = (n_tets + 2000.0) / (n_cubature * k * k / 2.0e4 + 100.0)
+    return max(1, math.ceil(ratio / COST_SHARE))
 
 
 class CubatureError:
@@ -77,8 +93,7 @@ class CubatureError:
         modal_mass: (k, k) exact reduced mass ``W^T M W``, kg.
 
     Attributes:
-        stride: evaluations of the error estimate per evaluation of this term (:data:`TETS_PER_STRIDE`,
-            :data:`MAX_STRIDE`).
+        stride: steps between two evaluations (:func:`evaluation_stride`).
     """
 
     def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, cubature: Cubature, jacobians: np.ndarray,
@@ -93,7 +108,7 @@ class CubatureError:
         self._body = _core.Reconstruction(values, rest)
         self._jacobians = jacobians
         self._weights = cubature.weights
-        self.stride = min(-(-mesh.n_tets // TETS_PER_STRIDE), MAX_STRIDE)
+        self.stride = evaluation_stride(mesh.n_tets, cubature.count, k)
         stiffness = self._rest_stiffness(values, mesh)
         lam, phi = scipy.linalg.eigh(0.5 * (stiffness + stiffness.T), modal_mass)
         elastic = lam > RIGID_TOLERANCE * max(lam.max(initial=0.0), 1e-300)

@@ -150,7 +150,7 @@ class ErrorMonitor:
 
     Positions of the sample are ``x = c + R (rest + W q)`` (world-frame models: ``c = 0``,
     ``R = I``, ``rest = X``; body-frame models: ``rest = Xbar``). A run calls :meth:`start`,
-    then :meth:`after_step` after each step, then :meth:`components`, whose two terms added in quadrature
+    then :meth:`after_step` after each step, :meth:`finish` after the last, then :meth:`components`, whose two terms added in quadrature
     (the residual sees the error outside the subspace, the cubature's term the error inside it) are the estimate.
 
     Args:
@@ -160,8 +160,8 @@ class ErrorMonitor:
         scene: the scene (material, gravity, dt, integrator, planes).
         count: sample size (all vertices on meshes with fewer).
         stride: steps between two evaluations, an integer >= 1.
-        cubature_error: the cubature's term (:mod:`licrom.reduced.cubature_error`), evaluated with every
-            ``cubature_error.stride``-th evaluation of the residual; None: the residual alone.
+        cubature_error: the cubature's term (:mod:`licrom.reduced.cubature_error`), evaluated with the residual about
+            every ``cubature_error.stride`` steps and at the end of a run; None: the residual alone.
 
     Attributes:
         vertices: (s,) the sample vertices.
@@ -258,9 +258,16 @@ class ErrorMonitor:
             return
         size = deformation(q)
         cubature = self._cubature_error
-        if cubature is not None and len(self._evaluations) % cubature.stride == 0:
+        if cubature is not None and len(self._evaluations) % max(1, round(cubature.stride / self.stride)) == 0:
             self._cubature_evaluations.append((self._step, cubature.displacement(q), size))
         self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), size))
+
+    def finish(self, q: np.ndarray, deformation: Callable[[np.ndarray], float]) -> None:
+        """End a run at ``q``: the cubature's term once more at the last step, unless it was evaluated there, so that
+        a run shorter than its stride has a value (one evaluation a run)."""
+        cubature = self._cubature_error
+        if cubature is not None and self._step and (not self._cubature_evaluations or self._cubature_evaluations[-1][0] != self._step):
+            self._cubature_evaluations.append((self._step, cubature.displacement(q), deformation(q)))
 
     def components(self, frame_steps: np.ndarray, start_step: int | None) -> dict[str, np.ndarray]:
         """(f,) running value of each term of the estimate at each frame, from the evaluations since the last

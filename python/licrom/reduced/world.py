@@ -175,6 +175,7 @@ class WorldFrameSim(ReducedSim):
             return outcome
 
         rec = record_run(step, lambda: (self.q, self.qdot), lambda: self.time, steps, record_every, progress, "reduced", self._core.validity)
+        monitor.finish(self.q, deformation)
         work = {k: v - before[k] for k, v in sorted(self._core.stats().items())}
         qs = np.array([q for q, _ in rec.frames])
         qdots = np.array([qd for _, qd in rec.frames])
