@@ -36,15 +36,16 @@ def basis(mesh) -> BodyFrameBasis:
     return BodyFrameBasis(mesh, MeshBasis(mesh, bend))
 
 
-def _term(mesh, basis, cubature) -> tuple[CubatureError, np.ndarray, np.ndarray]:
-    """The cubature term of ``basis`` on ``mesh`` with ``cubature``, with the mode values and the modal mass."""
+def _term(mesh, basis, cubature, field: bool = False) -> tuple[CubatureError, np.ndarray, np.ndarray]:
+    """The cubature term of ``basis`` on ``mesh`` with ``cubature``, with the mode values and the modal mass (``field``:
+    the cubature's Jacobians given, as the reduced models pass them for ``strain="field"``; here the mesh strain's)."""
     values = basis.values(mesh.vertices)
     k = values.shape[2]
     masses = mesh.vertex_masses(MATERIAL.density)
     xbar = mesh.vertices - masses @ mesh.vertices / masses.sum()
     jac = strain_jacobians(basis, mesh, cubature.tets, "mesh", values).reshape(-1, 9, k)
     modal_mass = np.einsum("v,vic,vid->cd", masses, values, values)
-    return CubatureError(mesh, values, xbar, Scene(material=MATERIAL), cubature, jac, modal_mass), values, modal_mass
+    return CubatureError(mesh, values, xbar, Scene(material=MATERIAL), cubature, jac if field else None, modal_mass), values, modal_mass
 
 
 def _energy(mesh, values, q, tets, weights) -> float:
@@ -54,10 +55,12 @@ def _energy(mesh, values, q, tets, weights) -> float:
     return float(weights @ _core.snh_energy(f, *MATERIAL.snh_parameters))
 
 
-def test_both_forces_are_the_gradients_of_their_energies(mesh, basis):
-    # every tet's force from the vertices, the cubature's from its Jacobians: each against finite differences of its energy
+@pytest.mark.parametrize("field", [False, True])
+def test_both_forces_are_the_gradients_of_their_energies(mesh, basis, field):
+    # every tet's force from the vertices, the cubature's from the vertices too or from its Jacobians: each against
+    # finite differences of its energy
     cubature = Cubature.naive(mesh, 40, seed=1)
-    term, values, _ = _term(mesh, basis, cubature)
+    term, values, _ = _term(mesh, basis, cubature, field)
     q = np.random.default_rng(0).normal(scale=0.05, size=values.shape[2])
     everything, cub = term.forces(q)
     eps = 1e-6
@@ -77,10 +80,11 @@ def test_every_tet_as_cubature_has_no_term(mesh, basis):
     assert term.displacement(q) <= 1e-20 * float(q @ modal_mass @ q)
 
 
-def test_the_term_is_the_static_displacement_of_the_missing_force(mesh, basis):
+@pytest.mark.parametrize("field", [False, True])
+def test_the_term_is_the_static_displacement_of_the_missing_force(mesh, basis, field):
     # |W dq|_M^2 with K dq = d, K the reduced stiffness at rest over every tet, formed here tet by tet
     cubature = Cubature.naive(mesh, 12, seed=2)
-    term, values, modal_mass = _term(mesh, basis, cubature)
+    term, values, modal_mass = _term(mesh, basis, cubature, field)
     q = np.random.default_rng(2).normal(scale=0.05, size=values.shape[2])
     everything, cub = term.forces(q)
     c = _core.snh_hessian(np.eye(3)[None], *MATERIAL.snh_parameters, False)[0]

@@ -190,7 +190,8 @@ class BodyFrameSim(ReducedSim):
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
         self._shapes: dict[bytes, np.ndarray] = {}
         self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene,
-                                     cubature_error=CubatureError(mesh, self._values, self._xbar, scene, self.cubature, self._jacobians, self._modal_mass))
+                                     cubature_error=CubatureError(mesh, self._values, self._xbar, scene, self.cubature,
+                                                                   self._jacobians if strain == "field" else None, self._modal_mass))
         self.time = 0.0
         self.set_state(*scene.initial.apply(mesh.vertices, self._masses))
 

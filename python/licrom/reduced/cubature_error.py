@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 
 from .. import _core
 from .._blas import blas_threads
@@ -89,25 +90,27 @@ class CubatureError:
         rest: (n, 3) the rest term of the body (``X`` or ``Xbar``), m.
         scene: the scene (its material).
         cubature: the reduced model's cubature.
-        jacobians: (K, 9, k) ``dF/dq`` at the cubature tets.
+        jacobians: (K, 9, k) ``dF/dq`` at the cubature tets where the reduced model takes them from the field
+            (``strain="field"``); None for the mesh strain (the default), whose cubature F is every tet's F at
+            the cubature tets, so that both forces come from one pass over the tets.
         modal_mass: (k, k) exact reduced mass ``W^T M W``, kg.
 
     Attributes:
         stride: steps between two evaluations (:func:`evaluation_stride`).
     """
 
-    def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, cubature: Cubature, jacobians: np.ndarray,
+    def __init__(self, mesh: Mesh, values: np.ndarray, rest: np.ndarray, scene: Scene, cubature: Cubature, jacobians: np.ndarray | None,
                  modal_mass: np.ndarray) -> None:
         n, _, k = values.shape
         self._mu, self._lam = scene.material.snh_parameters
-        self._tets = mesh.tets
-        self._grads = mesh.shape_gradients
+        self._strain = _strain_matrix(mesh)
         self._volumes = mesh.rest_volumes
-        self._n = n
         self._modes = values.reshape(3 * n, k)
         self._body = _core.Reconstruction(values, rest)
         self._jacobians = jacobians
         self._weights = cubature.weights
+        self._tet_weights = np.zeros(mesh.n_tets)  # the cubature's weight of every tet (0 off it)
+        np.add.at(self._tet_weights, cubature.tets, cubature.weights)
         self.stride = evaluation_stride(mesh.n_tets, cubature.count, k)
         stiffness = self._rest_stiffness(values, mesh)
         lam, phi = scipy.linalg.eigh(0.5 * (stiffness + stiffness.T), modal_mass)
@@ -135,12 +138,11 @@ class CubatureError:
 
     def forces(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(k,) reduced elastic forces ``dE/dq`` (N m per unit q) at ``q``: every tet's and the cubature's."""
-        y = self._body.positions(q)
-        # F_t = sum_a y_a g_a^T and dE/dy_a = V_t P g_a, as batched matrix products (twice the speed of einsum)
-        f = _core.snh_pk1(np.matmul(y[self._tets].transpose(0, 2, 1), self._grads), self._mu, self._lam)
-        corner = self._volumes[:, None, None] * np.matmul(self._grads, f.transpose(0, 2, 1))
-        per_vertex = np.stack([np.bincount(self._tets.ravel(), corner[..., i].ravel(), self._n) for i in range(3)], axis=1)
-        everything = self._modes.T @ per_vertex.ravel()
+        f = self._strain @ self._body.positions(q).ravel()  # every tet's F, row by row
+        stress = _core.snh_pk1(f.reshape(-1, 3, 3), self._mu, self._lam).reshape(-1, 9)
+        everything = self._modes.T @ (self._strain.T @ (self._volumes[:, None] * stress).ravel())
+        if self._jacobians is None:
+            return everything, self._modes.T @ (self._strain.T @ (self._tet_weights[:, None] * stress).ravel())
         at = np.eye(3).ravel() + self._jacobians @ q
         stress = _core.snh_pk1(at.reshape(-1, 3, 3), self._mu, self._lam).reshape(-1, 9)
         return everything, (self._weights[:, None] * stress).ravel() @ self._jacobians.reshape(-1, self._jacobians.shape[2])
@@ -152,3 +154,15 @@ class CubatureError:
         with blas_threads(1):
             everything, cubature = self.forces(q)
             return float(np.sum(((everything - cubature) @ self._scaled) ** 2))
+
+
+def _strain_matrix(mesh: Mesh) -> scipy.sparse.csr_matrix:
+    """(9m, 3n) sparse map from the vertex positions to every tet's deformation gradient, ``F_t = sum_a y_a g_a^T``
+    (row ``9 t + 3 i + j`` holds ``F_t[i, j]``); its transpose takes each tet's ``V_t P_t`` to the vertex forces
+    ``dE/dy``. Two sparse products in place of a gather, batched 3 x 3 products and a scatter: 3-4x faster."""
+    m = mesh.n_tets
+    t, a, i, j = np.meshgrid(np.arange(m), np.arange(4), np.arange(3), np.arange(3), indexing="ij")
+    rows = 9 * t + 3 * i + j
+    cols = 3 * mesh.tets[t, a] + i
+    values = mesh.shape_gradients[t, a, j]
+    return scipy.sparse.csr_matrix((values.ravel(), (rows.ravel(), cols.ravel())), shape=(9 * m, 3 * mesh.n_vertices))

@@ -105,8 +105,8 @@ class WorldFrameSim(ReducedSim):
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
         self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene,
-                                     cubature_error=CubatureError(mesh, self._values, mesh.vertices, scene, self.cubature, self._jacobians,
-                                                                  self._projector.reduced_mass))
+                                     cubature_error=CubatureError(mesh, self._values, mesh.vertices, scene, self.cubature,
+                                                                  self._jacobians if strain == "field" else None, self._projector.reduced_mass))
         self.time = 0.0
         positions, velocities = scene.initial.apply(mesh.vertices, self._masses)
         self.set_state(positions, velocities)
