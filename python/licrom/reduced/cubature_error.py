@@ -55,29 +55,27 @@ STIFFNESS_TETS = 4000
 many, a volume-scaled random sample of this many above, so that on a 120k-tet mesh at r = 250 it costs about what the
 rest of the setup does."""
 
-COST_SHARE = 0.02
-"""Share of a reduced run's time the term may take on average by :func:`evaluation_stride`'s model (dimensionless).
-Below the 10 % the whole estimate may cost because the model reads an evaluation at its fastest: on two shared cores
-the median evaluation took up to 3x its fastest (the 1638-tet cheese: 2.2 ms fastest, 6.9 ms median), and at 5 % the
-1638-tet cheese's runs took 14 % longer with the term (7 interleaved rounds, 0.94-1.63x)."""
+COST_SHARE = 0.03
+"""Share of a reduced run's time the term may take on average by :func:`evaluation_stride`'s model (dimensionless):
+with the residual's 2-4 % (:data:`licrom.reduced.error_estimate.ERROR_STRIDE`) the estimate stays under 10 % of the
+steps."""
 
 
 def evaluation_stride(n_tets: int, n_cubature: int, k: int) -> int:
     """Steps between two evaluations of the term so that it costs about :data:`COST_SHARE` of the steps, from a cost
-    model fitted to three measurements on this project's 2-core machine (one evaluation against a median step):
+    model fitted to three measurements on this project's 2-core machine (one evaluation, median, against a step):
 
-    | mesh, k, cubature tets | evaluation | step | model's ratio |
-    |---|---|---|---|
-    | the demo's 864-tet cheese, 18, 73 | 0.24 ms | 0.02 ms | 28 (measured 12) |
-    | the 1638-tet cheese, 256, 908 | 2.2 ms | 1.8 ms | 1.2 |
-    | the 120k-tet cheese, 246, 600 | 90 ms | 1.4 ms | 64 |
+    | mesh, k, cubature tets | evaluation | step | ratio | model's ratio |
+    |---|---|---|---|---|
+    | the demo's 864-tet cheese, 18, 73 | 0.22 ms | 0.02 ms | 11 | 11 |
+    | the 1638-tet cheese, 256, 908 | 0.48 ms | 1.8 ms | 0.27 | 0.47 |
+    | the 120k-tet cheese, 246-256, 587-600 | 47 ms | 1.4 ms | 34 | 33 |
 
-    An evaluation costs a pass over the tets and a fixed part (about 2000 tets' worth, numpy's calls); a step about
-    the cubature's Hessian, ``K k^2``, and a fixed part. The model reads the smallest models' ratio high, so that their
-    runs evaluate the term less often than the budget allows. A run also evaluates it once at its end
+    An evaluation costs a pass over the tets and a fixed part (numpy's and scipy's calls, about 1000 tets' worth); a
+    step about the cubature's Hessian, ``K k^2``, and a fixed part. A run also evaluates the term once at its end
     (:meth:`licrom.reduced.error_estimate.ErrorMonitor.finish`), so that a run shorter than the stride has one value.
     """
-    ratio = (n_tets + 2000.0) / (n_cubature * k * k / 2.0e4 + 100.0)
+    ratio = (n_tets + 1000.0) / (n_cubature * k * k / 1.1e4 + 170.0)
     return max(1, math.ceil(ratio / COST_SHARE))
 
 
