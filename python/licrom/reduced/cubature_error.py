@@ -63,19 +63,21 @@ steps."""
 
 def evaluation_stride(n_tets: int, n_cubature: int, k: int) -> int:
     """Steps between two evaluations of the term so that it costs about :data:`COST_SHARE` of the steps, from a cost
-    model fitted to three measurements on this project's 2-core machine (one evaluation, median, against a step):
+    model fitted to three measurements on this project's 2-core machine (one evaluation inside a run, where it finds
+    the caches cold and takes about twice its time alone, against the run's median step):
 
     | mesh, k, cubature tets | evaluation | step | ratio | model's ratio |
     |---|---|---|---|---|
-    | the demo's 864-tet cheese, 18, 73 | 0.22 ms | 0.02 ms | 11 | 11 |
-    | the 1638-tet cheese, 256, 908 | 0.48 ms | 1.8 ms | 0.27 | 0.47 |
-    | the 120k-tet cheese, 246-256, 587-600 | 47 ms | 1.4 ms | 34 | 33 |
+    | the demo's 864-tet cheese, 18, 73 | 0.28-0.30 ms | 0.017 ms | 17 | 17 |
+    | the 1638-tet cheese, 256, 908 | 1.1 ms | 0.69 ms | 1.6 | 1.5 |
+    | the 120k-tet cheese, 246-256, 587-600 | about 60 ms (47 ms alone) | 1.4 ms | about 40 | 38 |
 
-    An evaluation costs a pass over the tets and a fixed part (numpy's and scipy's calls, about 1000 tets' worth); a
-    step about the cubature's Hessian, ``K k^2``, and a fixed part. A run also evaluates the term once at its end
-    (:meth:`licrom.reduced.error_estimate.ErrorMonitor.finish`), so that a run shorter than the stride has one value.
+    An evaluation costs a pass over the tets and a fixed part (numpy's and scipy's calls and cold caches, about 5700
+    tets' worth); a step about the cubature's Hessian, ``K k^2``, and a fixed part. A run also evaluates the term
+    once at its end (:meth:`licrom.reduced.error_estimate.ErrorMonitor.finish`), so that a run shorter than the
+    stride has one value.
     """
-    ratio = (n_tets + 1000.0) / (n_cubature * k * k / 1.1e4 + 170.0)
+    ratio = (n_tets + 5700.0) / (n_cubature * k * k / 1.33e4 + 385.0)
     return max(1, math.ceil(ratio / COST_SHARE))
 
 

@@ -258,7 +258,7 @@ class ErrorMonitor:
             return
         size = deformation(q)
         cubature = self._cubature_error
-        if cubature is not None and len(self._evaluations) % max(1, round(cubature.stride / self.stride)) == 0:
+        if cubature is not None and (len(self._evaluations) + 1) % max(1, round(cubature.stride / self.stride)) == 0:
             self._cubature_evaluations.append((self._step, cubature.displacement(q), size))
         self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), size))
 
