@@ -290,6 +290,9 @@ def test_training_keeps_the_fit_whose_held_out_runs_land_nearest_their_targets(t
     assert model.metadata["cubature"]["max_count"] == 40 and model.cubature.count == choice[0]["count"] > 1
     # the kept fit's replay comes back for training's check, which would replay the same
     assert target_ratio(kept) == target_ratio(replay_held_out(model, data.held_out)) == choice[0]["target_ratio"]
+    # each fit keeps its runs, the estimate's terms beside the true error: the one-tet fit's cubature term is the larger
+    assert choice[0]["held_out"] == kept["runs"]
+    assert choice[1]["held_out"][0]["estimate_terms"]["cubature"] > choice[0]["held_out"][0]["estimate_terms"]["cubature"]
     # no held-out run to choose by: the larger fit, and no replay
     monkeypatch.setattr(run, "cubature_counts", lambda n_tets: (1, 40))
     assert run.fit_cubature(model, data, TrainConfig(), held_out=()) is None
