@@ -7,28 +7,70 @@ the projection's choice (:func:`licrom.learn.training.choose_rank`) and the repl
 (:func:`licrom.learn.training.check_dynamics`), printed as the training report prints them, with
 their wall time. docs/results.md section 16 ran it on the converged training runs of the cheese,
 box and ball families (``experiments/defaults_experiments.py --converged --runs-only``).
+
+    python experiments/dynamics_check.py RUNS_DIR --levels 60 80 100 120 150 200 250 --replays 8
+
+also replays ``--replays`` runs (spread over their motions as the check spreads them) at every r of ``--levels``,
+where the check stops at the first r that meets: how each run's error moves with r (docs/results.md section 51).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from pathlib import Path
 
+from licrom.analysis.compare import compare
+from licrom.errors import LicromWarning
 from licrom.learn.training import check_dynamics, choose_rank
+from licrom.learn.training.dynamics import spread_runs
+from licrom.learn.training.held_out import run_cadence
 from licrom.learn.training_data import TrainingData
+from licrom.reduced.body import BodyFrameSim
+from licrom.subspace.basis import MeshBasis, run_balanced_weights
+from licrom.subspace.body_basis import BodyFrameBasis
+from licrom.subspace.cubature import Cubature
+
+
+def replay_levels(data: TrainingData, levels: list[int], replays: int) -> list[str]:
+    """Each of ``replays`` spread training runs replayed on POD(r) of the training runs, every tet, at every r of
+    ``levels``, as the dynamics check replays them: one line per run, non-rigid error / final centre of mass."""
+    runs = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
+    chosen = [runs[i] for i in spread_runs([run for _, run in runs], data.masses, data.mesh.size, replays)]
+    weights = run_balanced_weights(data.train.trajectory, data.train.norm2_residual)
+    pod, _ = MeshBasis.pod(data.mesh, data.train.residuals, max(levels), weights=weights)
+    cubature, density = Cubature.full(data.mesh), data.scenes[0].material.density
+    lines = []
+    for name, run in chosen:
+        steps, every = run_cadence(run)  # type: ignore[misc]
+        cells = []
+        for r in levels:
+            basis = BodyFrameBasis(data.mesh, MeshBasis(data.mesh, pod.modes[:, :, :r]), density=density)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LicromWarning)
+                c = compare(run, BodyFrameSim(basis, data.mesh, run.scene, cubature=cubature).run(steps, record_every=every))
+            cells.append(f"r = {r}: {100 * c.nonrigid_error:.1f} % / {100 * c.final_com_error:.2f} %")
+        lines.append(f"  {name}: " + ", ".join(cells))
+    return lines
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", type=Path, nargs="+", help="folders of full runs (.npz), one object each")
-    for folder in ap.parse_args().runs:
+    ap.add_argument("--levels", type=int, nargs="+", default=[], help="r values to replay every spread run at")
+    ap.add_argument("--replays", type=int, default=8, help="runs replayed at every level of --levels")
+    args = ap.parse_args()
+    for folder in args.runs:
         start = time.perf_counter()
         data = TrainingData(folder)
         choice = choose_rank(data)
         print(f"== {folder}: {data.mesh.n_tets} tets, {len(data.train_indices)} training runs")
         print(choice.describe())
         print("\n".join(check_dynamics(data, choice.rank).lines()))
+        if args.levels:
+            print("replays at every level (non-rigid error / final centre of mass over the size):")
+            print("\n".join(replay_levels(data, sorted(args.levels), args.replays)))
         print(f"   {time.perf_counter() - start:.0f} s in all")
 
 
