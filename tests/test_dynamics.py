@@ -69,6 +69,12 @@ def test_r_is_raised_to_the_first_level_where_every_reproducible_replay_meets(de
     raised = check_dynamics(demo_data, 2, max_rank=12, runs=2)
     assert raised.raised and raised.rank > 2 and all(run["reproducible"] for run in raised.runs)
     _choice_rule_holds(raised)
+    # the report tells what the raised r costs: the median over the runs of their replays' step times at the two r
+    assert all(row["step_ms"] > 0 for run in raised.runs for row in run["rows"])
+    ratios = [next(row["step_ms"] for row in run["rows"] if row["r"] == raised.rank) / next(row["step_ms"] for row in run["rows"] if row["r"] == 2)
+              for run in raised.runs]
+    assert f"stepped {np.median(ratios):.1f}x slower at r = {raised.rank} than at r = 2" in raised.lines()[-1]
+    assert "--dynamics-max-rank 0 keeps r = 2" in raised.lines()[-1]
     # nothing meets even at the cap: r stays and the report says so
     monkeypatch.setattr(dynamics, "_limits", lambda: (0.0, 0.0))
     none = check_dynamics(demo_data, 2, max_rank=12, runs=2)
@@ -87,6 +93,8 @@ def test_a_run_no_r_reproduces_beside_one_the_cap_does_takes_r_to_the_cap(demo_d
     assert mixed.rank == 12 and mixed.raised
     _choice_rule_holds(mixed)
     assert "chaotic" in mixed.lines()[-1] and "to the cap 12" in mixed.lines()[-1]
+    # replayed at the cap alone: no step time at r = 2 to compare with, and the report does not make one up
+    assert "slower" not in mixed.lines()[-1] and "--dynamics-max-rank 0 keeps r = 2, at a cheaper step" in mixed.lines()[-1]
 
 
 def test_nothing_is_replayed_where_the_check_cannot_raise_r_or_does_not_apply(demo_data, tiny_demo, monkeypatch):

@@ -192,7 +192,7 @@ class DynamicsCheck:
         max_rank: the cap applied (``max_rank`` limited by frames and 3 n).
         levels: the r values replayed, ascending.
         runs: per replayed run, ``{"run", "reproducible", "rows": [{"r", "nonrigid_error", "com_error",
-            "stick_slip_right", "meets"}]}``.
+            "stick_slip_right", "meets", "step_ms"}]}`` (``step_ms``: the replay's wall time a step, None where it failed).
         raised: r was raised above the projection's choice.
         method: ``"replayed"``, or why nothing was replayed.
         seconds: wall time of the check.
@@ -229,7 +229,23 @@ class DynamicsCheck:
                    else f"r raised from {self.projection_rank} to {self.rank}" if self.raised
                    else f"r = {self.rank} kept" if any(r["reproducible"] for r in self.runs)
                    else f"r = {self.rank} kept: no replay meets the targets at the cap {self.max_rank}")
+        if self.raised:
+            cost = _step_cost(self.runs, self.projection_rank, self.rank)
+            keep = f"licrom train --dynamics-max-rank 0 keeps r = {self.projection_rank}"
+            verdict += (f"; its replays stepped {cost:.1f}x slower at r = {self.rank} than at r = {self.projection_rank}; {keep}"
+                        if cost is not None else f"; {keep}, at a cheaper step")
         return [*lines, f"  {verdict} ({self.seconds:.0f} s)"]
+
+
+def _step_cost(runs: Sequence[dict[str, Any]], fast: int, slow: int) -> float | None:
+    """Median over the replayed runs of their step time at r = ``slow`` over that at r = ``fast``; None where no run was
+    timed at both (a chaotic check replays at the cap alone)."""
+    ratios = []
+    for run in runs:
+        ms = {row["r"]: row.get("step_ms") for row in run["rows"]}
+        if ms.get(fast) and ms.get(slow):
+            ratios.append(ms[slow] / ms[fast])
+    return float(np.median(ratios)) if ratios else None
 
 
 def _limits() -> tuple[float, float]:
@@ -289,12 +305,17 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", LicromWarning)
-                c = compare(run, BodyFrameSim(basis, data.mesh, run.scene, cubature=cubature).run(steps, record_every=every))
+                sim = BodyFrameSim(basis, data.mesh, run.scene, cubature=cubature)
+                began = time.perf_counter()
+                reduced = sim.run(steps, record_every=every)
+                step_ms = 1e3 * (time.perf_counter() - began) / steps  # what the raised r costs, told in the report
+                c = compare(run, reduced)
         except LicromError:  # a replay that fails to step misses
-            return {"r": r, "nonrigid_error": float("inf"), "com_error": float("inf"), "stick_slip_right": False, "meets": False}
+            return {"r": r, "nonrigid_error": float("inf"), "com_error": float("inf"), "stick_slip_right": False, "meets": False,
+                    "step_ms": None}
         meets = bool(c.nonrigid_error < nr_limit and c.final_com_error < com_limit and c.stick_slip_agree)
         return {"r": r, "nonrigid_error": float(c.nonrigid_error), "com_error": float(c.final_com_error),
-                "stick_slip_right": bool(c.stick_slip_agree), "meets": meets}
+                "stick_slip_right": bool(c.stick_slip_agree), "meets": meets, "step_ms": step_ms}
 
     # At the cap first: a run no r allowed reproduces says nothing about r.
     rows = {name: {cap: replay(name, run, cap)} for name, run in chosen}
