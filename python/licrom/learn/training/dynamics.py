@@ -78,8 +78,8 @@ r = 120, where its held-out scenes land 0.1-1.5 %; the ball's worst replays land
 250, where its held-out roll lands 2.4 / 0.3 % at r = 150 / 250 (learned model at 150: 3.0 %). 0.35 x 2 % = 0.7 % lies between
 the two families: the cheese stays at 120, the ball goes to 250. On the converged cheese family's runs as `licrom train FOLDER` splits them it
 does not: its worst replay at r = 120 is a 30 deg, mu 0.2 slide ending 1.27 % of the size off, and the cheese goes to 250
-too (a 2.7-2.9x slower step), where 120 meets every held-out target (section 51); no margin on the replays' centre of
-mass separates the two families there. Replaying each run on POD(r) of the *other* runs
+too (a 2.7-2.9x slower step; section 51), which there buys every held-out scene 2-5x closer and another mesh of the
+object 7 % non-rigid against 15-19 % (section 53). Replaying each run on POD(r) of the *other* runs
 (leave one out) instead was measured and does not separate them either: with 3-16 training runs on a grid of slopes
 and frictions, a run left out is a corner of the grid, which the modes must extrapolate to (the cheese's steepest,
 grippiest run: 16 % non-rigid at r = 120 left out, 5 % kept in; every ball run misses at r = 250 left out)."""
