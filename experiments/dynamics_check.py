@@ -18,40 +18,22 @@ from __future__ import annotations
 
 import argparse
 import time
-import warnings
 from pathlib import Path
 
-from licrom.analysis.compare import compare
-from licrom.errors import LicromWarning
 from licrom.learn.training import check_dynamics, choose_rank
-from licrom.learn.training.dynamics import spread_runs
-from licrom.learn.training.held_out import run_cadence
+from licrom.learn.training.dynamics import replay_run, replayed_runs, training_pod
 from licrom.learn.training_data import TrainingData
-from licrom.reduced.body import BodyFrameSim
-from licrom.subspace.basis import MeshBasis, run_balanced_weights
-from licrom.subspace.body_basis import BodyFrameBasis
-from licrom.subspace.cubature import Cubature
 
 
 def replay_levels(data: TrainingData, levels: list[int], replays: int) -> list[str]:
-    """Each of ``replays`` spread training runs replayed on POD(r) of the training runs, every tet, at every r of
-    ``levels``, as the dynamics check replays them: one line per run, non-rigid error / final centre of mass."""
-    runs = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
-    chosen = [runs[i] for i in spread_runs([run for _, run in runs], data.masses, data.mesh.size, replays)]
-    weights = run_balanced_weights(data.train.trajectory, data.train.norm2_residual)
-    pod, _ = MeshBasis.pod(data.mesh, data.train.residuals, max(levels), weights=weights)
-    cubature, density = Cubature.full(data.mesh), data.scenes[0].material.density
+    """Each of ``replays`` spread training runs replayed as the dynamics check replays them, at every r of ``levels``:
+    one line per run, non-rigid error / final centre of mass."""
+    pod = training_pod(data, max(levels))
     lines = []
-    for name, run in chosen:
-        steps, every = run_cadence(run)  # type: ignore[misc]
-        cells = []
-        for r in levels:
-            basis = BodyFrameBasis(data.mesh, MeshBasis(data.mesh, pod.modes[:, :, :r]), density=density)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", LicromWarning)
-                c = compare(run, BodyFrameSim(basis, data.mesh, run.scene, cubature=cubature).run(steps, record_every=every))
-            cells.append(f"r = {r}: {100 * c.nonrigid_error:.1f} % / {100 * c.final_com_error:.2f} %")
-        lines.append(f"  {name}: " + ", ".join(cells))
+    for name, run in replayed_runs(data, replays):
+        rows = [replay_run(data, pod, run, r) for r in levels]
+        lines.append(f"  {name}: " + ", ".join(f"r = {row['r']}: {100 * row['nonrigid_error']:.1f} % / {100 * row['com_error']:.2f} %"
+                                             for row in rows))
     return lines
 
 

@@ -52,7 +52,8 @@ from ..training_data import TrainingData
 from .held_out import run_cadence
 
 __all__ = ["COM_MARGIN", "DEFAULT_DYNAMICS_MAX_RANK", "DEFAULT_EPOCHS", "DYNAMICS_CANDIDATES", "DYNAMICS_RUNS", "LARGE_MESH_CANDIDATES", "LARGE_MESH_EPOCHS", "MARGIN", "MAX_TETS", "DynamicsCheck",
-           "check_dynamics", "cubature_counts", "default_epochs", "fit_pool", "large_mesh_remedy", "spread_runs", "too_large"]
+           "check_dynamics", "cubature_counts", "default_epochs", "fit_pool", "large_mesh_remedy", "replay_run", "replayed_runs",
+           "spread_runs", "too_large", "training_pod"]
 
 DEFAULT_DYNAMICS_MAX_RANK = 250
 """Default cap of r raised by the dynamics: the ball's held-out roll needed about 200 (POD(r) of its
@@ -291,37 +292,14 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
                              f"not run ({data.mesh.n_tets} tets, above {MAX_TETS}: every tet as cubature would cost the full elastic "
                              f"pass); r raised from {rank} to the cap {cap}, which the 104k-tet ball's held-out roll needed",
                              time.perf_counter() - start, True)
-    candidates = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
-    if not candidates:
+    chosen = replayed_runs(data, runs)
+    if not chosen:
         return unchecked("not run (no training run of evenly spaced frames)")
-    chosen = [candidates[i] for i in spread_runs([run for _, run in candidates], data.masses, data.mesh.size, runs)]
-    frames = data.train
-    pod, _ = MeshBasis.pod(data.mesh, frames.residuals, cap, weights=run_balanced_weights(frames.trajectory, frames.norm2_residual))
+    pod = training_pod(data, cap)
     levels = (rank, *(r for r in DYNAMICS_CANDIDATES if rank < r < cap), cap)
-    density = data.scenes[0].material.density
-    cubature = Cubature.full(data.mesh)
-    nr_limit, com_limit = _limits()
-
-    def replay(name: str, run: Any, r: int) -> dict[str, Any]:
-        basis = BodyFrameBasis(data.mesh, MeshBasis(data.mesh, pod.modes[:, :, :r]), density=density)
-        steps, every = run_cadence(run)  # type: ignore[misc]
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", LicromWarning)
-                sim = BodyFrameSim(basis, data.mesh, run.scene, cubature=cubature)
-                began = time.perf_counter()
-                reduced = sim.run(steps, record_every=every)
-                step_ms = 1e3 * (time.perf_counter() - began) / steps  # what the raised r costs, told in the report
-                c = compare(run, reduced)
-        except LicromError:  # a replay that fails to step misses
-            return {"r": r, "nonrigid_error": float("inf"), "com_error": float("inf"), "stick_slip_right": False, "meets": False,
-                    "step_ms": None}
-        meets = bool(c.nonrigid_error < nr_limit and c.final_com_error < com_limit and c.stick_slip_agree)
-        return {"r": r, "nonrigid_error": float(c.nonrigid_error), "com_error": float(c.final_com_error),
-                "stick_slip_right": bool(c.stick_slip_agree), "meets": meets, "step_ms": step_ms}
 
     # At the cap first: a run no r allowed reproduces says nothing about r.
-    rows = {name: {cap: replay(name, run, cap)} for name, run in chosen}
+    rows = {name: {cap: replay_run(data, pod, run, cap)} for name, run in chosen}
     reproducible = [(name, run) for name, run in chosen if rows[name][cap]["meets"]]
     choice = rank
     if _chaotic([rows[name][cap]["meets"] for name, _ in chosen]):
@@ -330,13 +308,52 @@ def check_dynamics(data: TrainingData, rank: int, max_rank: int = DEFAULT_DYNAMI
         for r in levels:
             for name, run in reproducible:
                 if r not in rows[name]:
-                    rows[name][r] = replay(name, run, r)
+                    rows[name][r] = replay_run(data, pod, run, r)
             if all(rows[name][r]["meets"] for name, _ in reproducible):
                 choice = r
                 break
     report = tuple({"run": name, "reproducible": rows[name][cap]["meets"], "rows": [rows[name][r] for r in sorted(rows[name])]}
                    for name, _ in chosen)
     return DynamicsCheck(choice, rank, cap, levels, report, choice > rank, "replayed", time.perf_counter() - start)
+
+
+def replayed_runs(data: TrainingData, count: int) -> list[tuple[str, Trajectory]]:
+    """Up to ``count`` named training runs of evenly spaced frames, spread over what they did (:func:`spread_runs`),
+    in the order chosen: the runs the check replays."""
+    candidates = [(name, run) for name, run in data.training_runs if run_cadence(run) is not None]
+    if not candidates:
+        return []
+    return [candidates[i] for i in spread_runs([run for _, run in candidates], data.masses, data.mesh.size, count)]
+
+
+def training_pod(data: TrainingData, r: int) -> MeshBasis:
+    """POD(r) of the training frames' body-frame residuals, each run weighted alike: the modes the replays step on."""
+    frames = data.train
+    pod, _ = MeshBasis.pod(data.mesh, frames.residuals, r, weights=run_balanced_weights(frames.trajectory, frames.norm2_residual))
+    return pod
+
+
+def replay_run(data: TrainingData, pod: MeshBasis, run: Trajectory, r: int) -> dict[str, Any]:
+    """One training run replayed on the first ``r`` modes of ``pod`` with the body-frame reduced model, every tet as
+    cubature, against its full run: ``{"r", "nonrigid_error", "com_error", "stick_slip_right", "meets", "step_ms"}``
+    (``meets``: within the check's margins; a replay that fails to step misses, with infinite errors and no step time)."""
+    basis = BodyFrameBasis(data.mesh, MeshBasis(data.mesh, pod.modes[:, :, :r]), density=data.scenes[0].material.density)
+    steps, every = run_cadence(run)  # type: ignore[misc]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LicromWarning)
+            sim = BodyFrameSim(basis, data.mesh, run.scene, cubature=Cubature.full(data.mesh))
+            began = time.perf_counter()
+            reduced = sim.run(steps, record_every=every)
+            step_ms = 1e3 * (time.perf_counter() - began) / steps  # what the raised r costs, told in the report
+            c = compare(run, reduced)
+    except LicromError:
+        return {"r": r, "nonrigid_error": float("inf"), "com_error": float("inf"), "stick_slip_right": False, "meets": False,
+                "step_ms": None}
+    nr_limit, com_limit = _limits()
+    meets = bool(c.nonrigid_error < nr_limit and c.final_com_error < com_limit and c.stick_slip_agree)
+    return {"r": r, "nonrigid_error": float(c.nonrigid_error), "com_error": float(c.final_com_error),
+            "stick_slip_right": bool(c.stick_slip_agree), "meets": meets, "step_ms": step_ms}
 
 
 def spread_runs(runs: Sequence[Trajectory], masses: np.ndarray, size: float, count: int) -> list[int]:
