@@ -10,6 +10,14 @@ use faer::{Accum, MatMut, MatRef, Par};
 use crate::real::LANES;
 use crate::simd::{dispatch, lane_sum, Madd, WithMadd, F8};
 
+/// The eight values of `s` from `at`: the lanes of one [`Madd::madd8`] (whose
+/// explicit vector form the kernels here use, where per-lane `madd` left the
+/// vectorising to the compiler, which at times shuffled two-lane halves).
+#[inline(always)]
+fn lanes(s: &[f64], at: usize) -> &F8 {
+    s[at..at + LANES].try_into().expect("eight lanes")
+}
+
 /// Products `src[r] . x` of the `R` rows of `src` (`R x n`, row-major) with `x`.
 #[inline(always)]
 pub fn rows_dot<M: Madd, const R: usize>(src: &[f64], x: &[f64]) -> [f64; R] {
@@ -31,12 +39,9 @@ pub fn rows_dot_many<M: Madd, const R: usize, const V: usize>(src: &[f64], xs: [
     for b in 0..blocks {
         let c0 = b * LANES;
         for r in 0..R {
-            let row = &src[r * n + c0..r * n + c0 + LANES];
+            let row = lanes(src, r * n + c0);
             for (a, x) in acc.iter_mut().zip(&xs) {
-                let xb = &x[c0..c0 + LANES];
-                for l in 0..LANES {
-                    a[r][l] = M::madd(row[l], xb[l], a[r][l]);
-                }
+                a[r] = M::madd8(row, lanes(x, c0), a[r]);
             }
         }
     }
@@ -82,10 +87,7 @@ pub fn offset_rows_dot<M: Madd>(m: &[f64], x: &[f64], origin: &[f64], mut f: imp
             let c0 = b * LANES;
             let d: F8 = std::array::from_fn(|l| x[c0 + l] - origin[c0 + l]);
             for (r, a) in acc.iter_mut().enumerate() {
-                let row = &m[(i + r) * n + c0..(i + r) * n + c0 + LANES];
-                for l in 0..LANES {
-                    a[l] = M::madd(row[l], d[l], a[l]);
-                }
+                *a = M::madd8(lanes(m, (i + r) * n + c0), &d, *a);
             }
         }
         for (r, a) in acc.iter().enumerate() {
@@ -97,9 +99,8 @@ pub fn offset_rows_dot<M: Madd>(m: &[f64], x: &[f64], origin: &[f64], mut f: imp
         let mut acc = [0.0; LANES];
         for b in 0..blocks {
             let c0 = b * LANES;
-            for l in 0..LANES {
-                acc[l] = M::madd(m[r * n + c0 + l], x[c0 + l] - origin[c0 + l], acc[l]);
-            }
+            let d: F8 = std::array::from_fn(|l| x[c0 + l] - origin[c0 + l]);
+            acc = M::madd8(lanes(m, r * n + c0), &d, acc);
         }
         f(r, row_dot(&acc, r));
     }
@@ -114,9 +115,7 @@ pub fn dot<M: Madd>(a: &[f64], b: &[f64]) -> f64 {
     let (ac, bc) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
     let (ar, br) = (ac.remainder(), bc.remainder());
     for (x, y) in ac.zip(bc) {
-        for l in 0..LANES {
-            acc[l] = M::madd(x[l], y[l], acc[l]);
-        }
+        acc = M::madd8(x.try_into().expect("eight lanes"), y.try_into().expect("eight lanes"), acc);
     }
     let mut s = lane_sum(&acc);
     for (x, y) in ar.iter().zip(br) {
@@ -219,18 +218,14 @@ pub fn combine_rows<M: Madd, const R: usize>(src: &[f64], coef: &[[f64; R]], out
         for (i, ci) in coef.iter().enumerate() {
             let mut v = [0.0; LANES];
             for r in 0..R {
-                for l in 0..LANES {
-                    v[l] = M::madd(ci[r], block[r][l], v[l]);
-                }
+                v = M::madd8_splat(ci[r], &block[r], v);
             }
             out[i * n + c0..i * n + c0 + LANES].copy_from_slice(&v);
         }
         if accumulate {
-            let a = &mut acc[c0..c0 + LANES];
+            let a: &mut F8 = (&mut acc[c0..c0 + LANES]).try_into().expect("eight lanes");
             for r in 0..R {
-                for l in 0..LANES {
-                    a[l] = M::madd(acc_coef[r], block[r][l], a[l]);
-                }
+                *a = M::madd8_splat(acc_coef[r], &block[r], *a);
             }
         }
     }

@@ -7,15 +7,15 @@
 //! [`crate::body_frame`]). The `q^T Mqq q` part is evaluated by the elastic
 //! system (it is its mass term); this module holds the rest.
 
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
 use nalgebra::{Matrix3, Vector3};
 
 use super::rotation::axial;
 use super::Pose;
-use crate::dense::rows_dot_many;
 use crate::error::{check_finite, check_positive, LicromError, Result};
 use crate::integrator::Integrator;
 use crate::reduced::symmetrized_spd;
-use crate::simd::{dispatch, Madd, WithMadd};
 
 /// Mass moments of the body over all its vertices, fixed for a mesh and basis.
 #[derive(Debug, Clone)]
@@ -103,39 +103,22 @@ impl MassMoments {
         self.p.iter().zip(q).fold(self.j, |acc, (p, ql)| acc + p * *ql)
     }
 
-    /// `Y_k` (see [`Self::y_modes`]) at one coordinate vector, three rows at a
-    /// time in a plain loop: nine rows at once, or the three thirds built by a
-    /// closure, ran 2x and 10x slower (one core, AVX-512, n = 126).
-    #[inline(always)]
-    fn y_modes_one<M: Madd>(&self, q: &[f64], k: usize) -> Matrix3<f64> {
+    /// The nine components (row-major) of `sum_l q_l Q_lk` for every k, at
+    /// each of the V coordinate vectors in the columns of `qs` (n x V), into
+    /// the columns of `out` (9n x V, nine rows per k): one matrix product over
+    /// the `Q_lk`, `O(9 n^2)` per vector. With `Y_k = P_k^T + that`,
+    /// see [`Self::y_of`]. faer's product ran 2x faster than the 8-lane dot
+    /// products it replaced (67 against 138 us a vector at n = 256, one core,
+    /// AVX-512), whose compiled form shuffled two-lane halves.
+    fn mode_products(&self, qs: MatRef<'_, f64>, out: MatMut<'_, f64>) {
         let n = self.n_modes();
-        let rows = &self.q_by_mode[9 * n * k..9 * n * (k + 1)];
-        let mut t = [0.0; 9];
-        for i in 0..3 {
-            let [third] = rows_dot_many::<M, 3, 1>(&rows[3 * n * i..3 * n * (i + 1)], [q]);
-            t[3 * i..3 * i + 3].copy_from_slice(&third);
-        }
-        self.p[k].transpose() + Matrix3::from_row_slice(&t)
+        matmul(out, Accum::Replace, MatRef::from_row_major_slice(&self.q_by_mode, 9 * n, n), qs, 1.0, Par::Seq);
     }
 
-    /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk` at each of the V
-    /// coordinate vectors `qs`, in one pass over `Q_lk`. Reading only the
-    /// `Q_lk` with `l >= k` (half the bytes; each row's `q_k Q_lk^T` spread
-    /// into the later `Y_l`) was tried: 264 against 153 us a new pose at
-    /// n = 250 (one core, AVX-512, the rows out of L2), so all n^2 are kept.
-    #[inline(always)]
-    fn y_modes<M: Madd, const V: usize>(&self, qs: [&[f64]; V], k: usize) -> [Matrix3<f64>; V] {
-        let n = self.n_modes();
-        // Three of the nine rows at a time: all nine at two poses (18
-        // accumulators of eight lanes, with their loads) outgrew the vector
-        // registers and compiled to scalar code, half of a one-iteration
-        // step's time at r = 120 (measured: 0.26 -> 0.20 ms a step).
-        let rows = &self.q_by_mode[9 * n * k..9 * n * (k + 1)];
-        let thirds: [[[f64; 3]; V]; 3] = std::array::from_fn(|i| rows_dot_many::<M, 3, V>(&rows[3 * n * i..3 * n * (i + 1)], qs));
-        std::array::from_fn(|v| {
-            let t = thirds.map(|t| t[v]);
-            self.p[k].transpose() + Matrix3::new(t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], t[2][0], t[2][1], t[2][2])
-        })
+    /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk` from the nine values of
+    /// its product (see [`Self::mode_products`]).
+    fn y_of(&self, k: usize, product: &[f64]) -> Matrix3<f64> {
+        self.p[k].transpose() + Matrix3::from_row_slice(product)
     }
 }
 
@@ -165,6 +148,10 @@ pub struct InertiaTarget {
     held: usize,
     next_ys: Vec<Matrix3<f64>>,
     next_q: Vec<f64>,
+    /// Scratch of [`Self::begin`]: the q of the poses not held (n each) and
+    /// their products with the `Q_lk` (9n each).
+    new_q: Vec<f64>,
+    products: Vec<f64>,
 }
 
 impl InertiaTarget {
@@ -181,6 +168,8 @@ impl InertiaTarget {
             held: 0,
             next_ys: vec![Matrix3::zeros(); MAX_POSES * n],
             next_q: vec![0.0; MAX_POSES * n],
+            new_q: vec![0.0; MAX_POSES * n],
+            products: vec![0.0; MAX_POSES * 9 * n],
         }
     }
 
@@ -193,20 +182,15 @@ impl InertiaTarget {
     pub fn begin(&mut self, m: &MassMoments, history: &[&Pose], integrator: Integrator, gravity: &Vector3<f64>, h: f64) {
         let w = integrator.target_weights();
         match integrator {
-            Integrator::BackwardEuler => {
-                dispatch(BeginKernel::<2> { target: self, m, poses: [history[0], history[1]], weights: [w[0], w[1]], gravity, h })
-            }
-            Integrator::Bdf2 => {
-                dispatch(BeginKernel::<4> { target: self, m, poses: [history[0], history[1], history[2], history[3]], weights: w, gravity, h })
-            }
+            Integrator::BackwardEuler => self.begin_with::<2>(m, [history[0], history[1]], [w[0], w[1]], gravity, h),
+            Integrator::Bdf2 => self.begin_with::<4>(m, [history[0], history[1], history[2], history[3]], w, gravity, h),
         }
     }
 
-    /// [`Self::begin`]: the `Y_k` of the poses the last call did not see,
-    /// `O(9 n^2)` each (all V in one pass over the `Q_lk` when it saw none),
-    /// those of the current pose kept for the Gauss-Newton inertia.
-    #[inline(always)]
-    fn begin_impl<M: Madd, const V: usize>(&mut self, m: &MassMoments, poses: [&Pose; V], weights: [f64; V], gravity: &Vector3<f64>, h: f64) {
+    /// [`Self::begin`]: the `Y_k` of the poses the last call did not see, in
+    /// one product over the `Q_lk` (`O(9 n^2)` each), those of the current
+    /// pose kept for the Gauss-Newton inertia.
+    fn begin_with<const V: usize>(&mut self, m: &MassMoments, poses: [&Pose; V], weights: [f64; V], gravity: &Vector3<f64>, h: f64) {
         let n = m.n_modes();
         let cur = poses[0];
         self.ct = poses.iter().zip(weights).fold(gravity * (h * h), |acc, (p, w)| acc + p.center * w);
@@ -214,23 +198,26 @@ impl InertiaTarget {
         self.b0 = poses.iter().zip(&turns).fold(Matrix3::zeros(), |acc, (p, r)| acc + r * m.y_xbar(&p.q));
         self.gn_c = m.j;
         let held: [Option<usize>; V] = std::array::from_fn(|v| (0..self.held).find(|&j| self.held_q[j * n..(j + 1) * n] == poses[v].q[..]));
-        if held.iter().all(Option::is_none) {
-            let qs: [&[f64]; V] = poses.map(|p| &p.q[..]);
-            for k in 0..n {
-                for (v, y) in m.y_modes::<M, V>(qs, k).into_iter().enumerate() {
-                    self.next_ys[v * n + k] = y;
-                }
-            }
-        } else {
-            for (v, (pose, held)) in poses.iter().zip(held).enumerate() {
-                let ys = &mut self.next_ys[v * n..(v + 1) * n];
-                match held {
-                    Some(j) => ys.copy_from_slice(&self.held_ys[j * n..(j + 1) * n]),
-                    None => {
-                        for (k, y) in ys.iter_mut().enumerate() {
-                            *y = m.y_modes_one::<M>(&pose.q, k);
-                        }
+        let mut missing = 0;
+        for (pose, _) in poses.iter().zip(&held).filter(|(_, h)| h.is_none()) {
+            self.new_q[missing * n..(missing + 1) * n].copy_from_slice(&pose.q);
+            missing += 1;
+        }
+        if missing > 0 {
+            let qs = MatRef::from_column_major_slice(&self.new_q[..missing * n], n, missing);
+            m.mode_products(qs, MatMut::from_column_major_slice_mut(&mut self.products[..missing * 9 * n], 9 * n, missing));
+        }
+        let mut column = 0;
+        for (v, held) in held.iter().enumerate() {
+            let ys = &mut self.next_ys[v * n..(v + 1) * n];
+            match held {
+                Some(j) => ys.copy_from_slice(&self.held_ys[j * n..(j + 1) * n]),
+                None => {
+                    let products = &self.products[column * 9 * n..(column + 1) * 9 * n];
+                    for (k, (y, t)) in ys.iter_mut().zip(products.chunks_exact(9)).enumerate() {
+                        *y = m.y_of(k, t);
                     }
+                    column += 1;
                 }
             }
         }
@@ -343,22 +330,5 @@ fn add_cross(hess: &mut [f64], big: usize, k: usize, v: &Vector3<f64>) {
     for i in 0..3 {
         hess[(3 + i) * big + 6 + k] += v[i];
         hess[(6 + k) * big + 3 + i] += v[i];
-    }
-}
-
-struct BeginKernel<'a, const V: usize> {
-    target: &'a mut InertiaTarget,
-    m: &'a MassMoments,
-    poses: [&'a Pose; V],
-    weights: [f64; V],
-    gravity: &'a Vector3<f64>,
-    h: f64,
-}
-
-impl<const V: usize> WithMadd for BeginKernel<'_, V> {
-    type Output = ();
-    #[inline(always)]
-    fn run<M: Madd>(self) {
-        self.target.begin_impl::<M, V>(self.m, self.poses, self.weights, self.gravity, self.h)
     }
 }

@@ -392,20 +392,29 @@ impl ElasticTerm {
         mut ws: Option<&mut ElasticWorkspace>,
     ) -> f64 {
         let n = self.n;
-        if let Some(ws) = ws.as_deref_mut() {
-            vertices.displacements::<M>(q, n, &mut ws.vertex_u);
-            ws.vertex_force.fill(0.0);
-        }
+        // Without a workspace (energy probes) the displacements go to a buffer of their own, formed by the same
+        // product, so the energy is the same to the last bit.
+        let mut own_u = Vec::new();
+        let u = match ws.as_deref_mut() {
+            Some(ws) => {
+                vertices.displacements(q, n, &mut ws.vertex_u);
+                ws.vertex_force.fill(0.0);
+                None
+            }
+            None => {
+                own_u.resize(3 * vertices.n_vertices(n), 0.0);
+                vertices.displacements(q, n, &mut own_u);
+                Some(&own_u[..])
+            }
+        };
         let track = ws.is_some();
         let mut low = [f64::INFINITY; LANES];
         let mut elastic = [0.0; LANES];
         for (g, weights) in self.cubature.weights.chunks_exact(LANES).enumerate() {
             let tets = &vertices.tets[g * 4 * LANES..(g + 1) * 4 * LANES];
             let grads = &vertices.grads[g * 12 * LANES..(g + 1) * 12 * LANES];
-            let f = match ws.as_deref() {
-                Some(ws) => vertices.group_deformation::<M>(g, |v| stored_displacement(&ws.vertex_u, v)),
-                None => vertices.group_deformation::<M>(g, |v| vertices.displacement::<M>(v, q, n)),
-            };
+            let u = u.unwrap_or_else(|| &ws.as_deref().expect("a workspace where no own displacements").vertex_u);
+            let f = vertices.group_deformation::<M>(g, |v| stored_displacement(u, v));
             if track {
                 lowest_dets(&f, weights, &mut low);
             }
@@ -436,14 +445,7 @@ impl ElasticTerm {
         }
         if let Some(ws) = ws {
             ws.min_det = lowest(&low);
-            ws.gradient.fill(0.0);
-            for (rows, force) in vertices.basis.chunks_exact(3 * n).zip(ws.vertex_force.chunks_exact(3)) {
-                for (row, &fi) in rows.chunks_exact(n).zip(force) {
-                    for (g, w) in ws.gradient.iter_mut().zip(row) {
-                        *g = M::madd(fi, *w, *g);
-                    }
-                }
-            }
+            vertices.pull_back(&ws.vertex_force, n, &mut ws.gradient);
         }
         lane_sum(&elastic)
     }

@@ -27,10 +27,11 @@
 use nalgebra::Vector3;
 
 use crate::contact::Plane;
-use crate::dense::rows_dot;
 use crate::error::{check_finite, LicromError, Result};
 use crate::real::LANES;
 use crate::simd::{Madd, F8};
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
 
 /// The eight values of `s` from `at`.
 #[inline(always)]
@@ -344,18 +345,32 @@ impl VertexLayout {
         self.basis.len() / (3 * n)
     }
 
-    /// `u_v = W_v q` of used vertex v.
-    #[inline(always)]
-    pub(super) fn displacement<M: Madd>(&self, v: usize, q: &[f64], n: usize) -> [f64; 3] {
-        rows_dot::<M, 3>(&self.basis[3 * n * v..3 * n * (v + 1)], q)
+    /// `u_v = W_v q` of every used vertex, three values each, into `u`: one
+    /// matrix-vector product (faer's ran 2x faster than 8-lane dot products
+    /// per vertex on the like-shaped product of the body frame's inertia).
+    pub(super) fn displacements(&self, q: &[f64], n: usize, u: &mut [f64]) {
+        let rows = self.basis.len() / n;
+        matmul(
+            MatMut::from_column_major_slice_mut(u, rows, 1),
+            Accum::Replace,
+            MatRef::from_row_major_slice(&self.basis, rows, n),
+            MatRef::from_column_major_slice(q, n, 1),
+            1.0,
+            Par::Seq,
+        );
     }
 
-    /// `u_v = W_v q` of every used vertex, three values each, into `u`.
-    #[inline(always)]
-    pub(super) fn displacements<M: Madd>(&self, q: &[f64], n: usize, u: &mut [f64]) {
-        for (v, uv) in u.chunks_exact_mut(3).enumerate() {
-            uv.copy_from_slice(&self.displacement::<M>(v, q, n));
-        }
+    /// `W^T f` over the used vertices (`f` three values each) into `out` (n).
+    pub(super) fn pull_back(&self, f: &[f64], n: usize, out: &mut [f64]) {
+        let rows = self.basis.len() / n;
+        matmul(
+            MatMut::from_column_major_slice_mut(out, n, 1),
+            Accum::Replace,
+            MatRef::from_row_major_slice(&self.basis, rows, n).transpose(),
+            MatRef::from_column_major_slice(f, rows, 1),
+            1.0,
+            Par::Seq,
+        );
     }
 
     /// `F = I + sum_t u_t grad_t^T` of group `g` of cubature points (row-major

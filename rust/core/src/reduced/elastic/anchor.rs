@@ -97,7 +97,7 @@ impl ElasticTerm {
         let cub = &self.cubature;
         match &self.vertices {
             Some(vertices) => {
-                vertices.displacements::<M>(q, self.n, u);
+                vertices.displacements(q, self.n, u);
                 for (g, c) in out.chunks_exact_mut(6).enumerate() {
                     write_cauchy_green(&vertices.group_deformation::<M>(g, |v| stored_displacement(u, v)), c);
                 }
