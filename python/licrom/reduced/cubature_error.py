@@ -41,7 +41,6 @@ from .. import _core
 from .._blas import blas_threads
 from ..geometry.mesh import Mesh
 from ..scene.scene import Scene
-from ..subspace.basis import mesh_strain_jacobians
 from ..subspace.cubature import Cubature
 
 __all__ = ["COST_SHARE", "RIGID_TOLERANCE", "STIFFNESS_TETS", "CubatureError", "evaluation_stride"]
@@ -49,7 +48,6 @@ __all__ = ["COST_SHARE", "RIGID_TOLERANCE", "STIFFNESS_TETS", "CubatureError", "
 RIGID_TOLERANCE = 1e-9
 """Stiffness eigenvalues below this fraction of the largest count as rigid motions (no elastic force acts on them)."""
 
-_STIFFNESS_BLOCK = 2048  # tets whose strain Jacobians are formed at once (38 MB at k = 256)
 
 STIFFNESS_TETS = 4000
 """Most tets the reduced stiffness at rest is summed over (:meth:`CubatureError._rest_stiffness`): every tet up to this
@@ -64,21 +62,22 @@ steps."""
 
 def evaluation_stride(n_tets: int, n_cubature: int, k: int) -> int:
     """Steps between two evaluations of the term so that it costs about :data:`COST_SHARE` of the steps, from a cost
-    model fitted to three measurements on this project's 2-core machine (one evaluation inside a run, where it finds
-    the caches cold and takes about twice its time alone, against the run's median step):
+    model fitted to measurements on this project's 2-core machine (one evaluation inside a run, where it finds the
+    caches cold and slows the steps after it: the run's time with the term less its time without, per evaluation,
+    against the run's median step):
 
     | mesh, k, cubature tets | evaluation | step | ratio | model's ratio |
     |---|---|---|---|---|
     | the demo's 864-tet cheese, 18, 73 | 0.28-0.30 ms | 0.017 ms | 17 | 17 |
-    | the 1638-tet cheese, 256, 908 | 1.1 ms | 0.69 ms | 1.6 | 1.5 |
-    | the 120k-tet cheese, 246-256, 587-600 | about 60 ms (47 ms alone) | 1.4 ms | about 40 | 38 |
+    | the 1638-tet cheese, 256, 908 | 3.2 ms | 0.34 ms | 9.2 | 9.0 |
+    | the 120k-tet cheese, 246-256, 587-600 (before the step's product kernels, results section 54) | about 60 ms (47 ms alone) | 1.4 ms | about 40 | 190 |
 
     An evaluation costs a pass over the tets and a fixed part (numpy's and scipy's calls and cold caches, about 5700
     tets' worth); a step about the cubature's Hessian, ``K k^2``, and a fixed part. A run also evaluates the term
     once at its end (:meth:`licrom.reduced.error_estimate.ErrorMonitor.finish`), so that a run shorter than the
     stride has one value.
     """
-    ratio = (n_tets + 5700.0) / (n_cubature * k * k / 1.33e4 + 385.0)
+    ratio = (n_tets + 5700.0) / (n_cubature * k * k / 1.38e5 + 385.0)
     return max(1, math.ceil(ratio / COST_SHARE))
 
 
@@ -123,29 +122,31 @@ class CubatureError:
     @functools.cached_property
     def _scaled(self) -> np.ndarray:
         """(k, e): the reduced force -> each elastic mode's static displacement (mass-normalised modes over stiffness)."""
-        stiffness = self._rest_stiffness(self._values, self._mesh)
+        stiffness = self._rest_stiffness()
         lam, phi = scipy.linalg.eigh(0.5 * (stiffness + stiffness.T), self._modal_mass)
         elastic = lam > RIGID_TOLERANCE * max(lam.max(initial=0.0), 1e-300)
         return phi[:, elastic] / lam[elastic]
 
-    def _rest_stiffness(self, values: np.ndarray, mesh: Mesh) -> np.ndarray:
+    def _rest_stiffness(self) -> np.ndarray:
         """(k, k) reduced stiffness at rest, ``sum_t V_t G_t^T C G_t`` (N/m per unit q^2), over every tet of meshes of up
         to :data:`STIFFNESS_TETS` tets and over that many random tets, volume-scaled (:meth:`Cubature.naive`), on larger.
 
         Not the cubature's: a cubature that misintegrates the forces misintegrates the stiffness too, and one of a few
         tets leaves modes nearly free, which would read its error as a displacement without bound (measured: 25 random
-        tets on the 864-tet demo cheese read 950-1010 % for a true 51-60 %). The tets' ``G_t`` are formed a block at a
-        time from the vertex values, so the memory stays that of a block.
+        tets on the 864-tet demo cheese read 950-1010 % for a true 51-60 %). Formed through the vertices,
+        ``W^T (S^T D S) W`` (S: the tets' strain rows of :func:`_strain_matrix`, D: their ``w_t C`` blocks, W: the mode
+        values at the vertices they touch): on a whole mesh about 3 rows of W per 5 tets in place of 9 rows of ``G_t`` per
+        tet, 11.6 against 250 ms on the 1638-tet cheese at k = 256 (2 cores), the first evaluation of a run.
         """
-        k = values.shape[2]
+        mesh = self._mesh
         sample = Cubature.full(mesh) if mesh.n_tets <= STIFFNESS_TETS else Cubature.naive(mesh, STIFFNESS_TETS)
         c = _core.snh_hessian(np.eye(3)[None], self._mu, self._lam, False)[0]
-        stiffness = np.zeros((k, k))
-        for first in range(0, sample.count, _STIFFNESS_BLOCK):
-            g = mesh_strain_jacobians(mesh, sample.tets[first:first + _STIFFNESS_BLOCK], values).reshape(-1, 9, k)
-            weighted = sample.weights[first:first + _STIFFNESS_BLOCK, None, None] * np.einsum("ij,tjc->tic", c, g)
-            stiffness += g.reshape(-1, k).T @ weighted.reshape(-1, k)
-        return stiffness
+        strain = self._strain[(9 * sample.tets[:, None] + np.arange(9)).ravel()]
+        touched = np.unique(strain.indices)
+        strain = strain[:, touched]
+        blocks = scipy.sparse.kron(scipy.sparse.diags(sample.weights), scipy.sparse.csr_matrix(c), format="csr")
+        modes = self._modes[touched]
+        return modes.T @ ((strain.T @ blocks @ strain) @ modes)
 
     def forces(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(k,) reduced elastic forces ``dE/dq`` (N m per unit q) at ``q``: every tet's and the cubature's."""
