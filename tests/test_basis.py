@@ -1,7 +1,9 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from licrom import AffineBasis, ConfigError, MeshBasis, ShapeError, StackedBasis, meshes
-from licrom.subspace.basis import RUN_BALANCE, SubspaceProjector, run_balanced_weights, strain_jacobians, weighted_gram
+from licrom.subspace.basis import RUN_BALANCE, ModalNorm, SubspaceProjector, run_balanced_weights, strain_jacobians, weighted_gram
 
 
 def _fd_jacobian(basis, points, eps=1e-6):
@@ -220,3 +222,22 @@ def test_strain_jacobians_mesh_is_the_fem_gradient_of_the_vertex_values(rng):
     np.testing.assert_allclose(strain_jacobians(lin, mesh, tets, "field"), strain_jacobians(lin, mesh, tets, "mesh"), atol=1e-10)
     with pytest.raises(ConfigError, match="strain must be one of 'mesh', 'field'"):
         strain_jacobians(lin, mesh, tets, "exact")
+
+
+@settings(max_examples=40, deadline=None)
+@given(k=st.integers(1, 40), coupled=st.integers(0, 8), seed=st.integers(0, 2**32 - 1))
+def test_modal_norm_is_the_dense_quadratic_form(k, coupled, seed):
+    # A mass matrix with `coupled` leading modes coupled among themselves and mass-orthogonal modes after them (as the
+    # body frame's affine and learned modes), the same with one late mode coupled to the first (the block grows to
+    # it), and the matrix fully dense: each as q^T M q to round-off.
+    rng = np.random.default_rng(seed)
+    coupled = min(coupled, k)
+    a = rng.normal(size=(k, k))
+    dense = a @ a.T + k * np.eye(k)
+    leading = np.diag(np.diag(dense))
+    leading[:coupled, :coupled] = dense[:coupled, :coupled]
+    late = leading.copy()
+    late[0, k - 1] = late[k - 1, 0] = 0.5 * dense[0, k - 1]
+    q = rng.normal(size=k)
+    for m in (dense, leading, late):
+        assert ModalNorm(m)(q) == pytest.approx(float(q @ m @ q), rel=1e-12)

@@ -28,7 +28,7 @@ from ..records.trajectory import DeferredFrames, Trajectory
 from ..rigid import center_of_mass, rigid_fit
 from ..scene.scene import Scene
 from ..stepping import record_run
-from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, weighted_gram
+from ..subspace.basis import Basis, ModalNorm, SubspaceProjector, check_basis, check_basis_output, strain_jacobians, weighted_gram
 from ..subspace.body_basis import BodyFrameBasis, rigid_momenta
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
@@ -178,6 +178,7 @@ class BodyFrameSim(ReducedSim):
         a = self._values.reshape(n, 3 * k)
         products = weighted_gram(a, self._masses).reshape(3, k, 3, k).transpose(1, 3, 0, 2)
         self._modal_mass = np.einsum("klii->kl", products)
+        self._modal_norm = ModalNorm(self._modal_mass)  # |u|_M^2 of the non-rigid deformation at q, for the error estimate
         self._projector = SubspaceProjector(self._values, self._masses, reduced_mass=self._modal_mass) if k else None
         self._core = _core.BodyFrameCore(
             total_mass=total,
@@ -318,16 +319,13 @@ class BodyFrameSim(ReducedSim):
         history = [self._previous_positions(k) for k in range(monitor.history_length - 1, 0, -1)] + [self.positions]
         monitor.start([x[monitor.vertices] for x in history])
 
-        def deformation(q: np.ndarray) -> float:
-            return float(q @ self._modal_mass @ q)
-
         def step() -> tuple[int, float, bool]:
             outcome = self.step_or_record()
-            monitor.after_step(lambda: (self.q, self.center, self.rotation), deformation)
+            monitor.after_step(lambda: (self.q, self.center, self.rotation), self._modal_norm)
             return outcome
 
         rec = record_run(step, self._poses, lambda: self.time, steps, record_every, progress, "body frame", self._core.validity)
-        monitor.finish(self.q, deformation)
+        monitor.finish(self.q, self._modal_norm)
         frames = _RecordedFrames(rec.frames, self._values, self._xbar, self.mesh.vertices, self.scene.dt, self.scene.integrator == "bdf2")
         deferred = DeferredFrames((len(rec.frames), self.mesh.n_vertices, 3), frames.build)
         return self._trajectory(rec, frames.positions(), deferred, deferred, np.array([frame[0][2] for frame in rec.frames]),
