@@ -385,25 +385,47 @@ impl BodyContacts {
     }
 
     /// The rows in and out of an incremental update; returns their counts and
-    /// the rows in the matrix afterwards.
+    /// the rows in the matrix afterwards. Where the rows to take out and put in
+    /// outnumber the rows of the matrix afterwards (the points switching between
+    /// stick and slip while a landing settles), forming it from scratch costs
+    /// less, and is done.
     #[inline(always)]
     fn update_rows_impl<M: Madd>(&self, terms: &ContactTerms, rows: &mut ContactRows, state: &mut BodyContactHessian) -> (usize, usize, usize) {
         let n_planes = self.points.planes().len();
-        let rebuild = state.gram.needs_rebuild();
+        let kept = |s: usize, state: &BodyContactHessian| {
+            let range = s * n_planes..(s + 1) * n_planes;
+            let (new, old) = (&terms.terms[range.clone()], &state.used[range]);
+            let has_rows = new.iter().any(|t| t.len > 0);
+            new.iter().zip(old).all(|(a, b)| a.len == 0 && b.len == 0 || a.close_to(b, CURVATURE_SLACK, DIRECTION_COS))
+                && (!has_rows || (terms.y[s] - state.used_y[s]).norm() <= LEVER_SLACK * state.used_y[s].norm())
+        };
+        let rows_of = |t: &[RankOneTerms]| t.iter().map(|t| t.len).sum::<usize>();
+        let mut rebuild = state.gram.needs_rebuild();
+        if !rebuild {
+            let (mut changed, mut total) = (0, 0);
+            for s in 0..self.rest.len() {
+                let range = s * n_planes..(s + 1) * n_planes;
+                if kept(s, state) {
+                    total += rows_of(&state.used[range]);
+                } else {
+                    changed += rows_of(&state.used[range.clone()]) + rows_of(&terms.terms[range]);
+                    total += rows_of(&terms.terms[s * n_planes..(s + 1) * n_planes]);
+                }
+            }
+            if changed > total {
+                state.gram.invalidate();
+                rebuild = true;
+            }
+        }
         let (mut plus, mut minus, mut total) = (0, 0, 0);
         for s in 0..self.rest.len() {
             let range = s * n_planes..(s + 1) * n_planes;
-            let (new, old) = (&terms.terms[range.clone()], &state.used[range.clone()]);
-            let y = terms.y[s];
-            let has_rows = new.iter().any(|t| t.len > 0);
-            let keep = !rebuild
-                && new.iter().zip(old).all(|(a, b)| a.len == 0 && b.len == 0 || a.close_to(b, CURVATURE_SLACK, DIRECTION_COS))
-                && (!has_rows || (y - state.used_y[s]).norm() <= LEVER_SLACK * state.used_y[s].norm());
-            if keep {
-                total += old.iter().map(|t| t.len).sum::<usize>();
+            if !rebuild && kept(s, state) {
+                total += rows_of(&state.used[range]);
                 continue;
             }
-            for (a, b) in new.iter().zip(old) {
+            let y = terms.y[s];
+            for (a, b) in terms.terms[range.clone()].iter().zip(&state.used[range.clone()]) {
                 if !rebuild {
                     minus = self.body_rows::<M>(s, &state.used_y[s], b, &mut rows.out, minus);
                 }
