@@ -1,20 +1,24 @@
-"""What the error estimate's cubature term costs a reduced run: the same run with and without it, as a ratio.
+"""What the online error estimate costs a reduced run: the same run with none of it, with its residual term alone and
+with the whole estimate, as ratios.
 
     python benches/estimate_cost.py --model out/defaults/models/cheese.lcm --rounds 9
 
 ``ReducedSim(model)`` on the model's default scene (its first training run's), ``--steps`` steps recording every 10th,
-run in interleaved rounds with the term (:mod:`licrom.reduced.cubature_error`) and without it (the residual term
-alone); prints each round's ratio and the median of each, from one process on this machine.
+run in interleaved rounds: without the estimate's work after each step, with the residual term alone
+(:mod:`licrom.reduced.error_estimate`), and with its cubature term too (:mod:`licrom.reduced.cubature_error`). The
+measure is the run's summed step times (``Trajectory.step_seconds``, which hold the estimate's work after each step);
+prints the medians and each round's ratios to the run without it, from one process on this machine.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
 import warnings
 
 import licrom
 import numpy as np
+
+VARIANTS = ("none", "residual", "estimate")
 
 
 def main() -> None:
@@ -25,25 +29,30 @@ def main() -> None:
     args = ap.parse_args()
     sim = licrom.ReducedSim(licrom.Model.load(args.model))
     monitor = sim._monitor
-    term = monitor._cubature_error
+    term, after_step = monitor._cubature_error, monitor.after_step
     start = (sim.positions, sim.velocities)
-    walls: dict[bool, list[float]] = {True: [], False: []}
+    sums: dict[str, list[float]] = {v: [] for v in VARIANTS}
     for _ in range(args.rounds):
-        for with_term in (True, False):
+        for variant in VARIANTS:
             sim.set_state(*start)
             sim.time = 0.0
-            monitor._cubature_error = term if with_term else None
-            t = time.perf_counter()
+            monitor._cubature_error = term if variant == "estimate" else None
+            monitor.after_step = after_step if variant != "none" else lambda state, deformation: None
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                sim.run(args.steps, record_every=10)
-            walls[with_term].append(time.perf_counter() - t)
-    ratios = np.array(walls[True]) / np.array(walls[False])
-    w, wo = float(np.median(walls[True])), float(np.median(walls[False]))
-    print(f"{sim.mesh.n_tets} tets, k = {sim._values.shape[2]}, {sim.cubature.count} cubature tets; the term about every {term.stride} "
-          "steps and at the run's end")
-    print(f"run of {args.steps} steps: {w:.3f} s with the term, {wo:.3f} s without (medians of {args.rounds}): "
-          f"{100 * (w / wo - 1):+.1f} %; rounds {np.round(ratios, 3).tolist()}")
+                traj = sim.run(args.steps, record_every=10)
+            sums[variant].append(float(traj.step_seconds.sum()))
+    del monitor.after_step
+    base = np.array(sums["none"])
+    stride = "none" if term is None else f"about every {term.stride} steps and at the run's end"
+    print(f"{sim.mesh.n_tets} tets, k = {sim._values.shape[2]}, {sim.cubature.count} cubature tets; the residual every "
+          f"{monitor.stride} steps, the cubature term {stride}")
+    print(f"run of {args.steps} steps, summed step times (medians of {args.rounds}): none {1e3 * np.median(base):.1f} ms, "
+          f"{1e3 * np.median(base) / args.steps:.4f} ms a step")
+    for variant in VARIANTS[1:]:
+        ratios = np.array(sums[variant]) / base
+        print(f"  {variant}: {1e3 * np.median(sums[variant]):.1f} ms, {100 * (np.median(ratios) - 1):+.1f} % "
+              f"(rounds {np.round(ratios, 3).tolist()})")
 
 
 if __name__ == "__main__":

@@ -10,7 +10,14 @@ import pytest
 from licrom import AccuracyWarning, Material, MeshBasis, Plane, ReducedSim, Scene, SolverParams, Trajectory, _core, meshes
 from licrom.analysis.compare import compare, nonrigid_error
 from licrom.reduced.body import BodyFrameSim
-from licrom.reduced.error_estimate import ERROR_THRESHOLD, INERTIA_EXPONENT, ErrorMonitor, normalising_inverse
+from licrom.reduced.error_estimate import (
+    ERROR_STRIDE,
+    ERROR_THRESHOLD,
+    INERTIA_EXPONENT,
+    ErrorMonitor,
+    normalising_inverse,
+    residual_stride,
+)
 from licrom.scene.placement import drop_state, initial_state_on_plane
 from licrom.subspace.body_basis import BodyFrameBasis
 from licrom.subspace.cubature import Cubature
@@ -104,6 +111,26 @@ def test_elastic_force_matches_finite_differences(mesh):
             minus[v, i] -= eps
             fd = -(energy(plus) - energy(minus)) / (2 * eps)
             assert forces[s, i] == pytest.approx(fd, rel=1e-5, abs=1e-6 * np.abs(forces).max())
+
+
+def test_residual_stride_follows_the_cost_of_a_step():
+    # Cheap steps (few modes, few cubature tets) space the evaluations out; dear ones keep the least stride.
+    assert residual_stride(73, 18) > 4 * ERROR_STRIDE
+    assert residual_stride(100_000, 256) == ERROR_STRIDE
+    strides = [residual_stride(count, 60) for count in (10, 100, 1000, 10_000)]
+    assert strides == sorted(strides, reverse=True) and strides[0] > strides[-1]
+
+
+@pytest.mark.parametrize("stride", [3, ERROR_STRIDE, 50])
+def test_residual_is_evaluated_from_the_least_stride_on(mesh, stride):
+    # The first evaluation at min(stride, ERROR_STRIDE), then every stride-th step: a run of ERROR_STRIDE steps has one.
+    monitor = ErrorMonitor(mesh, np.zeros((mesh.n_vertices, 3, 0)), mesh.vertices, _scene(mesh), count=4, stride=stride)
+    x = mesh.vertices[monitor.vertices]
+    monitor.start([x] * monitor.history_length)
+    for _ in range(120):
+        monitor.after_step(lambda: (np.zeros(0), None, None), lambda q: 1.0)
+    first = min(stride, ERROR_STRIDE)
+    assert [step for step, _, _ in monitor._evaluations] == list(range(first, 121, stride))
 
 
 def test_error_estimate_saves_and_loads(one_mode_run, tmp_path):

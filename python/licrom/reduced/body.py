@@ -34,7 +34,7 @@ from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
 from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
 from .cubature_error import CubatureError
-from .error_estimate import ErrorMonitor
+from .error_estimate import ErrorMonitor, residual_stride
 
 __all__ = ["BodyFrameSim"]
 
@@ -190,7 +190,7 @@ class BodyFrameSim(ReducedSim):
         )
         self._body = _core.Reconstruction(self._values, self._xbar) if k else None
         self._shapes: dict[bytes, np.ndarray] = {}
-        self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene,
+        self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene, stride=residual_stride(self.cubature.count, k),
                                      cubature_error=CubatureError(mesh, self._values, self._xbar, scene, self.cubature,
                                                                    self._jacobians if strain == "field" else None, self._modal_mass))
         self.time = 0.0

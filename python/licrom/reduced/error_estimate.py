@@ -18,8 +18,8 @@ the full one, from the run's first contact on:
 
     ``e(t) = ERROR_SCALE * sqrt(sum_{s<=t} M/M_S sum_v m_v |du_v(s)|^2 / sum_{s<=t} |u(s)|_M^2)``
 
-over every ``ERROR_STRIDE``-th step s (``M/M_S``: total mass over the sample's, so the
-sample stands for the body). It is recorded per frame in ``Trajectory.error_estimate``,
+over every ``stride``-th step s (:func:`residual_stride`, at least :data:`ERROR_STRIDE`; ``M/M_S``: total mass over
+the sample's, so the sample stands for the body). It is recorded per frame in ``Trajectory.error_estimate``,
 and its last value is the run-level estimate; an :class:`~licrom.errors.AccuracyWarning`
 is issued once per run when it passes :data:`ERROR_THRESHOLD`. ``step()`` and
 ``step_many()`` alone do not compute it: it is a property of a run.
@@ -45,6 +45,7 @@ rows of the rings' vertices and one pass over the ring tets, both in the core
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable
 
@@ -57,8 +58,9 @@ from ..geometry.points import farthest_points
 from ..scene.scene import Scene
 from .cubature_error import CubatureError
 
-__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "SAMPLE_COUNT", "TARGET_WEIGHTS",
-           "ErrorMonitor", "normalising_inverse", "sample_vertices", "warn_estimate"]
+__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "RESIDUAL_SHARE", "SAMPLE_COUNT", "TARGET_WEIGHTS",
+           "ErrorMonitor", "normalising_inverse", "residual_stride", "sample_vertices",
+           "warn_estimate"]
 
 TARGET_WEIGHTS = {"backward_euler": (2.0, -1.0), "bdf2": (24 / 9, -22 / 9, 8 / 9, -1 / 9)}
 """Each integrator's predicted position ``xt - h'^2 g`` as weights of the positions of the steps before, newest
@@ -71,15 +73,38 @@ SAMPLE_COUNT = 48
 """Vertices where the residual is evaluated."""
 
 ERROR_STRIDE = 10
-"""Steps between two evaluations of the residual. The run-level estimate is a sum over the
-run, so every tenth step measures it as well as every step, at a tenth of the cost: on the
-864-tet cheese (every tet cubature) the estimate's work was 5 % of the step's at r = 60
-(0.019 ms of 0.37 ms per step, median of 7 runs of 150 steps; 3-8 % per run on a shared
-2-core machine) and 4 % at r = 20 (one evaluation: under 0.1 ms). On the 1638-tet cheese at
-r = 120 with the model's fitted cubature (slide, stick, new azimuth; 3 runs each): 0.03-0.06 ms
-a step on average against a mean step of 1.3 ms, 2-4 %. With the residual in the core
-(``licrom._core.ResidualEstimate``), in a run: 0.12-0.18 ms on an evaluated step (0.25-0.26 before)
-and 0.02-0.03 ms on each of the steps before it that keep sample positions (0.04-0.05 before)."""
+"""Fewest steps between two evaluations of the residual, and the step of a run's first evaluation. The run-level
+estimate is a sum over the run, so every tenth step measures it as well as every step, at a tenth of the cost (on the
+864-tet cheese at r = 60, every tet cubature: 5 % of the step's work). Where a step is cheap against an evaluation
+(few modes, few cubature tets), :func:`residual_stride` takes more steps between them."""
+
+RESIDUAL_SHARE = 0.04
+"""Share of a reduced run's time the residual may take by :func:`residual_stride`'s model (dimensionless): with the
+cubature term's 3 % (:data:`licrom.reduced.cubature_error.COST_SHARE`) and what cold caches add (below) the estimate
+stays within issue 23's 10 % of the steps."""
+
+
+def residual_stride(n_cubature: int, k: int) -> int:
+    """Steps between two evaluations of the residual so that it costs about :data:`RESIDUAL_SHARE` of the steps, and at
+    least :data:`ERROR_STRIDE`, from a cost model fitted to runs on this project's 2-core machine
+    (``benches/estimate_cost.py``: the run's summed step times with the residual against without it, per evaluation
+    with the states recorded before it, against the run's step without it):
+
+    | model (mesh, k, cubature tets) | evaluation | step | model's evaluation, step |
+    |---|---|---|---|
+    | the demo's 864-tet cheese, 18, 73 | 0.043 ms | 0.018 ms | 0.043, 0.018 ms |
+    | the converged 1638-tet cheese, 126, 715 | 0.145 ms | 0.228 ms | 0.144, 0.231 ms |
+    | the same at 256, 908 | 0.26 ms | 0.34-0.55 ms | 0.27, 0.57 ms |
+
+    An evaluation costs a fixed part (the Python calls, one per state recorded) and products with the basis rows of
+    the sample's rings, ``k`` wide; a step a fixed part and products with the cubature's vertex rows, ``K k``. At
+    large k the evaluation also evicts the step's data from the caches, so that its share on a quiet machine was
+    7.6 % at stride 10 (docs/results.md section 55) where this model gives 4.7 %; the model's stride of 12 there
+    brings that to about 6 %.
+    """
+    ratio = (26.0 + 0.94 * k) / (15.0 + 2.4e-3 * n_cubature * k)
+    return max(ERROR_STRIDE, math.ceil(ratio / RESIDUAL_SHARE))
+
 
 INERTIA_EXPONENT = 1.0 / 3.0
 """How much of the one-step inertia ``m/h'^2`` the residual's normalising block takes (dimensionless).
@@ -155,7 +180,8 @@ class ErrorMonitor:
         rest: (n, 3) the rest term of the positions (``X`` or ``Xbar``), m.
         scene: the scene (material, gravity, dt, integrator, planes).
         count: sample size (all vertices on meshes with fewer).
-        stride: steps between two evaluations, an integer >= 1.
+        stride: steps between two evaluations, an integer >= 1 (the first at step ``min(stride, ERROR_STRIDE)``, so
+            that every run of that many steps has one).
         cubature_error: the cubature's term (:mod:`licrom.reduced.cubature_error`), evaluated with the residual about
             every ``cubature_error.stride`` steps and at the end of a run; None: the residual alone.
 
@@ -238,14 +264,15 @@ class ErrorMonitor:
     def after_step(self, state: Callable[[], tuple[np.ndarray, np.ndarray | None, np.ndarray | None]],
                    deformation: Callable[[np.ndarray], float]) -> None:
         """Count a step; keep the sample positions of the steps before an evaluation that the residual
-        reads (:attr:`history_length`), and evaluate every ``stride``-th step.
+        reads (:attr:`history_length`), and evaluate every ``stride``-th step (the first at ``min(stride, ERROR_STRIDE)``).
 
         Args:
             state: ``(q, c, R)`` now (``c``, ``R`` None for world-frame models); called only when needed.
             deformation: ``|u|_M^2`` (kg m^2) of the non-rigid deformation of the body at ``q``.
         """
         self._step += 1
-        wait = -self._step % self.stride
+        phase = self._step - min(self.stride, ERROR_STRIDE)
+        wait = -phase if phase < 0 else -phase % self.stride
         if wait > self.history_length:
             return
         q, center, rotation = state()

@@ -27,7 +27,7 @@ from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
 from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
 from .cubature_error import CubatureError
-from .error_estimate import ErrorMonitor
+from .error_estimate import ErrorMonitor, residual_stride
 
 __all__ = ["SOLVERS", "WorldFrameSim"]
 
@@ -104,7 +104,7 @@ class WorldFrameSim(ReducedSim):
             **native_inputs(self, strain, mesh.vertices),
         )
         self._reconstruction = _core.Reconstruction(self._values, mesh.vertices)
-        self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene,
+        self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene, stride=residual_stride(self.cubature.count, k),
                                      cubature_error=CubatureError(mesh, self._values, mesh.vertices, scene, self.cubature,
                                                                   self._jacobians if strain == "field" else None, self._projector.reduced_mass))
         self.time = 0.0
