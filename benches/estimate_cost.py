@@ -4,7 +4,7 @@ with the whole estimate, as ratios.
     python benches/estimate_cost.py --model out/defaults/models/cheese.lcm --rounds 9
 
 ``ReducedSim(model)`` on the model's default scene (its first training run's), ``--steps`` steps recording every 10th,
-run in interleaved rounds: without the estimate's work after each step, with the residual term alone
+run in interleaved rounds (``--stride``: the residual's stride set by hand, to compare with the model's): without the estimate's work after each step, with the residual term alone
 (:mod:`licrom.reduced.error_estimate`), and with its cubature term too (:mod:`licrom.reduced.cubature_error`). The
 measure is the run's summed step times (``Trajectory.step_seconds``, which hold the estimate's work after each step);
 prints the medians and each round's ratios to the run without it, from one process on this machine.
@@ -26,9 +26,12 @@ def main() -> None:
     ap.add_argument("--model", required=True, help="a trained model (.lcm)")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--stride", type=int, help="the residual's stride in place of the model's (residual_stride)")
     args = ap.parse_args()
     sim = licrom.ReducedSim(licrom.Model.load(args.model))
     monitor = sim._monitor
+    if args.stride is not None:
+        monitor.stride = args.stride
     term, after_step = monitor._cubature_error, monitor.after_step
     start = (sim.positions, sim.velocities)
     sums: dict[str, list[float]] = {v: [] for v in VARIANTS}

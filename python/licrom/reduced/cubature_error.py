@@ -56,7 +56,7 @@ rest of the setup does."""
 
 COST_SHARE = 0.03
 """Share of a reduced run's time the term may take on average by :func:`evaluation_stride`'s model (dimensionless):
-with the residual's 4 % (:data:`licrom.reduced.error_estimate.RESIDUAL_SHARE`) the estimate stays under 10 % of the
+with the residual's 6 % (:data:`licrom.reduced.error_estimate.RESIDUAL_SHARE`) the estimate stays under 10 % of the
 steps."""
 
 
