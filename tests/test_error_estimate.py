@@ -115,7 +115,7 @@ def test_elastic_force_matches_finite_differences(mesh):
 
 def test_residual_stride_follows_the_cost_of_a_step():
     # Cheap steps (few modes, few cubature tets) space the evaluations out; dear ones keep the least stride.
-    assert residual_stride(73, 18) > 4 * ERROR_STRIDE
+    assert residual_stride(73, 18) >= 3 * ERROR_STRIDE
     assert residual_stride(100_000, 256) == ERROR_STRIDE
     strides = [residual_stride(count, 60) for count in (10, 100, 1000, 10_000)]
     assert strides == sorted(strides, reverse=True) and strides[0] > strides[-1]
