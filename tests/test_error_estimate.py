@@ -14,6 +14,7 @@ from licrom.reduced.error_estimate import (
     ERROR_STRIDE,
     ERROR_THRESHOLD,
     INERTIA_EXPONENT,
+    MIN_EVALUATIONS,
     ErrorMonitor,
     normalising_inverse,
     residual_stride,
@@ -131,6 +132,19 @@ def test_residual_is_evaluated_from_the_least_stride_on(mesh, stride):
         monitor.after_step(lambda: (np.zeros(0), None, None), lambda q: 1.0)
     first = min(stride, ERROR_STRIDE)
     assert [step for step, _, _ in monitor._evaluations] == list(range(first, 121, stride))
+
+
+@pytest.mark.parametrize("steps", [60, 400, 5000])
+def test_a_run_of_known_length_gets_its_evaluations(mesh, steps):
+    # A stride of 100 gives a run about MIN_EVALUATIONS evaluations where ERROR_STRIDE allows, and never more steps
+    # between two than the model's stride.
+    monitor = ErrorMonitor(mesh, np.zeros((mesh.n_vertices, 3, 0)), mesh.vertices, _scene(mesh), count=4, stride=100)
+    monitor.start([mesh.vertices[monitor.vertices]] * monitor.history_length, steps)
+    for _ in range(steps):
+        monitor.after_step(lambda: (np.zeros(0), None, None), lambda q: 1.0)
+    stride = min(100, max(ERROR_STRIDE, steps // MIN_EVALUATIONS))
+    assert [step for step, _, _ in monitor._evaluations] == list(range(ERROR_STRIDE, steps + 1, stride))
+    assert len(monitor._evaluations) >= min(MIN_EVALUATIONS, steps // ERROR_STRIDE)
 
 
 def test_error_estimate_saves_and_loads(one_mode_run, tmp_path):

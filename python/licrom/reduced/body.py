@@ -317,7 +317,7 @@ class BodyFrameSim(ReducedSim):
         """
         monitor = self._monitor
         history = [self._previous_positions(k) for k in range(monitor.history_length - 1, 0, -1)] + [self.positions]
-        monitor.start([x[monitor.vertices] for x in history])
+        monitor.start([x[monitor.vertices] for x in history], steps)
 
         def step() -> tuple[int, float, bool]:
             outcome = self.step_or_record()

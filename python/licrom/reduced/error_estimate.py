@@ -58,7 +58,8 @@ from ..geometry.points import farthest_points
 from ..scene.scene import Scene
 from .cubature_error import CubatureError
 
-__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "RESIDUAL_SHARE", "SAMPLE_COUNT", "TARGET_WEIGHTS",
+__all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "MIN_EVALUATIONS",
+           "RESIDUAL_SHARE", "SAMPLE_COUNT", "TARGET_WEIGHTS",
            "ErrorMonitor", "normalising_inverse", "residual_stride", "sample_vertices",
            "warn_estimate"]
 
@@ -77,6 +78,11 @@ ERROR_STRIDE = 10
 estimate is a sum over the run, so every tenth step measures it as well as every step, at a tenth of the cost (on the
 864-tet cheese at r = 60, every tet cubature: 5 % of the step's work). Where a step is cheap against an evaluation
 (few modes, few cubature tets), :func:`residual_stride` takes more steps between them."""
+
+MIN_EVALUATIONS = 20
+"""Evaluations of the residual a run of known length gets at least, where :data:`ERROR_STRIDE` allows: the run-level
+value of a few evaluations is noisy (the README's 100-step quickstart, evaluated every 40th step from step 10, read
+10.8 % for a true 6.4 %, docs/results.md section 56); a short run's estimate costs little in all."""
 
 RESIDUAL_SHARE = 0.06
 """Share of a reduced run's time the residual may take by :func:`residual_stride`'s model (dimensionless): with the
@@ -234,6 +240,7 @@ class ErrorMonitor:
                                                 scene.material.viscosity)
         self._cubature_error = cubature_error
         self._step = 0
+        self._run_stride = self.stride  # this run's (start)
         self._next = min(self.stride, ERROR_STRIDE)  # the step of the next evaluation
         self._evaluations: list[tuple[int, float, float]] = []
         self._cubature_evaluations: list[tuple[int, float, float]] = []
@@ -253,14 +260,16 @@ class ErrorMonitor:
         """States the residual reads before the step: 2 (backward Euler) or 4 (BDF2)."""
         return len(self._target)
 
-    def start(self, history: list[np.ndarray]) -> None:
+    def start(self, history: list[np.ndarray], steps: int | None = None) -> None:
         """Begin a run from the (s, 3) sample positions of the last :attr:`history_length` states, oldest first
-        (the current state last)."""
+        (the current state last); ``steps``: the run's length, if known, which shortens the stride to give the run
+        about :data:`MIN_EVALUATIONS` evaluations (not below :data:`ERROR_STRIDE`)."""
         if len(history) != self.history_length:
             raise ConfigError(f"the error estimate needs {self.history_length} states to start from, got {len(history)}")
         self._residual.start(np.stack(history))
         self._step = 0
-        self._next = min(self.stride, ERROR_STRIDE)
+        self._run_stride = self.stride if steps is None else min(self.stride, max(ERROR_STRIDE, steps // MIN_EVALUATIONS))
+        self._next = min(self._run_stride, ERROR_STRIDE)
         self._evaluations = []
         self._cubature_evaluations = []
 
@@ -281,10 +290,10 @@ class ErrorMonitor:
         if wait:
             self._residual.record(q, center, rotation)
             return
-        self._next += self.stride
+        self._next += self._run_stride
         size = deformation(q)
         cubature = self._cubature_error
-        if cubature is not None and (len(self._evaluations) + 1) % max(1, round(cubature.stride / self.stride)) == 0:
+        if cubature is not None and (len(self._evaluations) + 1) % max(1, round(cubature.stride / self._run_stride)) == 0:
             self._cubature_evaluations.append((self._step, cubature.displacement(q), size))
         self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), size))
 

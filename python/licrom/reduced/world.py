@@ -163,7 +163,7 @@ class WorldFrameSim(ReducedSim):
         h = self.scene.dt
         fall = self._free_fall if self.scene.integrator == "bdf2" else np.zeros_like(self._free_fall)
         back = range(monitor.history_length - 1, -1, -1)
-        monitor.start([monitor.sample_positions(self.q - k * h * self.qdot + 0.5 * (k * h) ** 2 * fall) for k in back])
+        monitor.start([monitor.sample_positions(self.q - k * h * self.qdot + 0.5 * (k * h) ** 2 * fall) for k in back], steps)
 
         def deformation(q: np.ndarray) -> float:
             bent = body_frame_displacements(self._reconstruction.positions(q), self.mesh.vertices, self._masses)
