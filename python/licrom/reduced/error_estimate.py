@@ -80,9 +80,9 @@ estimate is a sum over the run, so every tenth step measures it as well as every
 (few modes, few cubature tets), :func:`residual_stride` takes more steps between them."""
 
 MIN_EVALUATIONS = 20
-"""Evaluations of the residual a run of known length gets at least, where :data:`ERROR_STRIDE` allows: the run-level
-value of a few evaluations is noisy (the README's 100-step quickstart, evaluated every 40th step from step 10, read
-10.8 % for a true 6.4 %, docs/results.md section 56); a short run's estimate costs little in all."""
+"""Evaluations of the residual a run of known length gets at least, where :data:`ERROR_STRIDE` allows, so that a short
+run's value rests on more than a few (the README's 100-step quickstart, evaluated every 40th step from step 10, read
+10.8 %, every 10th 10.2 %, for a true 6.4 %; docs/results.md section 56); a short run's estimate costs little in all."""
 
 RESIDUAL_SHARE = 0.06
 """Share of a reduced run's time the residual may take by :func:`residual_stride`'s model (dimensionless): with the
