@@ -408,8 +408,9 @@ impl BodyContacts {
                 if kept(s, state) {
                     total += rows_of(&state.used[range]);
                 } else {
-                    changed += rows_of(&state.used[range.clone()]) + rows_of(&terms.terms[range]);
-                    total += rows_of(&terms.terms[s * n_planes..(s + 1) * n_planes]);
+                    let new = rows_of(&terms.terms[range.clone()]);
+                    changed += rows_of(&state.used[range]) + new;
+                    total += new;
                 }
             }
             if changed > total {
