@@ -131,6 +131,9 @@ def test_residual_is_evaluated_from_the_least_stride_on(mesh, stride):
     for _ in range(120):
         monitor.after_step(lambda: (np.zeros(0), None, None), lambda q: 1.0)
     first = min(stride, ERROR_STRIDE)
+    # An evaluation is finished on the step after it; one on the last step, by the run's end.
+    assert (monitor._pending is not None) == ((120 - first) % stride == 0)
+    monitor.finish(np.zeros(0), lambda q: 1.0)
     assert [step for step, _, _ in monitor._evaluations] == list(range(first, 121, stride))
 
 
@@ -142,6 +145,7 @@ def test_a_run_of_known_length_gets_its_evaluations(mesh, steps):
     monitor.start([mesh.vertices[monitor.vertices]] * monitor.history_length, steps)
     for _ in range(steps):
         monitor.after_step(lambda: (np.zeros(0), None, None), lambda q: 1.0)
+    monitor.finish(np.zeros(0), lambda q: 1.0)
     stride = min(100, max(ERROR_STRIDE, steps // MIN_EVALUATIONS))
     assert [step for step, _, _ in monitor._evaluations] == list(range(ERROR_STRIDE, steps + 1, stride))
     assert len(monitor._evaluations) >= min(MIN_EVALUATIONS, steps // ERROR_STRIDE)

@@ -464,8 +464,17 @@ class ResidualEstimate:
         """States the residual reads before the step (2 or 4)."""
     def start(self, history: _Float64Array) -> None:
         """Begins a run from the (L, S, 3) sample positions (m) of the states before it, oldest first."""
-    def record(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> None:
-        """Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state."""
+    def record(
+        self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None, before: int | None = None
+    ) -> None:
+        """Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state.
+        ``before``: steps from this one to the next evaluation, where known; the states the material damping will read
+        (1 and, for BDF2, 2 steps before) then keep their near vertices' positions, formed here rather than there."""
+    def prepare(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> None:
+        """Begins the evaluation of ``q`` (placed by ``center``, ``rotation`` for body-frame models): its near vertices'
+        positions; :meth:`finish` ends it (a run does so on the next step, so that the halves' costs fall on two steps)."""
+    def finish(self) -> float:
+        """The residual value (see :meth:`evaluate`) of the state :meth:`prepare` began, which becomes the newest state."""
     def evaluate(self, q: _Float64Array, center: _Float64Array | None = None, rotation: _Float64Array | None = None) -> float:
         """The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
         ``q`` (placed by ``center``, ``rotation`` for body-frame models), which becomes the newest state."""

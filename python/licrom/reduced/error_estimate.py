@@ -242,6 +242,8 @@ class ErrorMonitor:
         self._step = 0
         self._run_stride = self.stride  # this run's (start)
         self._next = min(self.stride, ERROR_STRIDE)  # the step of the next evaluation
+        # (step, q, deformation) of an evaluation begun and not finished
+        self._pending: tuple[int, np.ndarray, Callable[[np.ndarray], float]] | None = None
         self._evaluations: list[tuple[int, float, float]] = []
         self._cubature_evaluations: list[tuple[int, float, float]] = []
 
@@ -270,13 +272,16 @@ class ErrorMonitor:
         self._step = 0
         self._run_stride = self.stride if steps is None else min(self.stride, max(ERROR_STRIDE, steps // MIN_EVALUATIONS))
         self._next = min(self._run_stride, ERROR_STRIDE)
+        self._pending = None
         self._evaluations = []
         self._cubature_evaluations = []
 
     def after_step(self, state: Callable[[], tuple[np.ndarray, np.ndarray | None, np.ndarray | None]],
                    deformation: Callable[[np.ndarray], float]) -> None:
         """Count a step; keep the sample positions of the steps before an evaluation that the residual
-        reads (:attr:`history_length`), and evaluate every ``stride``-th step (the first at ``min(stride, ERROR_STRIDE)``).
+        reads (:attr:`history_length`), and evaluate every ``stride``-th step (the first at ``min(stride, ERROR_STRIDE)``):
+        begun on that step (the state's positions) and finished on the next (its forces, residual and deformation), so
+        that no step carries the whole evaluation (docs/results.md section 58).
 
         Args:
             state: ``(q, c, R)`` now (``c``, ``R`` None for world-frame models); called only when needed.
@@ -284,22 +289,34 @@ class ErrorMonitor:
         """
         self._step += 1
         wait = self._next - self._step
-        if wait > self.history_length:  # most steps: one comparison, as the steps of small models take microseconds
+        if wait > self.history_length and self._pending is None:  # most steps, as small models' steps take microseconds
             return
+        if self._pending is not None:
+            self._finish_evaluation()
+            if wait > self.history_length:
+                return
         q, center, rotation = state()
         if wait:
-            self._residual.record(q, center, rotation)
+            self._residual.record(q, center, rotation, wait)
             return
         self._next += self._run_stride
-        size = deformation(q)
         cubature = self._cubature_error
         if cubature is not None and (len(self._evaluations) + 1) % max(1, round(cubature.stride / self._run_stride)) == 0:
-            self._cubature_evaluations.append((self._step, cubature.displacement(q), size))
-        self._evaluations.append((self._step, self._residual.evaluate(q, center, rotation), size))
+            self._cubature_evaluations.append((self._step, cubature.displacement(q), deformation(q)))
+        self._residual.prepare(q, center, rotation)
+        self._pending = (self._step, q, deformation)
+
+    def _finish_evaluation(self) -> None:
+        step, q, deformation = self._pending
+        self._pending = None
+        self._evaluations.append((step, self._residual.finish(), deformation(q)))
 
     def finish(self, q: np.ndarray, deformation: Callable[[np.ndarray], float]) -> None:
         """End a run at ``q``: the cubature's term once more at the last step, unless it was evaluated there, so that
-        a run shorter than its stride has a value (one evaluation a run)."""
+        a run shorter than its stride has a value (one evaluation a run); an evaluation begun on the last step is
+        finished."""
+        if self._pending is not None:
+            self._finish_evaluation()
         cubature = self._cubature_error
         if cubature is not None and self._step and (not self._cubature_evaluations or self._cubature_evaluations[-1][0] != self._step):
             self._cubature_evaluations.append((self._step, cubature.displacement(q), deformation(q)))

@@ -22,7 +22,12 @@
 //!
 //! It runs every few steps of every reduced run: as a dozen numpy calls after
 //! a solver step (cold caches) it took 0.18 ms of a 0.2-0.5 ms step, and the
-//! sample positions kept on the steps before 0.07 ms each.
+//! sample positions kept on the steps before 0.07 ms each. The damping reads
+//! the near vertices at the one or two states before the step; told how far
+//! the evaluation is ([`ResidualEstimate::record`]'s `before`), the steps that
+//! record those states form them, so that no step carries three
+//! reconstructions of the near vertices (at r = 250 an evaluation took a
+//! sticking landing's cheap steps from 0.33 to 0.6 ms).
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -61,6 +66,9 @@ pub struct EstimateInputs<'a> {
 /// A rigid placement `x = c + R y` (body-frame models) or none (world frame).
 pub type Placement<'a> = Option<(&'a Vector3<f64>, &'a Matrix3<f64>)>;
 
+/// A [`Placement`] kept.
+type OwnedPlacement = Option<(Vector3<f64>, Matrix3<f64>)>;
+
 /// The residual at a vertex sample, with the sample positions of the steps
 /// the integrator reads kept from step to step.
 #[derive(Debug, Clone)]
@@ -88,9 +96,15 @@ pub struct ResidualEstimate {
     weight: f64,
     q_history: [Vec<f64>; 2],
     q_known: usize,
-    near_now: Vec<f64>,
-    near_previous: Vec<f64>,
+    /// The near vertices' body-frame positions at those two states, where
+    /// formed when they were recorded (`near_known`).
+    near_history: [Vec<f64>; 2],
+    near_known: [bool; 2],
+    /// The near vertices' body-frame positions at the state being recorded or evaluated.
     near: Vec<f64>,
+    /// The state whose evaluation [`ResidualEstimate::prepare`] began (its q
+    /// and placement), until [`ResidualEstimate::finish`].
+    pending: Option<(Vec<f64>, OwnedPlacement)>,
     samples: Vec<f64>,
     force: Vec<f64>,
 }
@@ -169,9 +183,10 @@ impl ResidualEstimate {
             weight: if target.len() == 4 { 1.0 / 3.0 } else { 0.0 },
             q_history: [vec![0.0; n], vec![0.0; n]],
             q_known: 0,
-            near_now: vec![0.0; 3 * u],
-            near_previous: vec![0.0; 3 * u],
+            near_history: [vec![0.0; 3 * u], vec![0.0; 3 * u]],
+            near_known: [false; 2],
             near: vec![0.0; 3 * u],
+            pending: None,
             samples: vec![0.0; 3 * s],
             force: vec![0.0; 3 * s],
         })
@@ -199,21 +214,50 @@ impl ResidualEstimate {
             kept.copy_from_slice(given);
         }
         self.q_known = 0;
+        self.near_known = [false; 2];
+        self.pending = None;
         Ok(())
     }
 
-    /// `q` becomes the newest state's q of the damping's history.
-    fn push_q(&mut self, q: &[f64]) {
+    /// States before an evaluation whose near vertices the damping reads: 1,
+    /// or 2 for BDF2 (0 without damping).
+    fn damping_states(&self) -> usize {
+        match (self.kappa > 0.0, self.weight != 0.0) {
+            (false, _) => 0,
+            (true, false) => 1,
+            (true, true) => 2,
+        }
+    }
+
+    /// `q` becomes the newest state's q of the damping's history, with the
+    /// near positions in `self.near` where `near` (they are those of `q`).
+    fn push_q(&mut self, q: &[f64], near: bool) {
         if self.kappa > 0.0 {
             self.q_history.swap(0, 1);
             self.q_history[0].copy_from_slice(q);
             self.q_known = (self.q_known + 1).min(2);
+            self.near_history.swap(0, 1);
+            self.near_known.swap(0, 1);
+            if near {
+                self.near_history[0].copy_from_slice(&self.near);
+            }
+            self.near_known[0] = near;
         }
     }
 
     /// Keeps the sample positions at `q` (and `placement`) as the newest state.
-    pub fn record(&mut self, q: &[f64], placement: Placement<'_>) -> Result<()> {
+    ///
+    /// `before`: steps from this one to the next evaluation, where known. The
+    /// states the damping's anchor will read (1 and, for BDF2, 2 steps before)
+    /// also keep their near vertices' positions, formed here rather than by
+    /// the evaluation.
+    pub fn record(&mut self, q: &[f64], placement: Placement<'_>, before: Option<usize>) -> Result<()> {
         self.check_state(q, placement)?;
+        self.check_not_pending()?;
+        let keep_near = before.is_some_and(|b| (1..=self.damping_states()).contains(&b));
+        if keep_near {
+            body_positions(&self.near_points, &self.near_rest, q, &mut self.near)?;
+        }
         body_positions(&self.sample_points, &self.sample_rest, q, &mut self.samples)?;
         for x in self.samples.chunks_exact_mut(3) {
             let y = placed(Vector3::from_column_slice(x), placement);
@@ -221,7 +265,7 @@ impl ResidualEstimate {
         }
         check_output("the sample positions", "q", &self.samples)?;
         self.push_samples();
-        self.push_q(q);
+        self.push_q(q, keep_near);
         Ok(())
     }
 
@@ -234,23 +278,41 @@ impl ResidualEstimate {
 
     /// The step's value `M sum m |du|^2 / sum m` over the free samples (0
     /// where none is free) at `q` (and `placement`), which becomes the newest
-    /// state.
+    /// state: [`Self::prepare`] and [`Self::finish`] at once.
     pub fn evaluate(&mut self, q: &[f64], placement: Placement<'_>) -> Result<f64> {
+        self.prepare(q, placement)?;
+        self.finish()
+    }
+
+    /// Begins the evaluation of `q` (and `placement`): its near vertices'
+    /// positions. A run finishes it on the next step, so that the two halves'
+    /// costs fall on two steps.
+    pub fn prepare(&mut self, q: &[f64], placement: Placement<'_>) -> Result<()> {
         self.check_state(q, placement)?;
+        self.check_not_pending()?;
         body_positions(&self.near_points, &self.near_rest, q, &mut self.near)?;
+        self.pending = Some((q.to_vec(), placement.map(|(c, r)| (*c, *r))));
+        Ok(())
+    }
+
+    /// The value of the state [`Self::prepare`] began (see [`Self::evaluate`]),
+    /// which becomes the newest state; an error where none was begun.
+    pub fn finish(&mut self) -> Result<f64> {
+        let (q, owned) = self.pending.take().ok_or_else(|| LicromError::invalid("finish", "no evaluation was prepared"))?;
+        let placement = owned.as_ref().map(|(c, r)| (c, r));
         // The damping's anchor needs the states before the step (1, or 2 for BDF2); until they are
         // recorded (a run's first steps, where the stride is shorter than the history) it is left out.
-        let needed = if self.weight != 0.0 { 2 } else { 1 };
-        if self.kappa > 0.0 && self.q_known >= needed {
+        let needed = self.damping_states();
+        if needed > 0 && self.q_known >= needed {
             // C is rotation invariant: the body-frame positions give the anchor of any placement.
-            body_positions(&self.near_points, &self.near_rest, &self.q_history[0], &mut self.near_now)?;
-            let previous = if needed == 2 {
-                body_positions(&self.near_points, &self.near_rest, &self.q_history[1], &mut self.near_previous)?;
-                Some((&self.near_previous[..], self.weight))
-            } else {
-                None
-            };
-            self.forces.damped_forces(&self.near, self.kappa, &self.near_now, previous, &mut self.force)?;
+            for i in 0..needed {
+                if !self.near_known[i] {
+                    body_positions(&self.near_points, &self.near_rest, &self.q_history[i], &mut self.near_history[i])?;
+                    self.near_known[i] = true;
+                }
+            }
+            let previous = (needed == 2).then(|| (&self.near_history[1][..], self.weight));
+            self.forces.damped_forces(&self.near, self.kappa, &self.near_history[0], previous, &mut self.force)?;
         } else {
             self.forces.forces(&self.near, &mut self.force)?;
         }
@@ -276,10 +338,17 @@ impl ResidualEstimate {
             self.samples[3 * s..3 * s + 3].copy_from_slice(x.as_slice());
         }
         self.push_samples();
-        self.push_q(q);
+        self.push_q(&q, true);
         let value = if counted > 0.0 { self.total_mass * sum / counted } else { 0.0 };
         check_output("the residual", "q", &[value])?;
         Ok(value)
+    }
+
+    fn check_not_pending(&self) -> Result<()> {
+        match self.pending {
+            Some(_) => Err(LicromError::invalid("state", "an evaluation was prepared and not finished")),
+            None => Ok(()),
+        }
     }
 
     fn check_state(&self, q: &[f64], placement: Placement<'_>) -> Result<()> {
@@ -314,6 +383,11 @@ mod tests {
     }
 
     fn one_tet_damped(planes: &[f64], viscosity: f64) -> ResidualEstimate {
+        one_tet_integrated(planes, viscosity, &[2.0, -1.0])
+    }
+
+    /// [`one_tet_damped`] with the integrator's target weights (4 of them: BDF2).
+    fn one_tet_integrated(planes: &[f64], viscosity: f64, target: &[f64]) -> ResidualEstimate {
         let points = [Vector3::zeros(), Vector3::x(), Vector3::y(), Vector3::z()];
         let (grads, volumes) = tet_shape_gradients(&points, &[[0, 1, 2, 3]]);
         let rings = RingInputs { corners: &[0, 1, 2, 3], gradients: &grads, volumes: &volumes, owners: &[0], own_corners: &[3] };
@@ -330,7 +404,7 @@ mod tests {
             normaliser: &normaliser,
             gravity: [0.0, 0.0, -9.81],
             planes,
-            target: &[2.0, -1.0],
+            target,
             step: 0.01,
             total_mass: 5.0,
             viscosity,
@@ -346,13 +420,63 @@ mod tests {
             let mut est = one_tet_damped(&[], viscosity);
             est.start(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]).unwrap();
             if record {
-                est.record(&[0.0], None).unwrap();
+                est.record(&[0.0], None, None).unwrap();
             }
             est.evaluate(&[0.01], None).unwrap()
         };
         assert_eq!(value(400.0, false), value(0.0, false));
         assert_eq!(value(0.0, true), value(0.0, false));
         assert!(value(400.0, true) != value(0.0, true));
+    }
+
+    /// The near positions of the damping's states formed on the steps that
+    /// record them (told the evaluation's distance) give the value formed at
+    /// the evaluation, to the bit, for backward Euler and BDF2.
+    #[test]
+    fn near_positions_kept_when_recorded_give_the_same_value() {
+        for target in [&[2.0, -1.0][..], &[2.2, -1.4, 0.3, -0.1]] {
+            let mut rng = Rng::new(7);
+            let states: Vec<Vec<f64>> = (0..4).map(|_| rng.vec(1, 0.05)).collect();
+            let value = |viscosity: f64, told: bool| {
+                let mut est = one_tet_integrated(&[], viscosity, target);
+                let history: Vec<f64> = (0..target.len()).flat_map(|_| [0.0, 0.0, 1.0]).collect();
+                est.start(&history).unwrap();
+                for (i, q) in states[..3].iter().enumerate() {
+                    est.record(q, None, told.then_some(3 - i)).unwrap();
+                }
+                let kept = est.near_known;
+                (est.evaluate(&states[3], None).unwrap(), kept)
+            };
+            let (told, kept) = value(400.0, true);
+            let (untold, none) = value(400.0, false);
+            assert_eq!(told, untold, "{target:?}");
+            assert_eq!(kept, [true, target.len() == 4], "{target:?}: the states the damping reads, and no more");
+            assert_eq!(none, [false, false]);
+            assert!(told != value(0.0, true).0, "the damping enters");
+        }
+    }
+
+    /// An evaluation begun on one step and finished on the next gives the
+    /// value of one made at once, and the calls out of order are errors.
+    #[test]
+    fn a_prepared_evaluation_finishes_to_the_same_value() {
+        let (c, r) = (Vector3::new(0.1, -0.2, 0.3), nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 0.4).into_inner());
+        let run = |split: bool| {
+            let mut est = one_tet_integrated(&[], 400.0, &[2.2, -1.4, 0.3, -0.1]);
+            est.start(&[0.0, 0.0, 1.0].repeat(4)).unwrap();
+            est.record(&[0.01], Some((&c, &r)), Some(2)).unwrap();
+            est.record(&[0.02], Some((&c, &r)), Some(1)).unwrap();
+            let value = if split {
+                est.prepare(&[0.04], Some((&c, &r))).unwrap();
+                assert!(est.record(&[0.0], None, None).is_err() && est.prepare(&[0.0], None).is_err());
+                est.finish().unwrap()
+            } else {
+                est.evaluate(&[0.04], Some((&c, &r))).unwrap()
+            };
+            assert!(est.finish().is_err(), "nothing left to finish");
+            (value, est.history.clone(), est.q_history.clone())
+        };
+        assert_eq!(run(true), run(false));
     }
 
     #[test]
@@ -387,7 +511,7 @@ mod tests {
         assert!(rel_err(&est.history[0], x.as_slice(), 0.0) < 1e-15);
         let mut rng = Rng::new(3);
         let q2 = rng.vec(1, 0.1);
-        est.record(&q2, None).unwrap();
+        est.record(&q2, None, None).unwrap();
         assert_eq!(est.history[1], x.as_slice().to_vec());
         assert!(rel_err(&est.history[0], &[q2[0], 0.0, 1.0], 0.0) < 1e-15);
     }
@@ -409,6 +533,6 @@ mod tests {
         assert!(matches!(est.start(&[0.0; 3]), Err(LicromError::ShapeMismatch { .. })));
         assert!(matches!(est.evaluate(&[0.0, 1.0], None), Err(LicromError::ShapeMismatch { .. })));
         assert!(est.evaluate(&[f64::NAN], None).is_err());
-        assert!(est.record(&[0.0], Some((&Vector3::new(f64::INFINITY, 0.0, 0.0), &Matrix3::identity()))).is_err());
+        assert!(est.record(&[0.0], Some((&Vector3::new(f64::INFINITY, 0.0, 0.0), &Matrix3::identity())), None).is_err());
     }
 }

@@ -120,8 +120,25 @@ impl ResidualEstimate {
     }
 
     /// Keeps the sample positions at ``q`` (placed by ``center``, ``rotation`` for body-frame models) as the newest state.
-    #[pyo3(signature = (q, center=None, rotation=None))]
+    /// ``before``: steps from this one to the next evaluation, where known; the states the material damping will read
+    /// (1 and, for BDF2, 2 steps before) then keep their near vertices' positions, formed here rather than there.
+    #[pyo3(signature = (q, center=None, rotation=None, before=None))]
     fn record(
+        &mut self,
+        py: Python<'_>,
+        q: &Bound<'_, PyAny>,
+        center: Option<&Bound<'_, PyAny>>,
+        rotation: Option<&Bound<'_, PyAny>>,
+        before: Option<usize>,
+    ) -> PyResult<()> {
+        let (q, pose) = state(py, q, center, rotation)?;
+        call_core(py, || self.inner.record(&q, pose.as_ref().map(|(c, r)| (c, r)), before))
+    }
+
+    /// Begins the evaluation of ``q`` (placed by ``center``, ``rotation`` for body-frame models): its near vertices'
+    /// positions; :meth:`finish` ends it (a run does so on the next step, so that the halves' costs fall on two steps).
+    #[pyo3(signature = (q, center=None, rotation=None))]
+    fn prepare(
         &mut self,
         py: Python<'_>,
         q: &Bound<'_, PyAny>,
@@ -129,7 +146,12 @@ impl ResidualEstimate {
         rotation: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
         let (q, pose) = state(py, q, center, rotation)?;
-        call_core(py, || self.inner.record(&q, pose.as_ref().map(|(c, r)| (c, r))))
+        call_core(py, || self.inner.prepare(&q, pose.as_ref().map(|(c, r)| (c, r))))
+    }
+
+    /// The residual value (see :meth:`evaluate`) of the state :meth:`prepare` began, which becomes the newest state.
+    fn finish(&mut self, py: Python<'_>) -> PyResult<f64> {
+        call_core(py, || self.inner.finish())
     }
 
     /// The step's residual value ``M sum m |du|^2 / sum m`` (kg m^2) over the samples no plane touches, at
