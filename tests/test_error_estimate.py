@@ -15,6 +15,7 @@ from licrom.reduced.error_estimate import (
     ERROR_THRESHOLD,
     INERTIA_EXPONENT,
     MIN_EVALUATIONS,
+    RESOLUTION_REACH,
     ErrorMonitor,
     normalising_inverse,
     residual_stride,
@@ -214,3 +215,27 @@ def test_estimate_keeps_its_scale_when_the_step_shrinks(mesh):
     fine = _bend_run(mesh, scene.replace(dt=scene.dt / 4), 4 * STEPS)
     ratio = (fine[0] / fine[1]) / (coarse[0] / coarse[1])
     assert 0.25 < ratio < 4.0, (coarse, fine)
+
+
+@pytest.mark.parametrize("frame", ["world", "body"])
+def test_a_model_on_a_much_finer_or_coarser_mesh_warns_that_its_estimate_is_unchecked(frame):
+    # Within RESOLUTION_REACH times the training mesh's tets no warning; beyond it, finer or coarser, one AccuracyWarning.
+    import torch
+    from licrom.learn.model import LicromNet, Model, ModelConfig
+    from licrom.learn.model.finalize import finalize_basis
+
+    training = meshes.box((0.2, 0.1, 0.1), resolution=6)
+    torch.manual_seed(0)
+    net = LicromNet(ModelConfig(latent_dim=2, frame=frame))
+    c = training.vertices.mean(axis=0)
+    net.set_normalization(c, float(np.abs(training.vertices - c).max()), 1e-3)
+    model = Model(net, training, [Scene(planes=(Plane(friction=0.3),))], finalization=finalize_basis(net, training))
+    for mesh, warns in [(training, False), (meshes.box((0.2, 0.1, 0.1), resolution=8), False),  # 324, 768 tets
+                        (meshes.box((0.2, 0.1, 0.1), resolution=14), True), (meshes.box((0.2, 0.1, 0.1), resolution=2), True)]:  # 4116, 12
+        ratio = mesh.n_tets / training.n_tets
+        assert (max(ratio, 1 / ratio) > RESOLUTION_REACH) == warns
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ReducedSim(model, mesh=mesh, cubature="naive")
+        said = [w for w in caught if issubclass(w.category, AccuracyWarning) and "checked within" in str(w.message)]
+        assert len(said) == warns, (mesh.n_tets, [str(w.message) for w in caught])

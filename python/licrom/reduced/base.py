@@ -27,7 +27,7 @@ from ..stepping import RunRecord, check_field, check_run_arguments
 from ..subspace.basis import vertex_strain_form
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import CONTACT_TOLERANCE, cubature_min_det, first_touch, penetration, warn_frames, with_steps
-from .error_estimate import ErrorMonitor, warn_estimate
+from .error_estimate import ErrorMonitor, warn_estimate, warn_resolution
 
 __all__ = ["CUBATURES", "ReducedSim", "mesh_and_scene", "native_inputs", "sampling", "step_many"]
 
@@ -115,6 +115,14 @@ random tets (:meth:`Cubature.naive`, 1000 tets) and every tet (:meth:`Cubature.f
 def _model_behind(basis: Any) -> Any:
     """The trained model behind ``basis`` (itself, or a BodyFrameBasis' ``learned``), or None."""
     return next((o for o in (basis, getattr(basis, "learned", None)) if callable(getattr(o, "cubature_for", None))), None)
+
+
+def warn_off_resolution(basis: Any, mesh: Mesh, what: str) -> None:
+    """:func:`~licrom.reduced.error_estimate.warn_resolution` where ``basis`` is (or holds) a trained model run on a mesh
+    other than its own."""
+    model = _model_behind(basis)
+    if model is not None and model.mesh is not mesh:
+        warn_resolution(model.mesh, mesh, what, stacklevel=5)
 
 
 def _fitted_cubature(basis: Any, mesh: Mesh) -> Cubature | None:

@@ -32,7 +32,7 @@ from ..subspace.basis import Basis, ModalNorm, SubspaceProjector, check_basis, c
 from ..subspace.body_basis import BodyFrameBasis, rigid_momenta
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
-from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
+from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling, warn_off_resolution
 from .cubature_error import CubatureError
 from .error_estimate import ErrorMonitor, residual_stride
 
@@ -193,6 +193,7 @@ class BodyFrameSim(ReducedSim):
         self._monitor = ErrorMonitor(mesh, self._values, self._xbar, scene, stride=residual_stride(self.cubature.count, k),
                                      cubature_error=CubatureError(mesh, self._values, self._xbar, scene, self.cubature,
                                                                    self._jacobians if strain == "field" else None, self._modal_mass))
+        warn_off_resolution(basis, mesh, "the body-frame simulation")
         self.time = 0.0
         self.set_state(*scene.initial.apply(mesh.vertices, self._masses))
 

@@ -59,9 +59,9 @@ from ..scene.scene import Scene
 from .cubature_error import CubatureError
 
 __all__ = ["EFFECTIVE_STEP", "ERROR_SCALE", "ERROR_STRIDE", "ERROR_THRESHOLD", "INERTIA_EXPONENT", "MIN_EVALUATIONS",
-           "RESIDUAL_SHARE", "SAMPLE_COUNT", "TARGET_WEIGHTS",
+           "RESIDUAL_SHARE", "RESOLUTION_REACH", "SAMPLE_COUNT", "TARGET_WEIGHTS",
            "ErrorMonitor", "normalising_inverse", "residual_stride", "sample_vertices",
-           "warn_estimate"]
+           "warn_estimate", "warn_resolution"]
 
 TARGET_WEIGHTS = {"backward_euler": (2.0, -1.0), "bdf2": (24 / 9, -22 / 9, 8 / 9, -1 / 9)}
 """Each integrator's predicted position ``xt - h'^2 g`` as weights of the positions of the steps before, newest
@@ -351,6 +351,28 @@ def _running_ratio(evaluations: list[tuple[int, float, float]], frame_steps: np.
     ok = (last >= 0) & (den[last] > 0)
     out[ok] = np.sqrt(num[last[ok]] / den[last[ok]])
     return out
+
+
+RESOLUTION_REACH = 8.0
+"""How many times more (or fewer) tets than its training mesh a model's mesh may have before a simulation warns that
+its online estimate is unchecked there (dimensionless). Checked on the converged cheese's r = 250 model: on a mesh of
+0.53x the training mesh's tets it read 8.3-8.5 % for 7.0-8.3 % (docs/results.md section 56); on one of 73x, 6-9 % for
+13-38 %, flagging none (section 60)."""
+
+
+def warn_resolution(training: Mesh, mesh: Mesh, what: str, stacklevel: int = 3) -> None:
+    """Warn (:class:`~licrom.errors.AccuracyWarning`) where ``mesh`` has more than :data:`RESOLUTION_REACH` times more
+    or fewer tets than ``training``, the mesh the model was trained on: there the estimate may read low."""
+    ratio = mesh.n_tets / training.n_tets
+    if max(ratio, 1.0 / ratio) > RESOLUTION_REACH:
+        warnings.warn(
+            f"{what}: the model was trained on {training.n_tets} tets and runs on {mesh.n_tets} ({ratio:.3g}x); its online "
+            f"error estimate is checked within {RESOLUTION_REACH:g}x of the training mesh's tets (on a mesh 73x finer it read "
+            "6-9 % for errors of 13-38 %: docs/results.md section 60): compare with a full run on this mesh "
+            "(licrom.compare) before relying on Trajectory.error_estimate",
+            AccuracyWarning,
+            stacklevel=stacklevel,
+        )
 
 
 def warn_estimate(estimate: np.ndarray, what: str, stacklevel: int = 3, terms: dict[str, float] | None = None) -> None:

@@ -25,7 +25,7 @@ from ..stepping import record_run
 from ..subspace.basis import Basis, SubspaceProjector, check_basis, check_basis_output, strain_jacobians
 from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import check_start
-from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling
+from .base import ReducedSim, _fitted_cubature, mesh_and_scene, native_inputs, sampling, warn_off_resolution
 from .cubature_error import CubatureError
 from .error_estimate import ErrorMonitor, residual_stride
 
@@ -107,6 +107,7 @@ class WorldFrameSim(ReducedSim):
         self._monitor = ErrorMonitor(mesh, self._values, mesh.vertices, scene, stride=residual_stride(self.cubature.count, k),
                                      cubature_error=CubatureError(mesh, self._values, mesh.vertices, scene, self.cubature,
                                                                   self._jacobians if strain == "field" else None, self._projector.reduced_mass))
+        warn_off_resolution(basis, mesh, "the reduced simulation")
         self.time = 0.0
         positions, velocities = scene.initial.apply(mesh.vertices, self._masses)
         self.set_state(positions, velocities)
