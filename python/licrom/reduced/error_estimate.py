@@ -355,9 +355,9 @@ def _running_ratio(evaluations: list[tuple[int, float, float]], frame_steps: np.
 
 RESOLUTION_REACH = 8.0
 """How many times more (or fewer) tets than its training mesh a model's mesh may have before a simulation warns that
-its online estimate is unchecked there (dimensionless). Checked on the converged cheese's r = 250 model: on a mesh of
-0.53x the training mesh's tets it read 8.3-8.5 % for 7.0-8.3 % (docs/results.md section 56); on one of 73x, 6-9 % for
-13-38 %, flagging none (section 60)."""
+its online estimate is unchecked there (dimensionless). Checked on the converged cheese's r = 250 model: on meshes of
+0.53x, 1.7x and 4.2x the training mesh's tets it read 8-26 % for 7-23 %, flagging every run above 15 %; on one of 73x,
+6-9 % for 13-38 %, flagging none (docs/results.md sections 56, 60 and 61)."""
 
 
 def warn_resolution(training: Mesh, mesh: Mesh, what: str, stacklevel: int = 3) -> None:
