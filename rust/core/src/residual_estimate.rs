@@ -22,12 +22,13 @@
 //!
 //! It runs every few steps of every reduced run: as a dozen numpy calls after
 //! a solver step (cold caches) it took 0.18 ms of a 0.2-0.5 ms step, and the
-//! sample positions kept on the steps before 0.07 ms each. The damping reads
-//! the near vertices at the one or two states before the step; told how far
-//! the evaluation is ([`ResidualEstimate::record`]'s `before`), the steps that
-//! record those states form them, so that no step carries three
-//! reconstructions of the near vertices (at r = 250 an evaluation took a
-//! sticking landing's cheap steps from 0.33 to 0.6 ms).
+//! sample positions kept on the steps before 0.07 ms each. At r = 250 an
+//! evaluation still took a settled step from 0.33 to 0.6 ms, so it is spread:
+//! the damping reads the near vertices at the one or two states before the
+//! step, and told how far the evaluation is ([`ResidualEstimate::record`]'s
+//! `before`) the steps that record those states form them; the evaluation
+//! itself is begun on its step ([`ResidualEstimate::prepare`]: the state's
+//! near positions) and finished on the next ([`ResidualEstimate::finish`]).
 
 use nalgebra::{Matrix3, Vector3};
 
