@@ -103,9 +103,10 @@ pub struct ResidualEstimate {
     near_known: [bool; 2],
     /// The near vertices' body-frame positions at the state being recorded or evaluated.
     near: Vec<f64>,
-    /// The state whose evaluation [`ResidualEstimate::prepare`] began (its q
-    /// and placement), until [`ResidualEstimate::finish`].
-    pending: Option<(Vec<f64>, OwnedPlacement)>,
+    /// The placement of the state whose evaluation [`ResidualEstimate::prepare`]
+    /// began, until [`ResidualEstimate::finish`] (None: none begun), and its q.
+    pending: Option<OwnedPlacement>,
+    pending_q: Vec<f64>,
     samples: Vec<f64>,
     force: Vec<f64>,
 }
@@ -188,6 +189,7 @@ impl ResidualEstimate {
             near_known: [false; 2],
             near: vec![0.0; 3 * u],
             pending: None,
+            pending_q: vec![0.0; n],
             samples: vec![0.0; 3 * s],
             force: vec![0.0; 3 * s],
         })
@@ -292,14 +294,15 @@ impl ResidualEstimate {
         self.check_state(q, placement)?;
         self.check_not_pending()?;
         body_positions(&self.near_points, &self.near_rest, q, &mut self.near)?;
-        self.pending = Some((q.to_vec(), placement.map(|(c, r)| (*c, *r))));
+        self.pending_q.copy_from_slice(q);
+        self.pending = Some(placement.map(|(c, r)| (*c, *r)));
         Ok(())
     }
 
     /// The value of the state [`Self::prepare`] began (see [`Self::evaluate`]),
     /// which becomes the newest state; an error where none was begun.
     pub fn finish(&mut self) -> Result<f64> {
-        let (q, owned) = self.pending.take().ok_or_else(|| LicromError::invalid("finish", "no evaluation was prepared"))?;
+        let owned = self.pending.take().ok_or_else(|| LicromError::invalid("finish", "no evaluation was prepared"))?;
         let placement = owned.as_ref().map(|(c, r)| (c, r));
         // The damping's anchor needs the states before the step (1, or 2 for BDF2); until they are
         // recorded (a run's first steps, where the stride is shorter than the history) it is left out.
@@ -339,7 +342,9 @@ impl ResidualEstimate {
             self.samples[3 * s..3 * s + 3].copy_from_slice(x.as_slice());
         }
         self.push_samples();
+        let q = std::mem::take(&mut self.pending_q); // no copy: handed back below
         self.push_q(&q, true);
+        self.pending_q = q;
         let value = if counted > 0.0 { self.total_mass * sum / counted } else { 0.0 };
         check_output("the residual", "q", &[value])?;
         Ok(value)
