@@ -31,7 +31,8 @@ which halves the full runs where the floor is known).
 Full runs are cached as ``.npz`` (``body_frame_experiments.full_run``): under ``--cache R:DIR`` where given (the
 training mesh's and the 864-tet truths of the earlier sections), else under ``--work/rR``; missing ones run here
 (warp, the default device: the CPU on a machine without a GPU); ``--truths-only`` runs those of ``--resolutions``
-alone, so that one process a mesh can share a GPU. Writes ``--work/cross_mesh.json`` and section 14 of
+alone, so that one process a mesh can share a GPU; ``--no-training-truth`` makes none of the training mesh (one too
+large for the machine at hand): then only (a) on each other mesh, and the gaps between those meshes' truths. Writes ``--work/cross_mesh.json`` and section 14 of
 ``docs/results.md`` (a ``### Reading`` part written by hand is kept). ``--small``: tiny meshes (resolutions 5 and 4,
 6), 20 steps, one scene, a 1-epoch model trained here; writes nothing under ``--docs``, runs in under a minute.
 """
@@ -144,9 +145,10 @@ def own_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]],
     return rows
 
 
-def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]], fam: bfe.Family, cases: list[bfe.Case],
+def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]] | None, fam: bfe.Family, cases: list[bfe.Case],
                     steps: int, own_truths: dict[str, tuple[Trajectory, Trajectory]]) -> list[dict]:
-    """(a), (b), (c), (e) for each case on the family's mesh (another mesh of the training object), against ``own_truths``."""
+    """(a), (b), (c), (e) for each case on the family's mesh (another mesh of the training object), against ``own_truths``;
+    (a) alone where the training mesh's full runs are not given (``train`` None)."""
     mesh = fam.mesh
     t0 = time.perf_counter()
     refit = model.cubature_for(mesh)
@@ -161,20 +163,22 @@ def other_mesh_rows(model: Model, train: dict[str, tuple[Trajectory, Trajectory]
         reduced, info = reduced_run(model, case, steps, mesh=mesh, record_every=fam.record_every)
         start, size = first_contact_frame(full) or 0, mesh.size
         own, red = sampled_positions(full, mesh.vertices), sampled_positions(reduced, mesh.vertices)
-        trained = sampled_positions(train[case.name][0], mesh.vertices)
-        model_m, truth = difference(own, red, weights, start, size), difference(own, trained, weights, start, size)
+        trained = None if train is None else sampled_positions(train[case.name][0], mesh.vertices)
+        model_m = difference(own, red, weights, start, size)
+        truth = None if trained is None else difference(own, trained, weights, start, size)
         metrics = bfe.run_metrics(full, reduced)
         rows.append({"name": case.name, "kind": case.kind, "tets": mesh.n_tets, "vertices": mesh.n_vertices,
                      "floor": floor_of(full, nudged), "model": model_m, "truth_gap": truth,
-                     "ratio": {k: model_m[k] / truth[k] for k in model_m},
-                     "model_vs_training_truth": difference(trained, red, weights, start, size),
+                     "ratio": None if truth is None else {k: model_m[k] / truth[k] for k in model_m},
+                     "model_vs_training_truth": None if trained is None else difference(trained, red, weights, start, size),
                      "learned_projection": bfe.body_projection_error(full, modes), "model_metrics": metrics,
-                     "slides": {"own": slides(full), "training": slides(train[case.name][0])}, "refit_cubature": refit.count, "refit_s": refit_s,
+                     "slides": {"own": slides(full), "training": None if train is None else slides(train[case.name][0])},
+                     "refit_cubature": refit.count, "refit_s": refit_s,
                      "refit_residual": refit.fit_error,
                      "inside_training_mesh": inside, "full_step_ms": 1e3 * float(np.median(full.step_seconds)), **info})
         print(f"{mesh.n_tets} tets {case.name}: model non-rigid {bfe._pct(model_m['nonrigid'])} (compare: "
-              f"{bfe._pct(metrics['nonrigid_error'])}), truth gap {bfe._pct(truth['nonrigid'])}; COM {bfe._pct(model_m['com'])} "
-              f"against {bfe._pct(truth['com'])}; {refit.count} tets refitted in {refit_s:.1f} s; step: reduced {info['reduced_step_ms']:.2f} ms, "
+              f"{bfe._pct(metrics['nonrigid_error'])}), truth gap {bfe._pct(truth and truth['nonrigid'])}; COM {bfe._pct(model_m['com'])} "
+              f"against {bfe._pct(truth and truth['com'])}; {refit.count} tets refitted in {refit_s:.1f} s; step: reduced {info['reduced_step_ms']:.2f} ms, "
               f"full {rows[-1]['full_step_ms']:.1f} ms", flush=True)
     return rows
 
@@ -202,8 +206,8 @@ def mesh_inside(mesh, points: np.ndarray, tolerance: float = 1e-9) -> float:
     return float(np.mean(np.minimum(b.min(axis=1), 1.0 - b.sum(axis=1)) >= -tolerance))
 
 
-def _ratio(x: float) -> str:
-    return f"{x:.2f}x" if np.isfinite(x) else "-"
+def _ratio(x: float | None) -> str:
+    return f"{x:.2f}x" if x is not None and np.isfinite(x) else "-"
 
 
 def report(result: dict) -> str:
@@ -230,23 +234,28 @@ def report(result: dict) -> str:
            "| mesh M | held-out run | noise floor of M | learned projection on M | non-rigid (a) model | (b) truth gap | ratio | "
            "COM (a) model | (b) truth gap | ratio | stick/slip (model; truths agree) | (e) model vs training truth: non-rigid / COM | "
            f"meets {TARGET_RATIO:g}x |", "|" + "---|" * 13]
+    none = {"nonrigid": None, "com": None}
     for row in result["other_meshes"]:
-        a, b, ratio, e, floor = row["model"], row["truth_gap"], row["ratio"], row["model_vs_training_truth"], row["floor"]
-        agree = row["slides"]["own"] == row["slides"]["training"]
+        a, b, ratio, e, floor = row["model"], row["truth_gap"] or none, row["ratio"] or none, row["model_vs_training_truth"] or none, row["floor"]
+        agree = "-" if row["slides"]["training"] is None else ("yes" if row["slides"]["own"] == row["slides"]["training"] else "no")
+        meets = "-" if row["ratio"] is None else ("yes" if max(ratio.values()) <= TARGET_RATIO else "no")
         out.append(f"| {row['tets']} tets | {row['kind']} | {bfe._pct(floor['nonrigid_error'])} / {bfe._pct(floor['com_error'])} | "
                    f"{bfe._pct(row['learned_projection'])} | {bfe._pct(a['nonrigid'])} | {bfe._pct(b['nonrigid'])} | {_ratio(ratio['nonrigid'])} | {bfe._pct(a['com'])} | "
                    f"{bfe._pct(b['com'])} | {_ratio(ratio['com'])} | {'right' if row['model_metrics']['stick_slip_right'] else 'WRONG'}; "
-                   f"{'yes' if agree else 'no'} | {bfe._pct(e['nonrigid'])} / {bfe._pct(e['com'])} | "
-                   f"{'yes' if max(ratio.values()) <= TARGET_RATIO else 'no'} |")
-    out += ["", f"(d) For reference, the model on its own training mesh ({train[0]['tets']} tets) against that mesh's full run "
-            "(section 11's default rows, rerun here):", "",
-            "| held-out run | noise floor (non-rigid / COM) | non-rigid error | final COM / size | stick/slip |", "|---|---|---|---|---|"]
+                   f"{agree} | {bfe._pct(e['nonrigid'])} / {bfe._pct(e['com'])} | {meets} |")
+    if train:
+        out += ["", f"(d) For reference, the model on its own training mesh ({train[0]['tets']} tets) against that mesh's full run "
+                "(section 11's default rows, rerun here):", "",
+                "| held-out run | noise floor (non-rigid / COM) | non-rigid error | final COM / size | stick/slip |", "|---|---|---|---|---|"]
+    else:
+        out += ["", f"No full runs of the training mesh ({model['tets']} tets) here (`--no-training-truth`): (b), the ratio, (e) "
+                "and (d) are not measured."]
     for row in train:
         m, floor = row["model"], row["floor"]
         out.append(f"| {row['kind']} | {bfe._pct(floor['nonrigid_error'])} / {bfe._pct(floor['com_error'])} | {bfe._pct(m['nonrigid_error'])} | "
                    f"{bfe._pct(m['com_error'])} | {'right' if m['stick_slip_right'] else 'WRONG'} |")
     gaps = result["truth_gaps"]
-    kinds = {row["name"]: row["kind"] for row in train}
+    kinds = {row["name"]: row["kind"] for row in train or result["other_meshes"]}
     out += ["", "Truth against truth, every pair of meshes (full runs; the coarser interpolated at the finer's vertices, against "
             "the finer's run; (b) above is measured at M's vertices, coarser or finer), non-rigid / final COM:", "",
             "| meshes (tets) | " + " | ".join(kinds.values()) + " |", "|---|" + "---|" * len(kinds)]
@@ -298,6 +307,8 @@ def main() -> None:
     ap.add_argument("--truths-only", action="store_true", help="run and cache the full runs of every mesh, then stop (no model needed)")
     bfe.add_physics_arguments(ap)
     ap.add_argument("--section", default=SECTION_TITLE, help="title of the docs section written")
+    ap.add_argument("--no-training-truth", action="store_true",
+                    help="no full runs of the training mesh (one too large for this machine): (a) on each other mesh, and the gaps between those")
     args = ap.parse_args()
     t_start = time.perf_counter()
     work = args.work / "small" if args.small else args.work
@@ -333,12 +344,12 @@ def main() -> None:
     if model.mesh.n_tets != train_fam.mesh.n_tets:
         raise SystemExit(f"the model's mesh has {model.mesh.n_tets} tets, the resolution-{train_res} {args.family} {train_fam.mesh.n_tets}: "
                          "pass its --training-resolution")
-    train = truths(cache(train_res), train_fam, cases, steps, floors)
+    train = None if args.no_training_truth else truths(cache(train_res), train_fam, cases, steps, floors)
     result = {"family": args.family, "drawn": args.drawn, "steps": steps, "dt": cases[0].scene.dt, "integrator": cases[0].scene.integrator, "full_device": resolve_device("auto"),
               "viscosity": cases[0].scene.material.viscosity,
               "model": {"path": str(model_path), "r": model.n_learned, "tets": model.mesh.n_tets, "cubature": model.cubature.count},
-              "training_mesh": own_mesh_rows(model, train, cases, steps, train_fam.record_every), "other_meshes": []}
-    full_runs = {train_fam.mesh.n_tets: {k: v[0] for k, v in train.items()}}
+              "training_mesh": [] if train is None else own_mesh_rows(model, train, cases, steps, train_fam.record_every), "other_meshes": []}
+    full_runs = {} if train is None else {train_fam.mesh.n_tets: {k: v[0] for k, v in train.items()}}
     for res in resolutions:
         fam = family(res)
         own_cases = [c for c in held(fam) if c.name in names]

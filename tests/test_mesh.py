@@ -234,3 +234,37 @@ def test_truncated_files_of_looping_readers_are_named_errors_not_hangs(tmp_path,
     assert not reader.is_alive(), "Mesh.load did not return"
     assert isinstance(outcome[0], FileFormatError)
     assert re.search(r"cannot read mesh '.*cut\..*' \(truncated or corrupt\?\): .*the end of the file", str(outcome[0]))
+
+
+def test_nearest_surface_points_match_a_dense_sampling_of_the_surface(rng):
+    from licrom.geometry.closest import closest_points_on_triangles
+
+    # every Voronoi region of a triangle: points around it in and out of its plane
+    a, b, c = np.array([0.0, 0, 0]), np.array([1.0, 0, 0]), np.array([0.2, 0.8, 0])
+    p = rng.uniform(-1.0, 2.0, size=(400, 3))
+    near = closest_points_on_triangles(p, a, b, c)
+    s, t = np.meshgrid(np.linspace(0, 1, 201), np.linspace(0, 1, 201))
+    keep = s + t <= 1
+    samples = a + np.outer(s[keep], b - a) + np.outer(t[keep], c - a)
+    brute = np.sqrt(((p[:, None] - samples[None]) ** 2).sum(axis=2)).min(axis=1)
+    ours = np.linalg.norm(near - p, axis=1)
+    assert np.all(ours <= brute + 1e-12) and np.all(ours >= brute - 0.01)  # the grid's spacing bounds the gap
+    # the answers lie on the triangle: non-negative barycentric coordinates summing to one, in its plane
+    m = np.column_stack([b - a, c - a])
+    coef, *_ = np.linalg.lstsq(m, (near - a).T, rcond=None)
+    assert np.all(coef >= -1e-12) and np.all(coef.sum(axis=0) <= 1 + 1e-12)
+    np.testing.assert_allclose(near[:, 2], 0.0, atol=1e-15)
+
+
+def test_nearest_surface_points_of_a_box_are_on_its_faces():
+    from licrom import meshes
+
+    box = meshes.box((0.2, 0.1, 0.1), resolution=3)
+    lo, hi = box.bounds
+    outside = np.array([[hi[0] + 0.01, 0.01, 0.02], [0.03, lo[1] - 0.02, -0.01], [hi[0] + 0.01, hi[1] + 0.01, 0.0]])
+    expected = np.array([[hi[0], 0.01, 0.02], [0.03, lo[1], -0.01], [hi[0], hi[1], 0.0]])
+    np.testing.assert_allclose(box.nearest_surface_points(outside), expected, atol=1e-12)
+    inside = np.array([[hi[0] - 0.004, 0.0, 0.0]])
+    np.testing.assert_allclose(box.nearest_surface_points(inside), [[hi[0], 0.0, 0.0]], atol=1e-12)
+    with pytest.raises(ConfigError, match="candidates"):
+        box.nearest_surface_points(outside, candidates=0)

@@ -489,3 +489,22 @@ def test_bad_devices_and_non_finite_inputs_are_named(mesh):
     with pytest.raises(ShapeError, match="q must be an array of real numbers"):
         model.reconstruct(q + 1j)
     assert model.reconstruct(q).shape == (mesh.n_vertices, 3)
+
+
+def test_fields_outside_the_mesh_are_those_of_its_nearest_point(mesh, rng):
+    # The network extrapolates without bound beyond the mesh it was trained on; a point outside is
+    # evaluated at a point of its nearest tet, and points of the mesh are left exactly where they are.
+    model = _random_model(mesh, r=3)
+    inside = rng.uniform(-0.08, 0.08, size=(5, 3)) * np.array([1.0, 0.5, 0.5])
+    np.testing.assert_array_equal(model.field_points(inside), inside)
+    lo, hi = mesh.bounds
+    on_face = np.array([[hi[0], 0.01, -0.02], [0.03, lo[1], 0.02]])
+    outside = on_face + np.array([[0.004, 0.0, 0.0], [0.0, -0.004, 0.0]])
+    np.testing.assert_allclose(model.field_points(outside), on_face, atol=1e-12)
+    v_out, j_out = model.values_and_jacobians(outside)
+    v_face, j_face = model.values_and_jacobians(on_face)
+    learned = slice(model.n_affine, None)
+    np.testing.assert_allclose(v_out[:, :, learned], v_face[:, :, learned], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(j_out[..., learned], j_face[..., learned], rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(v_out[:, :, : model.n_affine], affine_values(outside))  # the affine modes are exact everywhere
+    np.testing.assert_allclose(model.values(outside), v_out, rtol=1e-12, atol=1e-15)

@@ -315,6 +315,39 @@ class Mesh:
         ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
         return ds @ self.shape_matrix_inverses
 
+    def nearest_surface_points(self, points: np.ndarray, candidates: int = 16) -> np.ndarray:
+        """The point of the boundary surface nearest each point (inside or outside the mesh).
+
+        Args:
+            points: (p, 3) positions in m in the rest configuration.
+            candidates: boundary triangles examined per point, those with the nearest centroids, an
+                integer >= 1 (capped at the triangle count).
+
+        Returns:
+            (p, 3) points on the boundary surface, m.
+
+        Raises:
+            ShapeError: ``points`` is not (p, 3) or holds NaN or inf.
+            ConfigError: ``candidates`` is not an integer >= 1.
+        """
+        from scipy.spatial import cKDTree
+
+        from .closest import closest_points_on_triangles
+
+        if isinstance(candidates, (bool, np.bool_)) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
+            raise ConfigError(f"Mesh.nearest_surface_points candidates must be an integer >= 1 (boundary triangles examined per point), got {candidates!r}")
+        pts = check_points(points)
+        faces = self.boundary_faces
+        if "_face_tree" not in self.__dict__:
+            self.__dict__["_face_tree"] = cKDTree(self._vertices[faces].mean(axis=1))
+        k = min(candidates, len(faces))
+        _, cand = self.__dict__["_face_tree"].query(pts, k=k)
+        cand = cand.reshape(len(pts), k)
+        corners = self._vertices[faces[cand]]  # (p, k, 3, 3)
+        near = closest_points_on_triangles(np.repeat(pts, k, axis=0), *(corners[:, :, i].reshape(-1, 3) for i in range(3))).reshape(len(pts), k, 3)
+        best = np.argmin(((near - pts[:, None]) ** 2).sum(axis=2), axis=1)
+        return near[np.arange(len(pts)), best]
+
     def locate(self, points: np.ndarray, candidates: int = 12) -> tuple[np.ndarray, np.ndarray]:
         """Find the tet holding each point and its barycentric coordinates.
 
