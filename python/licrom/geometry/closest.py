@@ -16,7 +16,10 @@ def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: 
     """The point of triangle ``(a, b, c)`` nearest ``p``, row by row.
 
     Args:
-        p, a, b, c: (n, 3) points and the triangles' corners, m (broadcast against each other).
+        p: (n, 3) points, m.
+        a: (n, 3) the triangles' first corners, m (broadcast against ``p``, as are ``b`` and ``c``).
+        b: (n, 3) their second corners, m.
+        c: (n, 3) their third corners, m.
 
     Returns:
         (n, 3) nearest points, each on its triangle (corners, edges and interior included).
