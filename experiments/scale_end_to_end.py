@@ -507,13 +507,14 @@ def main_study(args) -> dict:
     model = licrom.Model.load(model_path)
     load_s = time.perf_counter() - t0
     rows = []
+    # Written after each run, so that a job cut short (a lent machine's time spent) leaves a section-ready file.
+    out["stages"]["reduce"] = {"model_load_s": load_s, "rows": rows}
     for case, p in zip(held, held_files):
         full = Trajectory.load(p)
         rows.append(reduced_stage(model, case, full, steps, record_every=fam.record_every))
         if case.name in floor_files:
             rows[-1].update(noise_floor(case, full, floor_files[case.name]))
-        (work / "scale.json").write_text(json.dumps({**out, "held_out": rows}, indent=1, default=str))
-    out["stages"]["reduce"] = {"model_load_s": load_s, "rows": rows}
+        (work / "scale.json").write_text(json.dumps(out, indent=1, default=str))
     sample_rows = []
     for count in args.contact_points:
         for case, p in zip(held, held_files):
