@@ -315,6 +315,20 @@ class Mesh:
         ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
         return ds @ self.shape_matrix_inverses
 
+    @cached_property
+    def _centroid_tree(self) -> Any:
+        """A k-d tree of the tet centroids (:meth:`locate`)."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.centroids)
+
+    @cached_property
+    def _face_tree(self) -> Any:
+        """A k-d tree of the boundary triangles' centroids (:meth:`nearest_surface_points`)."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self._vertices[self.boundary_faces].mean(axis=1))
+
     def nearest_surface_points(self, points: np.ndarray, candidates: int = 16) -> np.ndarray:
         """The point of the boundary surface nearest each point (inside or outside the mesh).
 
@@ -330,20 +344,12 @@ class Mesh:
             ShapeError: ``points`` is not (p, 3) or holds NaN or inf.
             ConfigError: ``candidates`` is not an integer >= 1.
         """
-        from scipy.spatial import cKDTree
-
         from .closest import closest_points_on_triangles
 
-        if isinstance(candidates, (bool, np.bool_)) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
-            raise ConfigError(f"Mesh.nearest_surface_points candidates must be an integer >= 1 (boundary triangles examined per point), got {candidates!r}")
         pts = check_points(points)
-        faces = self.boundary_faces
-        if "_face_tree" not in self.__dict__:
-            self.__dict__["_face_tree"] = cKDTree(self._vertices[faces].mean(axis=1))
-        k = min(candidates, len(faces))
-        _, cand = self.__dict__["_face_tree"].query(pts, k=k)
-        cand = cand.reshape(len(pts), k)
-        corners = self._vertices[faces[cand]]  # (p, k, 3, 3)
+        cand = _nearest_rows(self._face_tree, pts, candidates, "Mesh.nearest_surface_points", "boundary triangles examined per point")
+        k = cand.shape[1]
+        corners = self._vertices[self.boundary_faces[cand]]  # (p, k, 3, 3)
         near = closest_points_on_triangles(np.repeat(pts, k, axis=0), *(corners[:, :, i].reshape(-1, 3) for i in range(3))).reshape(len(pts), k, 3)
         best = np.argmin(((near - pts[:, None]) ** 2).sum(axis=2), axis=1)
         return near[np.arange(len(pts)), best]
@@ -365,20 +371,8 @@ class Mesh:
             ShapeError: ``points`` is not (p, 3) or holds NaN or inf.
             ConfigError: ``candidates`` is not an integer >= 1.
         """
-        from scipy.spatial import cKDTree
-
-        if isinstance(candidates, (bool, np.bool_)) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
-            raise ConfigError(f"Mesh.locate candidates must be an integer >= 1 (nearest tets examined per point), got {candidates!r}")
-        pts = np.asarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise ShapeError(f"points must have shape (p, 3), got {pts.shape}")
-        if not np.all(np.isfinite(pts)):
-            raise ShapeError("points hold NaN or inf")
-        if "_centroid_tree" not in self.__dict__:
-            self.__dict__["_centroid_tree"] = cKDTree(self.centroids)
-        k = min(candidates, self.n_tets)
-        _, cand = self.__dict__["_centroid_tree"].query(pts, k=k)
-        cand = cand.reshape(len(pts), k)
+        pts = check_points(points)
+        cand = _nearest_rows(self._centroid_tree, pts, candidates, "Mesh.locate", "nearest tets examined per point")
         x0 = self._vertices[self._tets[cand, 0]]  # (p, k, 3)
         b123 = np.einsum("pkij,pkj->pki", self.shape_matrix_inverses[cand], pts[:, None, :] - x0)
         bary = np.concatenate([1.0 - b123.sum(axis=2, keepdims=True), b123], axis=2)  # (p, k, 4)
@@ -516,6 +510,19 @@ class Mesh:
             and np.array_equal(self._tets, other._tets)
             and np.array_equal(self._vertices, other._vertices)
         )
+
+
+def _nearest_rows(tree: Any, points: np.ndarray, candidates: Any, method: str, meaning: str) -> np.ndarray:
+    """(p, k) indices of the ``candidates`` rows of ``tree`` nearest each of ``points`` (k capped at the tree's size).
+
+    Raises:
+        ConfigError: ``candidates`` is not an integer >= 1 (``method`` and the ``meaning`` of the count named).
+    """
+    if isinstance(candidates, (bool, np.bool_)) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
+        raise ConfigError(f"{method} candidates must be an integer >= 1 ({meaning}), got {candidates!r}")
+    k = min(int(candidates), tree.n)
+    _, rows = tree.query(points, k=k)
+    return rows.reshape(len(points), k)
 
 
 def _signed_volumes(v: np.ndarray, t: np.ndarray) -> np.ndarray:
