@@ -376,3 +376,22 @@ def test_scene_dicts_and_non_real_states_are_named():
         sim.set_state(positions=x.astype(str))
     with pytest.raises(ShapeError, match=r"velocities must be a real \(\d+, 3\) array of finite numbers"):
         sim.set_state(velocities=np.zeros((mesh.n_vertices, 3)) + 1j)
+
+
+@pytest.mark.filterwarnings("ignore::licrom.AccuracyWarning")  # random modes miss the motion
+def test_a_step_is_the_same_bit_for_bit_with_or_without_the_second_thread():
+    # 60 learned modes on 198 vertices: the basis products are large enough to be split over two threads.
+    mesh = meshes.cheese(resolution=7)
+    scene = Scene(planes=(Plane.incline(25.0, 0.3, offset=0.06),), initial=InitialState(rotation=(0.2, 0.1, 0.0), velocity=(0.3, 0.0, -0.4)))
+    learned = MeshBasis(mesh, 0.002 * np.random.default_rng(5).normal(size=(mesh.n_vertices, 3, 60)))
+    basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
+    states = []
+    for on in (True, False, True):
+        BodyFrameSim.use_second_thread(on)
+        sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+        its = [sim.step_or_record()[0] for _ in range(12)]
+        states.append((its, sim.q.tobytes(), sim.center.tobytes(), sim.rotation.tobytes()))
+    assert max(states[0][0]) > 1  # landing: real Newton solves
+    assert states[0] == states[1] == states[2]
+    with pytest.raises(ConfigError, match="True or False"):
+        BodyFrameSim.use_second_thread(1)

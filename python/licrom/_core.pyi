@@ -382,6 +382,11 @@ class BodyFrameCore:
     def hessian(self, center: _Float64Array, rotation: _Float64Array, q: _Float64Array, exact: bool = True) -> _Float64Array:
         """(6 + n, 6 + n) Hessian at the pose: exact, or the solver's positive definite one."""
 
+def set_second_thread(on: bool) -> None:
+    """Whether one simulation's step may hand half of its large products (the basis
+    rows times the coordinates, and back) to a second thread; on by default where
+    the machine has two cores or more. Steps are the same, bit for bit, either way."""
+
 def step_many(
     sims: Sequence[ReducedCore | BodyFrameCore], steps: int, threads: int | None, record_failures: Sequence[bool]
 ) -> list[tuple[list[int], list[float], list[bool], BaseException | None]]:

@@ -29,7 +29,7 @@ from ..subspace.cubature import ContactPoints, Cubature
 from ..validity import CONTACT_TOLERANCE, cubature_min_det, first_touch, penetration, warn_frames, with_steps
 from .error_estimate import ErrorMonitor, warn_estimate, warn_resolution
 
-__all__ = ["CUBATURES", "ReducedSim", "mesh_and_scene", "native_inputs", "sampling", "step_many"]
+__all__ = ["CUBATURES", "ReducedSim", "mesh_and_scene", "native_inputs", "sampling", "step_many", "use_second_thread"]
 
 _DEFAULT_CUBATURE_POINTS = 1000
 
@@ -46,6 +46,25 @@ def _max_batch_steps(n_sims: int) -> int:
     except (AttributeError, OSError, ValueError):
         memory = 2**40
     return min(_MAX_INT, memory // (_STEP_RESULT_BYTES * max(n_sims, 1)))
+
+
+def use_second_thread(on: bool) -> None:
+    """Let each reduced step put half of its large products on a second core (the default where there are two or more).
+
+    The products of the basis rows with the coordinates (and back) are split by their outputs, so a step is the same,
+    bit for bit, with or without the second thread; at r = 250 it takes about 30 % less time (docs/results.md
+    section 66). Turn it off where the cores are taken already: several processes stepping at once, or your own
+    threads. :func:`step_many` keeps each simulation's products on the thread that steps it.
+
+    Args:
+        on: True to allow the second thread, False to step on the calling thread alone.
+
+    Raises:
+        ConfigError: ``on`` is not a bool.
+    """
+    if not isinstance(on, (bool, np.bool_)):
+        raise ConfigError(f"on must be True or False, got {on!r}")
+    _core.set_second_thread(bool(on))
 
 
 def step_many(sims: Sequence[Any], steps: int = 1, threads: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -271,6 +290,7 @@ class ReducedSim(metaclass=_CallPicksTheFrame):
     _monitor: ErrorMonitor
 
     step_many = staticmethod(step_many)
+    use_second_thread = staticmethod(use_second_thread)
 
     @property
     def n_modes(self) -> int:

@@ -11,6 +11,7 @@ use std::sync::Mutex;
 
 use crate::body_frame::solver::BodyFrameSolver;
 use crate::error::{LicromError, Result};
+use crate::second_thread;
 use crate::solver::ReducedSolver;
 
 /// A simulation that [`step_many`] can step: one time step, and the
@@ -132,12 +133,15 @@ pub fn step_many(items: &mut [BatchItem<'_>], steps: usize, threads: usize) -> R
     // compiler.
     let slots: Vec<Mutex<(&mut BatchItem<'_>, SimOutcome)>> = items.iter_mut().map(|item| Mutex::new((item, SimOutcome::default()))).collect();
     let next = AtomicUsize::new(0);
-    let work = || loop {
-        let i = next.fetch_add(1, Ordering::Relaxed);
-        let Some(slot) = slots.get(i) else { break };
-        let mut slot = slot.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        let (item, outcome) = &mut *slot;
-        *outcome = run_one(item, steps);
+    // The workers have the cores: each step's products stay on its own thread.
+    let work = || {
+        second_thread::alone(|| loop {
+            let i = next.fetch_add(1, Ordering::Relaxed);
+            let Some(slot) = slots.get(i) else { break };
+            let mut slot = slot.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            let (item, outcome) = &mut *slot;
+            *outcome = run_one(item, steps);
+        })
     };
     std::thread::scope(|scope| {
         for _ in 1..workers {

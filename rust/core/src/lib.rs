@@ -42,6 +42,7 @@ pub mod real;
 pub mod reconstruction;
 pub mod reduced;
 pub mod residual_estimate;
+pub mod second_thread;
 mod simd;
 pub mod solver;
 pub mod svd3;

@@ -114,3 +114,11 @@ pub fn step_many(
         })
         .collect())
 }
+
+/// Whether one simulation's step may hand half of its large products (the basis
+/// rows times the coordinates, and back) to a second thread; on by default where
+/// the machine has two cores or more. Steps are the same, bit for bit, either way.
+#[pyfunction]
+pub fn set_second_thread(on: bool) {
+    licrom_core::second_thread::set_enabled(on);
+}

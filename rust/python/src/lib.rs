@@ -47,6 +47,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<residual_estimate::ResidualEstimate>()?;
     m.add_class::<vertex_forces::VertexForces>()?;
     m.add_function(wrap_pyfunction!(batch::step_many, m)?)?;
+    m.add_function(wrap_pyfunction!(batch::set_second_thread, m)?)?;
     m.add_function(wrap_pyfunction!(line_search::line_search, m)?)?;
     m.add("LINE_SEARCH", line_search::constants(m.py())?)?;
     Ok(())

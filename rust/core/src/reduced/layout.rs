@@ -29,9 +29,9 @@ use nalgebra::Vector3;
 use crate::contact::Plane;
 use crate::error::{check_finite, LicromError, Result};
 use crate::real::LANES;
+use crate::second_thread::product_by_rows;
 use crate::simd::{Madd, F8};
-use faer::linalg::matmul::matmul;
-use faer::{Accum, MatMut, MatRef, Par};
+use faer::{MatMut, MatRef};
 
 /// The eight values of `s` from `at`.
 #[inline(always)]
@@ -350,26 +350,20 @@ impl VertexLayout {
     /// per vertex on the like-shaped product of the body frame's inertia).
     pub(super) fn displacements(&self, q: &[f64], n: usize, u: &mut [f64]) {
         let rows = self.basis.len() / n;
-        matmul(
-            MatMut::from_column_major_slice_mut(u, rows, 1),
-            Accum::Replace,
+        product_by_rows(
             MatRef::from_row_major_slice(&self.basis, rows, n),
             MatRef::from_column_major_slice(q, n, 1),
-            1.0,
-            Par::Seq,
+            MatMut::from_column_major_slice_mut(u, rows, 1),
         );
     }
 
     /// `W^T f` over the used vertices (`f` three values each) into `out` (n).
     pub(super) fn pull_back(&self, f: &[f64], n: usize, out: &mut [f64]) {
         let rows = self.basis.len() / n;
-        matmul(
-            MatMut::from_column_major_slice_mut(out, n, 1),
-            Accum::Replace,
+        product_by_rows(
             MatRef::from_row_major_slice(&self.basis, rows, n).transpose(),
             MatRef::from_column_major_slice(f, rows, 1),
-            1.0,
-            Par::Seq,
+            MatMut::from_column_major_slice_mut(out, n, 1),
         );
     }
 
