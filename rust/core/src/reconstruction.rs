@@ -1,8 +1,9 @@
 //! Full-space positions from reduced coordinates: `x_v = X_v + W_v q`.
 
-use faer::{Accum, MatMut, MatRef, Par};
+use faer::{Accum, MatMut, MatRef};
 
 use crate::error::{check_finite, check_output, LicromError, Result};
+use crate::second_thread::product_by_rows;
 
 /// Basis rows `W_v` (3 x n each) and rest positions `X_v` of N points.
 #[derive(Debug, Clone)]
@@ -47,13 +48,11 @@ impl Reconstruction {
         out.copy_from_slice(&self.rest);
         let rows = self.rest.len();
         if rows > 0 {
-            faer::linalg::matmul::matmul(
-                MatMut::from_column_major_slice_mut(out, rows, 1),
-                Accum::Add,
+            product_by_rows(
                 MatRef::from_row_major_slice(&self.basis, rows, self.n),
                 MatRef::from_column_major_slice(q, self.n, 1),
-                1.0,
-                Par::Seq,
+                MatMut::from_column_major_slice_mut(out, rows, 1),
+                Accum::Add,
             );
         }
         check_output("the positions", "q", out)

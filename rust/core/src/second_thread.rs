@@ -175,19 +175,20 @@ pub fn join<A: FnOnce(), B: FnOnce() + Send>(a: A, b: B) {
 /// handing half of one over costs about a microsecond.
 const SPLIT_ABOVE: usize = 32 * 1024;
 
-/// `out = a b`, the rows of `a` and `out` in two halves over [`join`]. Each
-/// row of `out` is one product of a row of `a` with `b`, so the split depends
-/// on the sizes alone and the result on nothing else.
-pub(crate) fn product_by_rows(a: MatRef<'_, f64>, b: MatRef<'_, f64>, out: MatMut<'_, f64>) {
+/// `out = a b` (or `out += a b` with [`Accum::Add`]), the rows of `a` and
+/// `out` in two halves over [`join`]. Each row of `out` is one product of a
+/// row of `a` with `b`, so the split depends on the sizes alone and the result
+/// on nothing else.
+pub(crate) fn product_by_rows(a: MatRef<'_, f64>, b: MatRef<'_, f64>, out: MatMut<'_, f64>, accum: Accum) {
     let rows = a.nrows();
     if rows < 16 || rows * a.ncols() * b.ncols() < SPLIT_ABOVE {
-        matmul(out, Accum::Replace, a, b, 1.0, Par::Seq);
+        matmul(out, accum, a, b, 1.0, Par::Seq);
         return;
     }
     let half = (rows / 2).next_multiple_of(8);
     let (top, bottom) = out.split_at_row_mut(half);
     let (a_top, a_bottom) = a.split_at_row(half);
-    join(|| matmul(top, Accum::Replace, a_top, b, 1.0, Par::Seq), || matmul(bottom, Accum::Replace, a_bottom, b, 1.0, Par::Seq));
+    join(|| matmul(top, accum, a_top, b, 1.0, Par::Seq), || matmul(bottom, accum, a_bottom, b, 1.0, Par::Seq));
 }
 
 #[cfg(test)]
@@ -219,7 +220,12 @@ mod tests {
         let run = |on: bool, a: MatRef<'_, f64>, b: &[f64]| {
             set_enabled(on);
             let mut out = vec![0.0; a.nrows() * cols];
-            product_by_rows(a, MatRef::from_column_major_slice(b, a.ncols(), cols), MatMut::from_column_major_slice_mut(&mut out, a.nrows(), cols));
+            product_by_rows(
+                a,
+                MatRef::from_column_major_slice(b, a.ncols(), cols),
+                MatMut::from_column_major_slice_mut(&mut out, a.nrows(), cols),
+                Accum::Replace,
+            );
             out
         };
         let am = MatRef::from_row_major_slice(&a, rows, n);

@@ -8,7 +8,7 @@
 //! system (it is its mass term); this module holds the rest.
 
 use crate::second_thread::product_by_rows;
-use faer::{MatMut, MatRef};
+use faer::{Accum, MatMut, MatRef};
 use nalgebra::{Matrix3, Vector3};
 
 use super::rotation::axial;
@@ -112,7 +112,7 @@ impl MassMoments {
     /// AVX-512), whose compiled form shuffled two-lane halves.
     fn mode_products(&self, qs: MatRef<'_, f64>, out: MatMut<'_, f64>) {
         let n = self.n_modes();
-        product_by_rows(MatRef::from_row_major_slice(&self.q_by_mode, 9 * n, n), qs, out);
+        product_by_rows(MatRef::from_row_major_slice(&self.q_by_mode, 9 * n, n), qs, out, Accum::Replace);
     }
 
     /// `Y_k = sum m y W^k^T = P_k^T + sum_l q_l Q_lk` from the nine values of

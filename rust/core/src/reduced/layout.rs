@@ -31,7 +31,7 @@ use crate::error::{check_finite, LicromError, Result};
 use crate::real::LANES;
 use crate::second_thread::product_by_rows;
 use crate::simd::{Madd, F8};
-use faer::{MatMut, MatRef};
+use faer::{Accum, MatMut, MatRef};
 
 /// The eight values of `s` from `at`.
 #[inline(always)]
@@ -354,6 +354,7 @@ impl VertexLayout {
             MatRef::from_row_major_slice(&self.basis, rows, n),
             MatRef::from_column_major_slice(q, n, 1),
             MatMut::from_column_major_slice_mut(u, rows, 1),
+            Accum::Replace,
         );
     }
 
@@ -364,6 +365,7 @@ impl VertexLayout {
             MatRef::from_row_major_slice(&self.basis, rows, n).transpose(),
             MatRef::from_column_major_slice(f, rows, 1),
             MatMut::from_column_major_slice_mut(out, n, 1),
+            Accum::Replace,
         );
     }
 
