@@ -45,6 +45,7 @@ __all__ = [
     "SolverError",
     "VertexForces",
     "line_search",
+    "set_second_thread",
     "snh_energy",
     "snh_hessian",
     "snh_pk1",
