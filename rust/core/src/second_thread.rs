@@ -146,28 +146,50 @@ pub fn join<A: FnOnce(), B: FnOnce() + Send>(a: A, b: B) {
         }
     };
     let job: *mut (dyn FnMut() + Send + '_) = &mut call;
-    // SAFETY: the lifetime is erased for the helper's slot only; this function
-    // does not return before the helper is done with it (below).
+    // SAFETY: the lifetime is erased for the helper's slot only; `Posted`'s
+    // drop, on every way out of this function, waits until the helper is done.
     let job: Job = unsafe { std::mem::transmute(job) };
     unsafe { *s.job.get() = Some(job) };
+    let posted = Posted(s);
     s.state.store(POSTED, Ordering::SeqCst);
     if s.sleeping.load(Ordering::SeqCst) {
         h.thread.unpark();
     }
     a();
-    if s.state.compare_exchange(POSTED, IDLE, Ordering::Acquire, Ordering::Relaxed).is_ok() {
+    if posted.take_back() {
         call();
-    } else {
-        while s.state.load(Ordering::Acquire) != DONE {
-            spin_loop();
+    }
+}
+
+/// A job handed to the helper. Dropped on every way out of [`join`], unwinding
+/// included: takes the job back where the helper has not started it, else
+/// waits until the helper is done, so no borrow of the job outlives it; then
+/// frees the helper, and re-raises a panic of its half.
+struct Posted<'a>(&'a Shared);
+
+impl Posted<'_> {
+    /// Whether the job was taken back before the helper started it (the
+    /// caller then runs it).
+    fn take_back(&self) -> bool {
+        self.0.state.compare_exchange(POSTED, IDLE, Ordering::Acquire, Ordering::Relaxed).is_ok()
+    }
+}
+
+impl Drop for Posted<'_> {
+    fn drop(&mut self) {
+        let s = self.0;
+        if !self.take_back() {
+            while !matches!(s.state.load(Ordering::Acquire), DONE | IDLE) {
+                spin_loop();
+            }
         }
         s.state.store(IDLE, Ordering::Relaxed);
-    }
-    unsafe { *s.job.get() = None };
-    let panicked = s.panicked.swap(false, Ordering::Relaxed);
-    s.taken.store(false, Ordering::Release);
-    if panicked {
-        panic!("the second thread's half of a product panicked");
+        unsafe { *s.job.get() = None };
+        let panicked = s.panicked.swap(false, Ordering::Relaxed);
+        s.taken.store(false, Ordering::Release);
+        if panicked && !thread::panicking() {
+            panic!("the second thread's half of a product panicked");
+        }
     }
 }
 
@@ -243,6 +265,26 @@ mod tests {
         let f: Vec<f64> = (0..rows * cols).map(|i| ((i * 31) % 101) as f64 / 101.0).collect();
         assert_eq!(run(false, at, &f), run(true, at, &f));
         set_enabled(true);
+    }
+
+    #[test]
+    fn a_panic_in_either_half_reaches_the_caller_and_frees_the_helper() {
+        for second in [false, true] {
+            let caught = std::panic::catch_unwind(|| {
+                let mut x = vec![0u64; 1000];
+                join(
+                    || assert!(second, "first half"),
+                    || {
+                        x.iter_mut().for_each(|v| *v += 1);
+                        assert!(!second, "second half");
+                    },
+                );
+            });
+            assert!(caught.is_err());
+        }
+        let (mut x, mut y) = (0, 0);
+        join(|| x = 1, || y = 2);
+        assert_eq!((x, y), (1, 2));
     }
 
     #[test]
