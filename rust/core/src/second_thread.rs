@@ -11,7 +11,9 @@
 //! so each output is summed in the same order whichever thread computes it: a
 //! step is the same, bit for bit, with or without the second thread. When the
 //! helper is busy (another simulation's step on another thread), has not
-//! picked the work up by the time the caller's own half is done, is switched
+//! picked the work up by the time the caller's own half is done, was late by
+//! more than [`LATE`] within the last [`BACK_OFF_JOINS`] joins (other work
+//! holds the cores), is switched
 //! off ([`set_enabled`], or [`alone`] on this thread: the workers of
 //! [`crate::batch::step_many`], which have the cores already), or the machine
 //! has one core, the caller runs both halves itself.
@@ -21,14 +23,15 @@ use faer::{Accum, MatMut, MatRef, Par};
 use std::cell::{Cell, UnsafeCell};
 use std::hint::spin_loop;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::thread::{self, Thread};
 use std::time::{Duration, Instant};
 
-/// How long the helper spins for its next job before it sleeps: longer than
-/// the gaps between a step's products, short enough not to hold a core
-/// between steps driven from Python.
+/// How long the helper waits for its next job, yielding its core to any other
+/// thread that wants it, before it sleeps: longer than the gaps between a
+/// step's products, short enough not to hold a core between steps driven from
+/// Python.
 pub const SPIN: Duration = Duration::from_micros(300);
 
 const IDLE: u8 = 0;
@@ -59,6 +62,16 @@ struct Helper {
 }
 
 static ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// A helper that finishes its half this much later than the caller has been
+/// taken off its core (the machine's cores are busy with other work).
+pub const LATE: Duration = Duration::from_micros(50);
+
+/// Joins run on the calling thread alone after a late helper: a few steps'
+/// products at r = 250; then the helper is tried again.
+pub const BACK_OFF_JOINS: u32 = 512;
+
+static BACK_OFF: AtomicU32 = AtomicU32::new(0);
 
 thread_local! {
     static ALONE: Cell<bool> = const { Cell::new(false) };
@@ -112,7 +125,9 @@ fn serve(s: &Shared) {
                 }
                 s.sleeping.store(false, Ordering::SeqCst);
             }
-            spin_loop();
+            // Spinning, but handing the core to any other thread that waits for it: on busy cores the
+            // caller's own half, or other processes, come first.
+            thread::yield_now();
         }
         if s.state.compare_exchange(POSTED, RUNNING, Ordering::Acquire, Ordering::Relaxed).is_ok() {
             // SAFETY: see `Shared`: the poster waits for DONE before the job's borrows end.
@@ -134,7 +149,8 @@ pub fn join<A: FnOnce(), B: FnOnce() + Send>(a: A, b: B) {
         return;
     };
     let s = &*h.shared;
-    if s.taken.compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed).is_err() {
+    let backing_off = BACK_OFF.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |j| j.checked_sub(1)).is_ok();
+    if backing_off || s.taken.compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed).is_err() {
         a();
         b();
         return;
@@ -179,8 +195,20 @@ impl Drop for Posted<'_> {
     fn drop(&mut self) {
         let s = self.0;
         if !self.take_back() {
+            let since = Instant::now();
+            let mut spins = 0u32;
             while !matches!(s.state.load(Ordering::Acquire), DONE | IDLE) {
-                spin_loop();
+                spins = spins.wrapping_add(1);
+                if spins.is_multiple_of(256) && since.elapsed() > LATE {
+                    // The helper was taken off its core mid-job: the cores are busy. Give it ours, and
+                    // do the next products alone.
+                    BACK_OFF.store(BACK_OFF_JOINS, Ordering::Relaxed);
+                }
+                if spins > 64 {
+                    thread::yield_now();
+                } else {
+                    spin_loop();
+                }
             }
         }
         s.state.store(IDLE, Ordering::Relaxed);
