@@ -386,11 +386,14 @@ def test_a_step_is_the_same_bit_for_bit_with_or_without_the_second_thread():
     learned = MeshBasis(mesh, 0.002 * np.random.default_rng(5).normal(size=(mesh.n_vertices, 3, 60)))
     basis = BodyFrameBasis(mesh, learned, density=scene.material.density)
     states = []
-    for on in (True, False, True):
-        BodyFrameSim.use_second_thread(on)
-        sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
-        its = [sim.step_or_record()[0] for _ in range(12)]
-        states.append((its, sim.q.tobytes(), sim.center.tobytes(), sim.rotation.tobytes()))
+    try:
+        for on in (True, False, True):
+            BodyFrameSim.use_second_thread(on)
+            sim = BodyFrameSim(basis, mesh, scene, cubature=Cubature.full(mesh))
+            its = [sim.step_or_record()[0] for _ in range(12)]
+            states.append((its, sim.q.tobytes(), sim.center.tobytes(), sim.rotation.tobytes()))
+    finally:
+        BodyFrameSim.use_second_thread(True)
     assert max(states[0][0]) > 1  # landing: real Newton solves
     assert states[0] == states[1] == states[2]
     with pytest.raises(ConfigError, match="True or False"):

@@ -1,8 +1,9 @@
 //! A second thread for the large products inside one step.
 //!
-//! A reduced step at r = 250 streams a few MB of basis rows through three
-//! products (the vertex displacements `W q`, their pull-back `W^T f` and the
-//! inertia's mode products); each takes 20-100 us. Starting a pool thread for
+//! A reduced step at r = 250 streams a few MB of basis rows through four
+//! products (the vertex displacements `W q`, their pull-back `W^T f`, the
+//! inertia's mode products and the online estimate's sample positions); each
+//! takes 20-100 us. Starting a pool thread for
 //! them (rayon's join) costs more than it saves (docs/results.md section 65),
 //! so [`join`] hands its second half to one persistent thread that spins
 //! between the products of a step and sleeps after [`SPIN`] without work.
@@ -79,10 +80,15 @@ thread_local! {
 
 /// Runs `f` with every [`join`] on this thread done here, both halves.
 pub fn alone<R>(f: impl FnOnce() -> R) -> R {
-    let before = ALONE.with(|a| a.replace(true));
-    let out = f();
-    ALONE.with(|a| a.set(before));
-    out
+    /// Restores the thread's setting on every way out, unwinding included.
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            ALONE.with(|a| a.set(self.0));
+        }
+    }
+    let _restore = Restore(ALONE.with(|a| a.replace(true)));
+    f()
 }
 
 /// Whether [`join`] may use the second thread (default: yes where the machine
@@ -245,21 +251,30 @@ pub(crate) fn product_by_rows(a: MatRef<'_, f64>, b: MatRef<'_, f64>, out: MatMu
 mod tests {
     use super::*;
 
+    /// `f` on this thread alone (`alone`) or with the helper where it is free.
+    fn with_helper<R>(on: bool, f: impl FnOnce() -> R) -> R {
+        if on {
+            f()
+        } else {
+            alone(f)
+        }
+    }
+
     #[test]
     fn both_halves_run_once_with_or_without_the_helper() {
         for on in [true, false] {
-            set_enabled(on);
             for n in 0..200 {
                 let (mut x, mut y) = (vec![0u64; n], vec![0u64; n]);
-                join(
-                    || x.iter_mut().enumerate().for_each(|(i, v)| *v += i as u64),
-                    || y.iter_mut().enumerate().for_each(|(i, v)| *v += 2 * i as u64),
-                );
+                with_helper(on, || {
+                    join(
+                        || x.iter_mut().enumerate().for_each(|(i, v)| *v += i as u64),
+                        || y.iter_mut().enumerate().for_each(|(i, v)| *v += 2 * i as u64),
+                    )
+                });
                 assert!(x.iter().enumerate().all(|(i, &v)| v == i as u64));
                 assert!(y.iter().enumerate().all(|(i, &v)| v == 2 * i as u64));
             }
         }
-        set_enabled(true);
     }
 
     #[test]
@@ -268,20 +283,23 @@ mod tests {
         let a: Vec<f64> = (0..rows * n).map(|i| ((i * 7919) % 1013) as f64 / 1013.0 - 0.5).collect();
         let b: Vec<f64> = (0..n * cols).map(|i| ((i * 104729) % 997) as f64 / 997.0 - 0.5).collect();
         let run = |on: bool, a: MatRef<'_, f64>, b: &[f64]| {
-            set_enabled(on);
             let mut out = vec![0.0; a.nrows() * cols];
-            product_by_rows(
-                a,
-                MatRef::from_column_major_slice(b, a.ncols(), cols),
-                MatMut::from_column_major_slice_mut(&mut out, a.nrows(), cols),
-                Accum::Replace,
-            );
+            with_helper(on, || {
+                product_by_rows(
+                    a,
+                    MatRef::from_column_major_slice(b, a.ncols(), cols),
+                    MatMut::from_column_major_slice_mut(&mut out, a.nrows(), cols),
+                    Accum::Replace,
+                )
+            });
             out
         };
         let am = MatRef::from_row_major_slice(&a, rows, n);
-        let (one, two) = (run(false, am, &b), run(true, am, &b));
-        set_enabled(true);
-        assert_eq!(one, two);
+        let one = run(false, am, &b);
+        // Repeated: the helper takes the second half in most of them (where it is late, the caller does).
+        for _ in 0..20 {
+            assert_eq!(run(true, am, &b), one);
+        }
         for r in 0..rows {
             for c in 0..cols {
                 let exact: f64 = (0..n).map(|k| a[r * n + k] * b[c * n + k]).sum();
@@ -291,8 +309,18 @@ mod tests {
         // The transposed layout (the pull-back `W^T f`) splits the same way.
         let at = MatRef::from_row_major_slice(&a, rows, n).transpose();
         let f: Vec<f64> = (0..rows * cols).map(|i| ((i * 31) % 101) as f64 / 101.0).collect();
-        assert_eq!(run(false, at, &f), run(true, at, &f));
-        set_enabled(true);
+        let one = run(false, at, &f);
+        for _ in 0..20 {
+            assert_eq!(run(true, at, &f), one);
+        }
+    }
+
+    #[test]
+    fn alone_is_undone_on_every_way_out() {
+        assert!(std::panic::catch_unwind(|| alone(|| panic!("inside"))).is_err());
+        assert!(!ALONE.with(Cell::get));
+        alone(|| alone(|| ()));
+        assert!(!ALONE.with(Cell::get));
     }
 
     #[test]
