@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 from licrom import Model, ReducedSim
 from licrom._io import atomic_path
+from licrom.data.dataset import IMPACT_WINDOW
 from licrom.learn.training import TrainConfig
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
 from licrom.subspace.basis import RUN_BALANCE
@@ -51,6 +52,14 @@ def family(name: str, small: bool) -> bfe.Family:
     """The family ``name`` of ``body_frame_experiments``, at a converged truth with ``--converged``."""
     fam = bfe.FAMILIES[name](small)
     return bfe.at_converged_truth(name, fam) if CONVERGED else fam
+
+
+def training_runs(work: Path, fam: bfe.Family) -> list:
+    """The family's training runs as `licrom generate` writes them: a frame every ``fam.record_every`` steps and every
+    step for :data:`licrom.data.dataset.IMPACT_WINDOW` after each impact (section 26; without those frames the
+    converged cheese's dynamics check raised r from 120 to 250, sections 49-53)."""
+    return [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every, impact_window=IMPACT_WINDOW)
+            for c in fam.training]
 
 
 def reduced_run(model: Model, case: bfe.Case, full, steps: int, record_every: int = 1, **options) -> dict:
@@ -71,7 +80,7 @@ def reduced_run(model: Model, case: bfe.Case, full, steps: int, record_every: in
 def family_rows(name: str, model: Model, work: Path, small: bool) -> list[dict]:
     fam = family(name, small)
     every = fam.record_every
-    train = [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, every) for c in fam.training]
+    train = training_runs(work, fam)
     setting = bfe.Setting(fam, train, work / "models", 1)
     r = model.n_learned
     cases = list(fam.held_out)
@@ -227,10 +236,10 @@ def main() -> None:
     if args.runs_only:
         for name in args.families:
             fam = family(name, args.small)
-            for c in fam.cases:
+            training_runs(work, fam)
+            for c in fam.held_out:
                 bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every)
-                if c.held_out:
-                    bfe.full_run(work, c.name + bfe.NUDGED, fam.mesh, bfe.nudged(c.scene), fam.steps, fam.record_every)
+                bfe.full_run(work, c.name + bfe.NUDGED, fam.mesh, bfe.nudged(c.scene), fam.steps, fam.record_every)
         return
     rows, models = [], {}
     for name in args.families:
@@ -239,7 +248,7 @@ def main() -> None:
             if not (args.train_here or args.small):
                 raise SystemExit(f"no model {path}: train it with `licrom train` (see the module docstring) or pass --train-here")
             fam = family(name, args.small)
-            runs = [bfe.full_run(work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every) for c in fam.training]
+            runs = training_runs(work, fam)
             import licrom
 
             licrom.train(runs, path, TrainConfig(epochs=1, progress=False) if args.small else TrainConfig())
