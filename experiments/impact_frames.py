@@ -2,6 +2,7 @@
 just after each impact gives back.
 
     python experiments/impact_frames.py [--work out/converged] [--windows 0 0.05 0.1] [--rank 120] [--write-runs DIR] [--small]
+    python experiments/impact_frames.py --resolution 12 --mechanism-only --rank 100     # the mechanism on the 2748-tet mesh
 
 The soft cheese family at the converged truth (section 12: BDF2 at h = 1 ms, viscosity 400 Pa s, frames every 10 ms,
 the 1638-tet mesh). For each impact window W (s), its 20 training runs are simulated again keeping every step's
@@ -9,7 +10,8 @@ displacement for W after each impact (``FullSim.run(..., impact_window=W)``; W =
 and the body-frame model with POD(r) of their frames as training weighs them (run-balanced, regular and impact frames
 alike; every tet as cubature, so that only the modes differ) runs each held-out scene against its converged truth:
 non-rigid error, final centre of mass over the size, and the projection bound of those modes. The mechanism's row:
-the new-azimuth scene on POD(r) of its own frames, the 10 ms frames against every step's. ``--write-runs DIR`` copies
+the new-azimuth scene on POD(r) of its own frames, the 10 ms frames against every step's; ``--resolution`` puts it on
+another mesh of the cheese (12: 2748 tets), ``--mechanism-only`` skips the windows' training runs. ``--write-runs DIR`` copies
 the training runs of the cheese, the box and the ball at the default window (:data:`licrom.data.dataset.IMPACT_WINDOW`)
 into DIR/FAMILY, for ``licrom train`` (section 16's models trained on them).
 ``--small``: the tiny cheese at h = 5 ms, 40 steps, r = 8.
@@ -84,16 +86,18 @@ def main() -> None:
     ap.add_argument("--rank", type=int, default=None, help="POD modes (default 120; 8 with --small)")
     ap.add_argument("--write-runs", type=Path, default=None, help="copy the training runs at the default impact window here")
     ap.add_argument("--docs", type=Path, default=None, help="write the section into DOCS/results.md")
+    ap.add_argument("--resolution", type=int, default=10, help="the cheese's mesh (10: 1638 tets, 12: 2748)")
+    ap.add_argument("--mechanism-only", action="store_true", help="only the mechanism's row (no training runs)")
     ap.add_argument("--small", action="store_true")
     args = ap.parse_args()
-    bfe.CHEESE_RESOLUTION = 10
+    bfe.CHEESE_RESOLUTION = args.resolution
     fam = family(args.small)
     r = args.rank or (8 if args.small else 120)
     rho = fam.cases[0].scene.material.density
     truths = {c.name: bfe.full_run(args.work, c.name, fam.mesh, c.scene, fam.steps, fam.record_every) for c in fam.held_out}
     lines = ["| impact window | training frames | held-out scene | projection | non-rigid error | final COM / size | stick/slip |",
              "|---|---|---|---|---|---|---|"]
-    for window in args.windows:
+    for window in [] if args.mechanism_only else args.windows:
         runs = training_runs(fam, args.work, window)
         frames = [body_frames(t) for t in runs]
         basis = BodyFrameBasis(fam.mesh, bfe.residual_pod(fam.mesh, frames, bfe.masses_of(runs[0]), r), density=rho)
