@@ -127,6 +127,32 @@ def test_impact_frames_are_training_frames_after_the_regular_ones(trajs):
     np.testing.assert_allclose(d.train.residuals[own][-3:], same.train.residuals[same.train.trajectory == 0], atol=1e-9)
 
 
+def test_runs_recorded_every_few_steps_without_impact_frames_are_named_and_warned(trajs):
+    import dataclasses
+
+    from licrom import AccuracyWarning
+    from licrom.learn.training.run import warn_without_impact_frames
+    from licrom.learn.training_data import runs_without_impact_frames
+
+    t = trajs[0]
+    sparse = dataclasses.replace(t, times=t.times * 10)  # a frame every 10th step of the scene's dt
+    with_impacts = dataclasses.replace(sparse, impact_displacements=t.displacements[1:3], impact_times=sparse.times[1:3] + 1e-3)
+    off_planes = dataclasses.replace(sparse, scene=sparse.scene.replace(planes=()))
+    named = [("every_step", t), ("sparse", sparse), ("with_impacts", with_impacts), ("off_planes", off_planes)]
+    assert runs_without_impact_frames(named) == ["sparse"]
+    data = TrainingData([sparse, *trajs[1:]], val_indices=[1], frame="body")
+    assert data.summary()["runs_without_impact_frames"] == [data.names[0]]
+    with pytest.warns(AccuracyWarning, match="no impact frames"):
+        warn_without_impact_frames(data)
+    quiet = TrainingData(trajs, val_indices=[1], frame="body")
+    assert quiet.summary()["runs_without_impact_frames"] == []
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_without_impact_frames(quiet)
+
+
 def test_unknown_frame_is_a_config_error_naming_the_frames(trajs):
     with pytest.raises(ConfigError, match="'body', 'world'"):
         TrainingData(trajs, frame="inertial")

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ...data.dataset import IMPACT_WINDOW
 from ...errors import AccuracyWarning, ConfigError
 from ...rigid import check_frame
 from ...viz._plot import pyplot, save_png
@@ -70,6 +71,20 @@ def plot_losses(rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: 
         fig.suptitle(title)
     fig.tight_layout()
     return save_png(fig, path)
+
+
+def warn_without_impact_frames(data: TrainingData) -> None:
+    """An ``AccuracyWarning`` naming the runs recorded every few steps that touch a plane and hold no impact frames
+    (:func:`~licrom.learn.training_data.runs_without_impact_frames`): their landings' transients are not in the data."""
+    names = data.without_impact_frames
+    if not names:
+        return
+    shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+    warnings.warn(f"{len(names)} of {len(data.names)} runs ({shown}) keep a frame only every few steps and no impact frames: "
+                  "a landing's transient falls between their frames, and modes without it land the body off (on the converged "
+                  "cheese 7.7 % of its size against 0.04 %, docs/results.md section 67). Record them with `licrom generate`, "
+                  f"which keeps every step for {IMPACT_WINDOW:g} s after each impact, or `FullSim.run(..., impact_window={IMPACT_WINDOW:g})`",
+                  AccuracyWarning, stacklevel=3)
 
 
 def fit_cubature(model: Model, data: TrainingData, cfg: TrainConfig, held_out: Sequence[tuple[str, Any]] | None = None) -> dict[str, Any] | None:
@@ -319,6 +334,7 @@ def train(
         tdata = TrainingData(data, val_fraction=cfg.val_fraction, seed=cfg.seed, val_indices=cfg.val_indices,
                              affine=mcfg.affine, frame_stride=cfg.frame_stride, frame=mcfg.frame)
     tdata.check_deformation()
+    warn_without_impact_frames(tdata)
     if cfg.epochs == "auto":
         cfg = dataclasses.replace(cfg, epochs=default_epochs(tdata.mesh.n_tets))
     t_data = time.perf_counter() - t_start
