@@ -5,8 +5,8 @@
 The families and held-out scenes are those of ``experiments/body_frame_experiments.py`` (the cheese at
 1638 tets, ``--cheese-resolution``). ``--models`` holds one model per family, ``FAMILY.lcm``, trained by
 ``licrom train TRAINING_RUNS -o FAMILY.lcm`` with no other option than the device (r chosen from the data,
-cubature fitted and stored by the training; the training runs are the family's, as ``--train-only`` of that
-script writes them, or ``--train-here`` trains them here). Every held-out run is then simulated with
+cubature fitted and stored by the training; the training runs are the family's with `licrom generate`'s impact
+frames, as ``--runs-only`` writes them under ``--work``, or ``--train-here`` trains them here). Every held-out run is then simulated with
 ``ReducedSim(model, scene=scene)`` and nothing else, beside its noise floor (the full run dropped 0.1 mm
 higher) and subspace bounds (the run's body-frame projection onto the model's modes, and onto POD of the same
 size of the training frames). The cheese is also run with the naive and the full cubature by name, and on the
