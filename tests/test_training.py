@@ -1,16 +1,20 @@
 """Training data, the Lightning training loop, its files, reproducibility, resume and the CLI."""
 
 import csv
+import dataclasses
+import warnings
 
 import numpy as np
 import pytest
 import torch
-from licrom import ConfigError, FileFormatError, Trajectory, meshes
+from licrom import AccuracyWarning, ConfigError, FileFormatError, Trajectory, meshes
 from licrom.learn.model import Model, ModelConfig
 from licrom.learn.training import TrainConfig, evaluate, output_paths, train
+from licrom.learn.training.run import warn_without_impact_frames
 from licrom.learn.training_data import (
     TrainingData,
     make_synthetic_trajectories,
+    runs_without_impact_frames,
     split_by_trajectory,
 )
 from licrom.rigid import relative_error
@@ -112,8 +116,6 @@ def test_body_frame_data_is_the_deformation_without_rigid_motion(coarse_box, tra
 
 
 def test_impact_frames_are_training_frames_after_the_regular_ones(trajs):
-    import dataclasses
-
     t = trajs[0]
     impacts = dataclasses.replace(t, impact_displacements=t.displacements[1:4] * 0.5, impact_times=t.times[1:4] + 1e-3)
     d = TrainingData([impacts, *trajs[1:]], val_indices=[1], frame="body")
@@ -128,12 +130,6 @@ def test_impact_frames_are_training_frames_after_the_regular_ones(trajs):
 
 
 def test_runs_recorded_every_few_steps_without_impact_frames_are_named_and_warned(trajs):
-    import dataclasses
-
-    from licrom import AccuracyWarning
-    from licrom.learn.training.run import warn_without_impact_frames
-    from licrom.learn.training_data import runs_without_impact_frames
-
     t = trajs[0]
     sparse = dataclasses.replace(t, times=t.times * 10)  # a frame every 10th step of the scene's dt
     with_impacts = dataclasses.replace(sparse, impact_displacements=t.displacements[1:3], impact_times=sparse.times[1:3] + 1e-3)
@@ -146,8 +142,6 @@ def test_runs_recorded_every_few_steps_without_impact_frames_are_named_and_warne
         warn_without_impact_frames(data)
     quiet = TrainingData(trajs, val_indices=[1], frame="body")
     assert quiet.summary()["runs_without_impact_frames"] == []
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         warn_without_impact_frames(quiet)

@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 
 from .._repr import concise_repr
+from ..analysis.compare import first_contact_frame
 from ..errors import ConfigError, FileFormatError
 from ..geometry.mesh import Mesh
 from ..records.trajectory import Trajectory
 from ..rigid import body_frame_displacements, check_frame
 from ..scene.scene import InitialState, Plane, Scene
 from ..subspace.affine import apply_affine, fit_affine
-from ..validity import CONTACT_TOLERANCE, first_touch
 
 __all__ = [
     "ROUNDOFF_RESIDUAL",
@@ -113,13 +113,9 @@ def runs_without_impact_frames(named: Sequence[tuple[str, Trajectory]]) -> list[
     0.04 % (docs/results.md sections 26 and 67). `licrom generate` keeps every step for
     :data:`licrom.data.dataset.IMPACT_WINDOW` after each impact; ``FullSim.run(..., impact_window=...)`` does on request.
     """
-    names = []
-    for name, t in named:
-        if len(t.impact_times) or t.n_frames < 2 or float(np.median(np.diff(t.times))) < SKIPPED_STEPS * t.scene.dt:
-            continue
-        if first_touch(t.rest_positions + t.displacements, t.scene.plane_array(), CONTACT_TOLERANCE * t.mesh.size) is not None:
-            names.append(name)
-    return names
+    return [name for name, t in named
+            if not len(t.impact_times) and t.n_frames >= 2 and float(np.median(np.diff(t.times))) >= SKIPPED_STEPS * t.scene.dt
+            and first_contact_frame(t) is not None]
 
 
 def split_by_trajectory(

@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...data.dataset import IMPACT_WINDOW
 from ...errors import AccuracyWarning, ConfigError
 from ...rigid import check_frame
 from ...viz._plot import pyplot, save_png
@@ -83,7 +82,7 @@ def warn_without_impact_frames(data: TrainingData) -> None:
     warnings.warn(f"{len(names)} of {len(data.names)} runs ({shown}) keep a frame only every few steps and no impact frames: "
                   "a landing's transient falls between their frames, and modes without it land the body off (on the converged "
                   "cheese 7.7 % of its size against 0.04 %, docs/results.md section 67). Record them with `licrom generate`, "
-                  f"which keeps every step for {IMPACT_WINDOW:g} s after each impact, or `FullSim.run(..., impact_window={IMPACT_WINDOW:g})`",
+                  "which keeps every step for a while after each impact (--impact-window), or `FullSim.run(..., impact_window=...)`",
                   AccuracyWarning, stacklevel=3)
 
 
