@@ -178,6 +178,8 @@ def _label(plane: Plane, azimuth: float) -> str:
 
 CHEESE_RESOLUTION = 8  # 864 tets (10: 1638); set by --cheese-resolution
 SPHERE_RESOLUTION = 7  # 1074 tets (32: 103536)
+CHEESE_DROP = 0.06  # m above the plane
+CHEESE_TILT = (0.15, 0.1, 0.0)  # rad, the start pose's rotation vector
 
 
 def cheese_family(small: bool) -> Family:
@@ -185,7 +187,7 @@ def cheese_family(small: bool) -> Family:
     mesh = meshes.cheese(resolution=5 if small else CHEESE_RESOLUTION)
     # E = 20 kPa and a 6 cm drop: peak non-rigid deformation 5-14 % of the size where it slides or sticks (measured).
     base = Scene(material=Material(youngs_modulus=2.0e4, poisson_ratio=0.3, density=1000.0), dt=0.01)
-    height, tilt = 0.06, (0.15, 0.1, 0.0)
+    height, tilt = CHEESE_DROP, CHEESE_TILT
     cases = []
     # Friction loads the body from the downhill direction, which no rotation of the body frame removes: with
     # azimuths 0 and 50 alone, POD(20) of the training frames left 20 % of a run at azimuth 120 (its own POD: 0.8 %).

@@ -27,7 +27,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     ("data", "scene files, presets and data sets of full runs"),
     ("subspace", "affine modes, bases, body-frame modes, cubature"),
     ("reduced", "the reduced simulation, world and body frame, its factory and error estimate"),
-    ("analysis", "full against reduced"),
+    ("analysis", "full against reduced, a scene's sensitivity"),
     ("viz", "pictures and reports"),
     ("learn", "training data, models and their training"),
     ("cli", "the licrom command and its demo"),

@@ -7,6 +7,7 @@ with status 2 instead of a traceback.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 import warnings
@@ -435,8 +436,11 @@ def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_ra
 @click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write report.html, summary.md/json, filmstrips, animations, the error plot and the runs (runs/*.npz, for licrom export) here.")
+@click.option("--sensitivity", is_flag=True,
+              help="Also run each scene in full space with one input moved a little (licrom.analysis.sensitivity, 6 more full "
+                   "runs a scene) and set the reduced error beside how far the scene's own run moves.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-def compare_command(model_path, scene_source, slope, friction, mesh_source, steps, cubature, solver, device, out, quiet) -> None:
+def compare_command(model_path, scene_source, slope, friction, mesh_source, steps, cubature, solver, device, out, sensitivity, quiet) -> None:
     """Run full and reduced side by side on scenes, and report how they differ.
 
     With --scene, the scenes are the scene file's held-out scenes (else every run of its
@@ -444,6 +448,8 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
     scene with that incline, the object placed on it as in the model's scene. Prints
     per-scene error, non-rigid deformation error, peak deformation and total rotation of
     both, centre-of-mass error, stick/slip agreement, penetration and per-step time of both.
+    With --sensitivity, also how far each scene's own full run moves when an input moves a little:
+    a reduced run cannot be held closer than that.
     """
     from .._io import make_dir
     from ..analysis.compare import run_comparison
@@ -493,6 +499,8 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
             cmp, full, reduced = run_comparison(model, scene, mesh, steps=steps, device=device, solver=solver,
                                                 cubature=cubature_choice, progress=not quiet)
             echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} learned modes, {model.frame} frame)\n{cmp.table()}")
+            if sensitivity:
+                echo(_sensitivity_lines(mesh, scene, steps, full, cmp, device))
             compared.append(Case(label, case_tag(label, scene, [c.tag for c in compared]), cmp, full, reduced))
             if bar is not None:
                 bar.update(1)
@@ -509,6 +517,24 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
                        f"cubature {cubature}")
         write_report(compared, out, "licrom compare", description, renderer)
         click.echo(f"\nwrote {out}/report.html, summary.md, summary.json, errors.png, filmstrips, animations and the runs (runs/*.npz)")
+
+
+def _sensitivity_lines(mesh, scene, steps, full, cmp, device) -> str:
+    """How far ``scene``'s own full run moves when an input moves (:func:`licrom.analysis.sensitivity.sensitivity`),
+    beside the reduced run's errors."""
+    from ..analysis.sensitivity import HALF_STEP, sensitivity
+
+    s = sensitivity(mesh, scene, steps, reference=full, device=device)
+    lines = ["scene sensitivity (its own full run, one input moved; non-rigid / centre of mass over the size):"]
+    lines += [f"  {label:28s} {100 * r['nonrigid_error']:6.1f} % / {100 * r['com_error']:5.1f} %" for label, r in s.rows.items()]
+    ratio = cmp.nonrigid_error / s.nonrigid_spread if s.nonrigid_spread > 0 else math.inf
+    kind = "chaotic at a model's scale" if s.chaotic else "well conditioned"
+    lines.append(f"  spread {100 * s.nonrigid_spread:.1f} % / {100 * s.com_spread:.1f} % ({kind}); the reduced run's non-rigid "
+                 f"error is {ratio:.1f}x it")
+    if HALF_STEP in s.rows:
+        lines.append(f"  the truth at half the step moves {100 * s.rows[HALF_STEP]['nonrigid_error']:.1f} %: "
+                     "the full run's own error in time")
+    return "\n".join(lines)
 
 
 @cli.command("export")
