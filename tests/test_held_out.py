@@ -49,6 +49,8 @@ def test_a_held_out_run_above_the_target_is_named_and_its_estimate_flagged_above
     with pytest.warns(AccuracyWarning, match=rf"misses 1 of its 1 held-out runs .*{name} \(non-rigid error [0-9.]+ % >= 0 %"):
         report = held_out.check_held_out(model, [(name, run)])
     assert report["runs"][0]["nonrigid_error"] > 0.0 and report["runs"][0]["flagged"] and report["threshold"] == 0.0
+    with pytest.warns(AccuracyWarning, match=r"chaotic, not the model: `licrom compare MODEL --sensitivity`"):
+        held_out.check_held_out(model, [(name, run)])
     with pytest.warns(AccuracyWarning, match=r"; give r \(-r 250\)$"):  # training's advice where the dynamics check did not run
         held_out.check_held_out(model, [(name, run)], remedy="give r (-r 250)")
     monkeypatch.setattr(held_out, "ERROR_THRESHOLD", 1.0)  # the estimate's threshold does not judge the true error

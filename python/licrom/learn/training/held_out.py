@@ -27,7 +27,7 @@ from ...reduced.base import ReducedSim
 from ...reduced.error_estimate import ERROR_THRESHOLD
 from ..model import Model
 
-__all__ = ["HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines", "replay_held_out", "target_ratio", "warn_misses"]
+__all__ = ["CHAOS_HINT", "HELD_OUT_RUNS", "REMEDY", "check_held_out", "held_out_lines", "replay_held_out", "target_ratio", "warn_misses"]
 
 HELD_OUT_RUNS = 8
 """Held-out runs checked at most (the first ones of the split): each costs a reduced run and a comparison."""
@@ -36,6 +36,11 @@ HELD_OUT_RUNS = 8
 REMEDY = "train with more runs like them, or allow more modes (--max-rank, --rank-tolerance, --dynamics-max-rank)"
 """What the held-out warning advises by default; training passes another where the dynamics check did not run
 (:func:`licrom.learn.training.dynamics.large_mesh_remedy`)."""
+
+CHAOS_HINT = ("a run can miss because its scene is chaotic, not the model: `licrom compare MODEL --sensitivity` measures how "
+              "far its own full run moves when an input moves a little (docs/results.md section 68)")
+"""Said before the remedy in every held-out warning: a tumble whose own full run moves 15-49 % when dropped 1 mm higher or
+turned by a degree misses by as much with any model (:mod:`licrom.analysis.sensitivity`)."""
 
 
 def run_cadence(run: Trajectory) -> tuple[int, int] | None:
@@ -107,7 +112,7 @@ def warn_misses(report: dict[str, Any], remedy: str = REMEDY, stacklevel: int = 
     if misses:
         shown = "; ".join(f"{r['run']} ({', '.join(what)}; estimated non-rigid {100 * r['estimate']:.1f} %)" for r, what in misses)
         warnings.warn(
-            f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; {remedy}",
+            f"the trained model misses {len(misses)} of its {len(done)} held-out runs with its defaults: {shown}; {CHAOS_HINT}; {remedy}",
             AccuracyWarning, stacklevel=stacklevel)
 
 
