@@ -42,6 +42,13 @@ def case_inputs(name: str) -> tuple[float, float, float]:
     return float(slope), float(mu), float(az.removeprefix("az"))
 
 
+def tumble_case(fam: bfe.Family, slope: float, mu: float, azimuth: float) -> bfe.Case:
+    """A held-out scene of the cheese family on another plane, dropped and tilted as the family's are."""
+    plane = bfe.incline(slope, azimuth, mu)
+    scene = bfe._on_plane(fam.mesh, fam.cases[0].scene, plane, bfe.CHEESE_DROP, bfe.CHEESE_TILT)
+    return bfe.Case(f"cheese_tumble_{slope:g}_{mu:g}_az{azimuth:g}", f"held out: {bfe._label(plane, azimuth)}", True, scene)
+
+
 def cheese_rows(fam: bfe.Family, case: bfe.Case, work: Path, full) -> dict:
     """The noise floor (0.1 mm higher) and the downhill azimuth turned by 1 deg (the cheese's own input), cached."""
     slope, mu, az = case_inputs(case.name)
@@ -69,12 +76,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, required=True, help="the converged cheese's full runs (defaults_experiments --runs-only)")
     ap.add_argument("--model", type=Path, default=None)
-    ap.add_argument("--cases", nargs="+", default=list(DEFAULT_CASES))
+    ap.add_argument("--cases", nargs="*", default=list(DEFAULT_CASES))
+    ap.add_argument("--tumbles", nargs="*", default=[], metavar="SLOPE:MU:AZIMUTH",
+                    help="also these held-out scenes, placed as the family's (cheese_tumble_SLOPE_MU_azAZIMUTH)")
     ap.add_argument("--out", type=Path, default=None, help="JSON of every row (default WORK/sensitivity.json)")
     args = ap.parse_args()
     de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
     fam = de.family("cheese", False)
     cases = {c.name: c for c in fam.cases}
+    for spec in args.tumbles:
+        slope, mu, az = (float(v) for v in spec.split(":"))
+        case = tumble_case(fam, slope, mu, az)
+        cases[case.name] = case
+        args.cases.append(case.name)
     model = Model.load(args.model) if args.model else None
     results, spread = {}, {}
     for name in args.cases:
