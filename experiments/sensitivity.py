@@ -1,6 +1,8 @@
 """How far a scene's own full run moves under small changes of its inputs, beside the reduced model's miss.
 
-    python experiments/sensitivity.py --work out/body_frame_c10i [--model M.lcm] [--cases NAME ...] [--out F.json]
+    python experiments/sensitivity.py --work out/body_frame_c10i [--model M.lcm] [--cases NAME ...]
+        [--tumbles SLOPE:MU:AZIMUTH ...] [--out F.json]
+    python experiments/sensitivity.py --work W --table F.json [F.json ...]      # section 68's table from saved runs
 
 The noise floor (a drop 0.1 mm higher) says whether a run repeats; it does not say whether the run is stable against
 the errors a reduced model makes, which change the body's path by more than 0.1 mm. Each case of the converged cheese
@@ -72,6 +74,29 @@ def reduced_rows(model: Model, case: bfe.Case, full, steps: int, every: int) -> 
     return rows
 
 
+MODEL = "model (fitted cubature)"
+
+
+def table(results: dict, spread: dict) -> str:
+    """Markdown: each run's floors and spread (non-rigid / centre of mass), the truth at h / 2, the model's run."""
+    out = ["| run | noise floor (0.1 mm) | 1 mm higher | worst input moved | spread, chaotic? | truth at h / 2 | model | "
+           "model / spread (non-rigid) | estimate |", "|---|---|---|---|---|---|---|---|---|"]
+
+    def pair(row):
+        return f"{100 * row['nonrigid_error']:.1f} / {100 * row['com_error']:.1f} %"
+
+    for name, rows in results.items():
+        moved = {k: v for k, v in rows.items() if k not in ("0.1 mm higher (noise floor)", "h / 2") and not k.startswith("model")}
+        worst = max(moved, key=lambda k: moved[k]["nonrigid_error"])
+        sp = spread[name]
+        model = rows.get(MODEL)
+        out.append(f"| {name} | {pair(rows['0.1 mm higher (noise floor)'])} | {pair(rows['1 mm higher'])} | {worst}: {pair(moved[worst])} | "
+                   f"{100 * sp['nonrigid_spread']:.1f} / {100 * sp['com_spread']:.1f} %, {'yes' if sp['chaotic'] else 'no'} | "
+                   f"{pair(rows['h / 2'])} | " + (f"{pair(model)} | {model['nonrigid_error'] / sp['nonrigid_spread']:.2f}x | "
+                                                 f"{100 * model['estimate']:.1f} % |" if model else "- | - | - |"))
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, required=True, help="the converged cheese's full runs (defaults_experiments --runs-only)")
@@ -80,7 +105,12 @@ def main() -> None:
     ap.add_argument("--tumbles", nargs="*", default=[], metavar="SLOPE:MU:AZIMUTH",
                     help="also these held-out scenes, placed as the family's (cheese_tumble_SLOPE_MU_azAZIMUTH)")
     ap.add_argument("--out", type=Path, default=None, help="JSON of every row (default WORK/sensitivity.json)")
+    ap.add_argument("--table", type=Path, nargs="+", default=None, metavar="JSON", help="print the markdown table of these outputs, then stop")
     args = ap.parse_args()
+    if args.table:
+        saved = [json.loads(p.read_text()) for p in args.table]
+        print(table({k: v for s in saved for k, v in s["rows"].items()}, {k: v for s in saved for k, v in s["spread"].items()}))
+        return
     de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
     fam = de.family("cheese", False)
     cases = {c.name: c for c in fam.cases}
@@ -112,6 +142,7 @@ def main() -> None:
     out = args.out or args.work / "sensitivity.json"
     with atomic_path(out) as tmp:
         tmp.write_text(json.dumps({"rows": results, "spread": spread}, indent=1))
+    print("\n" + table(results, spread))
 
 
 if __name__ == "__main__":
