@@ -32,6 +32,7 @@ from licrom import Model, ReducedSim
 from licrom._io import atomic_path
 from licrom.analysis.sensitivity import sensitivity
 from licrom.data.dataset import IMPACT_WINDOW
+from licrom.reduced.error_estimate import ERROR_THRESHOLD
 
 DEFAULT_CASES = ("cheese_train_30_0.8_az300", "cheese_train_30_0.8_az50", "cheese_test_22_0.3_az0",
                  "cheese_test_25_0.3_az120", "cheese_test_35_0.45_az50")
@@ -97,6 +98,27 @@ def table(results: dict, spread: dict) -> str:
     return "\n".join(out)
 
 
+def held_out_names(model: Model, fam: bfe.Family) -> set[str]:
+    """The family's training runs that the model's training held out (``trajectory_NNN``: the NNN-th training run)."""
+    training = [c.name for c in fam.cases if not c.held_out]
+    return {training[int(n.rsplit("_", 1)[1])] for n in model.metadata["data"]["validation"]}
+
+
+def estimate_pool(results: dict, study: Path, held_out: set[str]) -> str:
+    """The online estimate judged over the model's runs here on scenes it never trained on (``held_out`` and the
+    ``--tumbles``) and the default-cubature runs of a defaults study (``defaults_experiments`` JSON): Spearman's rho,
+    the runs above 15 % flagged, false alarms among the flags."""
+    pairs = [(row[MODEL]["nonrigid_error"], row[MODEL]["estimate"]) for name, row in results.items()
+             if MODEL in row and (name in held_out or name.startswith("cheese_tumble_"))]
+    rows = json.loads(study.read_text())["rows"]
+    pairs += [(r["runs"]["default"]["nonrigid_error"], r["runs"]["default"]["estimate"]) for r in rows if "default" in r["runs"]]
+    truth, est = [t for t, _ in pairs], [e for _, e in pairs]
+    flagged, bad = [e > ERROR_THRESHOLD for e in est], [t > 0.15 for t in truth]
+    return (f"The estimate over {len(pairs)} default-cubature runs: Spearman's rho {de.spearman(truth, est):.2f}; runs above 15 %: "
+            f"{sum(bad)}, flagged {sum(f and b for f, b in zip(flagged, bad))}; false alarms {sum(f and not b for f, b in zip(flagged, bad))} "
+            f"of {sum(flagged)} flags (threshold {100 * ERROR_THRESHOLD:g} %).")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, required=True, help="the converged cheese's full runs (defaults_experiments --runs-only)")
@@ -106,10 +128,18 @@ def main() -> None:
                     help="also these held-out scenes, placed as the family's (cheese_tumble_SLOPE_MU_azAZIMUTH)")
     ap.add_argument("--out", type=Path, default=None, help="JSON of every row (default WORK/sensitivity.json)")
     ap.add_argument("--table", type=Path, nargs="+", default=None, metavar="JSON", help="print the markdown table of these outputs, then stop")
+    ap.add_argument("--estimate-pool", type=Path, default=None, metavar="DEFAULTS_JSON",
+                    help="with --table and --model: also judge the estimate over the runs the model never trained on and a defaults "
+                         "study's default-cubature runs")
     args = ap.parse_args()
     if args.table:
         saved = [json.loads(p.read_text()) for p in args.table]
-        print(table({k: v for s in saved for k, v in s["rows"].items()}, {k: v for s in saved for k, v in s["spread"].items()}))
+        results = {k: v for s in saved for k, v in s["rows"].items()}
+        print(table(results, {k: v for s in saved for k, v in s["spread"].items()}))
+        if args.estimate_pool:
+            de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
+            held_out = held_out_names(Model.load(args.model), de.family("cheese", False))
+            print("\n" + estimate_pool(results, args.estimate_pool, held_out))
         return
     de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
     fam = de.family("cheese", False)
