@@ -54,15 +54,22 @@ def test_compare_command_reports_and_writes_pictures(tiny_demo, tmp_path, capsys
     assert "| slope 25.0 deg, mu 0.1 |" in (out / "summary.md").read_text()
 
 
-def test_compare_command_sets_the_error_beside_the_scenes_sensitivity(tiny_demo, capsys):
+def test_compare_command_sets_the_error_beside_the_scenes_sensitivity(tiny_demo, tmp_path, capsys):
+    import json
+
     model = tiny_demo[0] / "model.lcm"
-    assert main(["compare", str(model), "--slope", "25", "--friction", "0.9", "--steps", "30", "--cubature", "40", "--sensitivity", "-q"]) == 0
+    args = ["compare", str(model), "--slope", "25", "--friction", "0.9", "--steps", "30", "--cubature", "40", "--sensitivity", "-q",
+            "--out", str(tmp_path)]
+    assert main(args) == 0
     text = capsys.readouterr().out
     assert "scene sensitivity" in text and "1 mm higher" in text and "E +2 %" in text and "h / 2" in text
     spread = re.search(r"spread ([0-9.]+) % / ([0-9.]+) % \((chaotic at a model's scale|well conditioned)\); the reduced run's non-rigid error is ([0-9.]+|inf)x it", text)
     assert spread is not None
     rows = [float(m) for m in re.findall(r"^  (?:1 mm higher|gravity turned .*|mu \+.*|E \+2 %) +([0-9.]+) %", text, re.M)]
     assert len(rows) == 5 and float(spread[1]) == pytest.approx(max(rows), abs=0.051)
+    saved = json.loads((tmp_path / "summary.json").read_text())["sensitivity"]["slope 25.0 deg, mu 0.9"]
+    assert 100 * saved["nonrigid_spread"] == pytest.approx(float(spread[1]), abs=0.051) and saved["chaotic"] == (spread[3] != "well conditioned")
+    assert "Scene sensitivity" in (tmp_path / "summary.md").read_text()
 
 
 def test_compare_command_refuses_bad_input(tiny_demo, tmp_path, capsys):

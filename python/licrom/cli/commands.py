@@ -435,7 +435,8 @@ def train_command(data, output, modes, rank_tolerance, max_rank, dynamics_max_ra
 @click.option("--solver", type=click.Choice(["newton", "prefactored"]), default="newton", show_default=True)
 @click.option("--device", default="auto", show_default=True, help="Full simulation device: auto (CUDA when visible), cpu, cuda or cuda:N.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Write report.html, summary.md/json, filmstrips, animations, the error plot and the runs (runs/*.npz, for licrom export) here.")
+              help="Write report.html, summary.md/json (with --sensitivity, each scene's spread under \"sensitivity\"), filmstrips, "
+                   "animations, the error plot and the runs (runs/*.npz, for licrom export) here.")
 @click.option("--sensitivity", is_flag=True,
               help="Also run each scene in full space with one input moved a little (licrom.analysis.sensitivity, 6 more full "
                    "runs a scene) and set the reduced error beside how far the scene's own run moves.")
@@ -453,6 +454,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
     """
     from .._io import make_dir
     from ..analysis.compare import run_comparison
+    from ..analysis.sensitivity import sensitivity as scene_sensitivity
     from ..data.scene_file import ObjectSpec, load_scene
     from ..learn.model import Model
     from ..scene.placement import initial_state_between_planes
@@ -485,7 +487,7 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
             cases.append((f"slope {plane.slope_deg:.1f} deg, mu {plane.friction:g}", base.replace(planes=(plane,), initial=initial)))
     if out is not None:
         make_dir(out)  # a folder that cannot be made fails before the simulations
-    compared = []
+    compared, spreads = [], {}
     bar = None
     if not quiet:
         from tqdm import tqdm
@@ -500,7 +502,9 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
                                                 cubature=cubature_choice, progress=not quiet)
             echo(f"\n{label}  ({mesh.n_tets} tets, r = {model.n_learned} learned modes, {model.frame} frame)\n{cmp.table()}")
             if sensitivity:
-                echo(_sensitivity_lines(mesh, scene, steps, full, cmp, device))
+                spread = scene_sensitivity(mesh, scene, steps, reference=full, device=device)
+                echo(_sensitivity_lines(spread, cmp))
+                spreads[label] = {**spread.summary(), "reduced_over_spread": _over_spread(spread, cmp)}
             compared.append(Case(label, case_tag(label, scene, [c.tag for c in compared]), cmp, full, reduced))
             if bar is not None:
                 bar.update(1)
@@ -515,26 +519,33 @@ def compare_command(model_path, scene_source, slope, friction, mesh_source, step
             click.echo(f"pictures: {why_not}; drawing them with matplotlib")
         description = (f"{Path(model_path).name} on {mesh.n_tets} tets: r = {model.n_learned} learned modes, {model.frame} frame, "
                        f"cubature {cubature}")
-        write_report(compared, out, "licrom compare", description, renderer)
+        footer = "; ".join(f"{label}: its own full run moves {100 * v['nonrigid_spread']:.1f} % non-rigid when an input moves a little "
+                           f"({'chaotic' if v['chaotic'] else 'well conditioned'}), the reduced run's error is {v['reduced_over_spread']:.1f}x that"
+                           for label, v in spreads.items())
+        write_report(compared, out, "licrom compare", description, renderer, extra={"sensitivity": spreads} if spreads else None,
+                     footer=f"Scene sensitivity (licrom.analysis.sensitivity): {footer}." if spreads else "")
         click.echo(f"\nwrote {out}/report.html, summary.md, summary.json, errors.png, filmstrips, animations and the runs (runs/*.npz)")
 
 
-def _sensitivity_lines(mesh, scene, steps, full, cmp, device) -> str:
-    """How far ``scene``'s own full run moves when an input moves (:func:`licrom.analysis.sensitivity.sensitivity`),
-    beside the reduced run's errors."""
-    from ..analysis.sensitivity import HALF_STEP, sensitivity
+def _sensitivity_lines(s, cmp) -> str:
+    """How far a scene's own full run moves when an input moves (:class:`licrom.analysis.sensitivity.Sensitivity`),
+    beside the reduced run's errors (``cmp``)."""
+    from ..analysis.sensitivity import HALF_STEP
 
-    s = sensitivity(mesh, scene, steps, reference=full, device=device)
     lines = ["scene sensitivity (its own full run, one input moved; non-rigid / centre of mass over the size):"]
     lines += [f"  {label:28s} {100 * r['nonrigid_error']:6.1f} % / {100 * r['com_error']:5.1f} %" for label, r in s.rows.items()]
-    ratio = cmp.nonrigid_error / s.nonrigid_spread if s.nonrigid_spread > 0 else math.inf
     kind = "chaotic at a model's scale" if s.chaotic else "well conditioned"
     lines.append(f"  spread {100 * s.nonrigid_spread:.1f} % / {100 * s.com_spread:.1f} % ({kind}); the reduced run's non-rigid "
-                 f"error is {ratio:.1f}x it")
+                 f"error is {_over_spread(s, cmp):.1f}x it")
     if HALF_STEP in s.rows:
         lines.append(f"  the truth at half the step moves {100 * s.rows[HALF_STEP]['nonrigid_error']:.1f} %: "
                      "the full run's own error in time")
     return "\n".join(lines)
+
+
+def _over_spread(s, cmp) -> float:
+    """The reduced run's non-rigid error over the scene's non-rigid spread (infinite for a spread of 0)."""
+    return cmp.nonrigid_error / s.nonrigid_spread if s.nonrigid_spread > 0 else math.inf
 
 
 @cli.command("export")
