@@ -46,7 +46,7 @@ def test_scenes_without_planes_or_gravity():
         perturbed_scenes(Scene(gravity=(0.0, 0.0, 0.0)))
 
 
-@pytest.mark.parametrize("field, value", [("drop", 0.0), ("tilt_deg", 20.0), ("friction", -0.1), ("stiffness", 0.6), ("drop", float("nan")), ("tilt_deg", True)])
+@pytest.mark.parametrize("field, value", [("drop", 0.0), ("tilt_deg", 20.0), ("friction", -0.1), ("stiffness", 0.6), ("drop", float("nan")), ("drop", float("inf")), ("tilt_deg", True)])
 def test_perturbations_reject_bad_amounts(field, value):
     with pytest.raises(ConfigError, match=field.split("_")[0]):
         Perturbations(**{field: value})

@@ -72,7 +72,7 @@ class Perturbations:
     def __post_init__(self) -> None:
         for name, value, low, high in (("drop (m)", self.drop, 0.0, math.inf), ("tilt_deg", self.tilt_deg, 0.0, 10.0),
                                        ("friction", self.friction, 0.0, math.inf), ("stiffness", self.stiffness, 0.0, 0.5)):
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not (low < value <= high):
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not (low < value <= high and math.isfinite(value)):
                 raise ConfigError(f"Perturbations.{name} must be a number in ({low:g}, {high:g}], got {value!r}")
 
 
@@ -86,10 +86,10 @@ def _horizontal_axes(gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _turned(vector: np.ndarray, axis: np.ndarray, angle: float) -> tuple[float, float, float]:
-    """``vector`` rotated by ``angle`` rad about the unit ``axis`` (Rodrigues)."""
-    c, s = math.cos(angle), math.sin(angle)
-    out = vector * c + np.cross(axis, vector) * s + axis * (axis @ vector) * (1.0 - c)
-    return tuple(float(v) for v in out)
+    """``vector`` rotated by ``angle`` rad about the unit ``axis``."""
+    from scipy.spatial.transform import Rotation
+
+    return tuple(float(v) for v in Rotation.from_rotvec(angle * axis).apply(vector))
 
 
 def perturbed_scenes(scene: Scene, perturbations: Perturbations = Perturbations()) -> dict[str, Scene]:
@@ -190,10 +190,9 @@ def sensitivity(mesh: Mesh, scene: Scene, steps: int, record_every: int = 1, per
     """
     from ..full import FullSim
 
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ConfigError(f"sensitivity steps must be an integer >= 1, got {steps!r}")
-    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
-        raise ConfigError(f"sensitivity record_every must be an integer >= 1, got {record_every!r}")
+    for name, value in (("steps", steps), ("record_every", record_every)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ConfigError(f"sensitivity {name} must be an integer >= 1, got {value!r}")
     scenes = perturbed_scenes(scene, perturbations)
     if reference is None:
         reference = FullSim(mesh, scene, device=device).run(steps, record_every=record_every)
