@@ -22,17 +22,19 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import body_frame_experiments as bfe
 import defaults_experiments as de
-from licrom import Model, ReducedSim
+from licrom import Model
 from licrom._io import atomic_path
 from licrom.analysis.sensitivity import sensitivity
 from licrom.data.dataset import IMPACT_WINDOW
 from licrom.reduced.error_estimate import ERROR_THRESHOLD
+from licrom.subspace.basis import RUN_BALANCE
+
+MODEL = "model (fitted cubature)"
 
 DEFAULT_CASES = ("cheese_train_30_0.8_az300", "cheese_train_30_0.8_az50", "cheese_test_22_0.3_az0",
                  "cheese_test_25_0.3_az120", "cheese_test_35_0.45_az50")
@@ -65,23 +67,35 @@ def cheese_rows(fam: bfe.Family, case: bfe.Case, work: Path, full) -> dict:
 
 
 def reduced_rows(model: Model, case: bfe.Case, full, steps: int, every: int) -> dict:
-    rows = {}
-    for label, options in (("model (fitted cubature)", {}), ("model, every tet", {"cubature": "full"})):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            sim = ReducedSim(model, scene=case.scene, **options)
-            run = sim.run(steps, record_every=every)
-        rows[label] = {**bfe.run_metrics(full, run), "estimate": float(run.error_estimate[-1])}
-    return rows
+    """The model's run with its fitted cubature and with every tet (``defaults_experiments.reduced_run``)."""
+    return {MODEL: de.reduced_run(model, case, full, steps, every),
+            "model, every tet": de.reduced_run(model, case, full, steps, every, cubature="full")}
 
 
-MODEL = "model (fitted cubature)"
+def projection_bounds(model: Model, work: Path, names: list[str], tumbles: dict[str, bfe.Case]) -> dict[str, tuple[float, float]]:
+    """Name -> (learned projection, POD(r) of the training frames) of each run's full run: its non-rigid error with
+    each frame projected onto the model's body-frame modes, and onto as many POD modes (as ``defaults_experiments``)."""
+    fam = de.family("cheese", False)
+    cases = {c.name: c for c in fam.cases} | tumbles
+    setting = bfe.Setting(fam, de.training_runs(work, fam), work / "models", 1)
+    vertices = fam.mesh.vertices
+    learned = setting.body_basis(model).values(vertices)
+    pod = setting.body_basis(setting.body_pod(model.n_learned, RUN_BALANCE)).values(vertices)
+    out = {}
+    for name in names:
+        case = cases[name]
+        full = bfe.full_run(work, name, fam.mesh, case.scene, fam.steps, fam.record_every,
+                            impact_window=0.0 if case.held_out else IMPACT_WINDOW)
+        out[name] = (bfe.body_projection_error(full, learned), bfe.body_projection_error(full, pod))
+    return out
 
 
-def table(results: dict, spread: dict) -> str:
-    """Markdown: each run's floors and spread (non-rigid / centre of mass), the truth at h / 2, the model's run."""
-    out = ["| run | noise floor (0.1 mm) | 1 mm higher | worst input moved | spread, chaotic? | truth at h / 2 | model | "
-           "model / spread (non-rigid) | estimate |", "|---|---|---|---|---|---|---|---|---|"]
+def table(results: dict, spread: dict, bounds: dict | None = None) -> str:
+    """Markdown: each run's floors and spread (non-rigid / centre of mass), the truth at h / 2, the subspace's bounds
+    (:func:`projection_bounds`, where given), the model's run."""
+    bounds = bounds or {}
+    out = ["| run | noise floor (0.1 mm) | 1 mm higher | worst input moved | spread, chaotic? | truth at h / 2 | "
+           "learned / POD(r) projection | model | model / spread (non-rigid) | estimate |", "|---|---|---|---|---|---|---|---|---|---|"]
 
     def pair(row):
         return f"{100 * row['nonrigid_error']:.1f} / {100 * row['com_error']:.1f} %"
@@ -93,7 +107,9 @@ def table(results: dict, spread: dict) -> str:
         model = rows.get(MODEL)
         out.append(f"| {name} | {pair(rows['0.1 mm higher (noise floor)'])} | {pair(rows['1 mm higher'])} | {worst}: {pair(moved[worst])} | "
                    f"{100 * sp['nonrigid_spread']:.1f} / {100 * sp['com_spread']:.1f} %, {'yes' if sp['chaotic'] else 'no'} | "
-                   f"{pair(rows['h / 2'])} | " + (f"{pair(model)} | {model['nonrigid_error'] / sp['nonrigid_spread']:.2f}x | "
+                   f"{pair(rows['h / 2'])} | "
+                   + (f"{100 * bounds[name][0]:.1f} / {100 * bounds[name][1]:.1f} % | " if name in bounds else "- | ")
+                   + (f"{pair(model)} | {model['nonrigid_error'] / sp['nonrigid_spread']:.2f}x | "
                                                  f"{100 * model['estimate']:.1f} % |" if model else "- | - | - |"))
     return "\n".join(out)
 
@@ -132,13 +148,21 @@ def main() -> None:
                     help="with --table and --model: also judge the estimate over the runs the model never trained on and a defaults "
                          "study's default-cubature runs")
     args = ap.parse_args()
+    if args.estimate_pool and not (args.table and args.model):
+        ap.error("--estimate-pool needs --table and --model")
     if args.table:
         saved = [json.loads(p.read_text()) for p in args.table]
         results = {k: v for s in saved for k, v in s["rows"].items()}
-        print(table(results, {k: v for s in saved for k, v in s["spread"].items()}))
+        de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
+        model = Model.load(args.model) if args.model else None
+        bounds = {}
+        if model is not None:
+            fam = de.family("cheese", False)
+            tumbles = {n: tumble_case(fam, *case_inputs(n)) for n in results if n.startswith("cheese_tumble_")}
+            bounds = projection_bounds(model, args.work, list(results), tumbles)
+        print(table(results, {k: v for s in saved for k, v in s["spread"].items()}, bounds))
         if args.estimate_pool:
-            de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
-            held_out = held_out_names(Model.load(args.model), de.family("cheese", False))
+            held_out = held_out_names(model, de.family("cheese", False))
             print("\n" + estimate_pool(results, args.estimate_pool, held_out))
         return
     de.CONVERGED, bfe.CHEESE_RESOLUTION = True, 10
